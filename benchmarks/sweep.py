@@ -1,0 +1,66 @@
+"""Serial vs local process pool on a 16-run sweep.
+
+Run: ``python benchmarks/sweep.py [--jobs 2]``. The truth is computed into a
+temporary cache first, so neither timing includes it; each timing writes to a
+fresh results folder so no run is skipped. Target: speedup >= 1.7x on 2 cores.
+Both sides run one BLAS/MKL thread per process (the workers always do), so the
+ratio measures the pool, not a thread-count difference.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from idbench.config import CompareConfig  # noqa: E402
+from idbench.harness import Session  # noqa: E402
+from idbench.sweep import compare, plan, prepare  # noqa: E402
+
+CONFIG = CompareConfig(
+    truth_mesh="40x5x5",
+    meshes=("14x3x3",),
+    steps=20,
+    seeds=4,
+    estimators=("ro-ukf", "rls", "lms", "batch-ls"),
+)
+
+
+def timed(out: Path, jobs: int) -> float:
+    start = time.perf_counter()
+    runs, _ = compare(CONFIG, out, jobs=jobs)
+    elapsed = time.perf_counter() - start
+    bad = runs[runs["status"] != "ok"]
+    if len(bad):
+        raise SystemExit(f"{len(bad)} runs failed:\n{bad[['run_id', 'error']]}")
+    return elapsed
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--jobs", type=int, default=2)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory(prefix="idbench-bench-") as tmp:
+        root = Path(tmp)
+        os.environ["IDBENCH_CACHE_DIR"] = str(root / "cache")
+        session = Session()
+        the_plan = plan(CONFIG, session)
+        start = time.perf_counter()
+        prepare(the_plan.runs, session)
+        warm = time.perf_counter() - start
+        print(f"runs: {len(the_plan.runs)}  (truth pre-warm {warm:.2f} s)")
+        serial = timed(root / "serial", 1)
+        parallel = timed(root / "parallel", args.jobs)
+    print(f"serial:   {serial:.2f} s")
+    print(f"jobs={args.jobs}:   {parallel:.2f} s")
+    print(f"speedup:  {serial / parallel:.2f}x")
+
+
+if __name__ == "__main__":
+    main()

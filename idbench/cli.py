@@ -1,0 +1,377 @@
+"""The ``idbench`` command line: a thin layer over the Python API."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Any, NoReturn
+
+from idbench.config import ConfigError
+
+log = logging.getLogger("idbench")
+
+
+class UsageError(Exception):
+    """Bad command-line input; printed as one line, exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        raise UsageError(f"{self.prog}: {message}")
+
+
+def _floats(name: str) -> Any:
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            values = tuple(float(v) for v in text.split(",") if v.strip())
+        except ValueError:
+            raise UsageError(
+                f"--{name} {text!r}: need comma-separated numbers"
+            ) from None
+        if not values:
+            raise UsageError(f"--{name} {text!r}: need at least one number")
+        return values
+
+    return parse
+
+
+def _ints(name: str) -> Any:
+    def parse(text: str) -> tuple[int, ...]:
+        try:
+            values = tuple(int(v) for v in text.split(",") if v.strip())
+        except ValueError:
+            raise UsageError(
+                f"--{name} {text!r}: need comma-separated whole numbers"
+            ) from None
+        if not values:
+            raise UsageError(f"--{name} {text!r}: need at least one whole number")
+        return values
+
+    return parse
+
+
+def _names(text: str) -> tuple[str, ...]:
+    return tuple(v.strip() for v in text.split(",") if v.strip())
+
+
+def _number(name: str, kind: type = float) -> Any:
+    def parse(text: str) -> Any:
+        try:
+            return kind(text)
+        except ValueError:
+            what = "a whole number" if kind is int else "a number"
+            raise UsageError(f"--{name} {text!r}: need {what}") from None
+
+    return parse
+
+
+def _raw_option(argv: list[str], name: str) -> str | None:
+    """The text given for option ``name`` (for error messages)."""
+    for i, arg in enumerate(argv):
+        if arg == name and i + 1 < len(argv):
+            return argv[i + 1]
+        if arg.startswith(name + "="):
+            return arg.split("=", 1)[1]
+    return None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of every subcommand."""
+    from idbench import __version__
+
+    parser = _Parser(prog="idbench", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"idbench {__version__}")
+    sub = parser.add_subparsers(dest="command", parser_class=_Parser)
+
+    p = sub.add_parser("plugins", help="list plugins and what they registered")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+
+    c = sub.add_parser("compare", help="run a grid of identification runs")
+    c.add_argument("--config", type=Path, help="TOML file with any of these options")
+    c.add_argument(
+        "--quick",
+        action="store_true",
+        help="small truth (40x5x5), models 14x3x3,20x4x4, one seed",
+    )
+    c.add_argument("--estimators", type=_names, help="comma list (default: all five)")
+    c.add_argument(
+        "--meshes",
+        type=_names,
+        help="model mesh specs: NXxNYxNZ, node count, or mesh file",
+    )
+    c.add_argument("--truth-mesh", help="truth mesh spec (default 80x11x11)")
+    c.add_argument("--scenarios", type=_names, help="comma list (default bend-y)")
+    c.add_argument(
+        "--obs-every", type=_ints("obs-every"), help="observe every k-th step"
+    )
+    c.add_argument("--obs-points", type=_ints("obs-points"), help="marker counts M")
+    c.add_argument("--noise", type=_floats("noise"), help="noise sigma(s) in metres")
+    c.add_argument("--seeds", type=_number("seeds", int), help="number of seeds")
+    c.add_argument("--steps", type=_number("steps", int), help="load steps K")
+    c.add_argument(
+        "--E-true", dest="E_true", type=_number("E-true"), help="true E (Pa)"
+    )
+    c.add_argument("--nu", type=_number("nu"), help="Poisson ratio")
+    c.add_argument("--prior", type=_floats("prior"), help="prior MEAN,STD (Pa)")
+    c.add_argument("--timeout", type=_number("timeout"), help="seconds per run")
+    c.add_argument(
+        "--out",
+        type=Path,
+        default=Path("idbench-out"),
+        help="results directory (default ./idbench-out)",
+    )
+    c.add_argument(
+        "--jobs", type=_number("jobs", int), default=1, help="local worker processes"
+    )
+    c.add_argument("--scheduler", help="Dask scheduler address tcp://HOST:PORT")
+    c.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="validate, print the run count and a cost estimate",
+    )
+    c.add_argument(
+        "--plot", action="store_true", help="write figures and report.md into --out"
+    )
+    c.add_argument("-v", "--verbose", action="count", default=0)
+    c.add_argument("-q", "--quiet", action="store_true")
+
+    r = sub.add_parser("report", help="figures and report.md for a compare output")
+    r.add_argument("directory", type=Path, help="the --out DIR of idbench compare")
+
+    s = sub.add_parser("simulate", help="simulate a load path and write ParaView files")
+    s.add_argument("--mesh", required=True, help="mesh spec")
+    s.add_argument("--scenario", required=True, help="scenario name")
+    s.add_argument(
+        "--E", type=_number("E"), default=5000.0, help="Young's modulus (Pa)"
+    )
+    s.add_argument("--nu", type=_number("nu"), default=0.45, help="Poisson ratio")
+    s.add_argument("--steps", type=_number("steps", int), default=20, help="load steps")
+    s.add_argument("--model", default="svk-beam", help="registered model name")
+    s.add_argument("--out", type=Path, required=True, help="output .xdmf file")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``idbench`` console script."""
+    try:
+        args = build_parser().parse_args(argv)
+        args.prior_text = _raw_option(sys.argv[1:] if argv is None else argv, "--prior")
+        if args.command is None:
+            build_parser().print_help()
+            return 2
+        level = logging.WARNING
+        if getattr(args, "verbose", 0):
+            level = logging.INFO if args.verbose == 1 else logging.DEBUG
+        logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+        handler = {
+            "report": cmd_report,
+            "plugins": cmd_plugins,
+            "compare": cmd_compare,
+            "simulate": cmd_simulate,
+        }[args.command]
+        return handler(args)
+    except (UsageError, ConfigError) as exc:
+        print(f"idbench: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("idbench: interrupted; finished runs are kept", file=sys.stderr)
+        return 130
+
+
+def cmd_plugins(args: argparse.Namespace) -> int:
+    """``idbench plugins``: each plugin, its version, what it registered."""
+    from idbench.plugins import build_registry, get_plugin_manager, plugin_version
+
+    pm = get_plugin_manager()
+    reg = build_registry(pm)
+    rows: list[dict[str, Any]] = []
+    names = [pm.get_name(p) for p in pm.get_plugins()]
+    for name in sorted(n for n in names if n) + sorted(set(reg.errors) - set(names)):
+        rows.append(
+            {
+                "name": name,
+                "version": plugin_version(pm, name) if name in names else "",
+                "models": sorted(k for k, e in reg.models.items() if e.plugin == name),
+                "estimators": sorted(
+                    k for k, e in reg.estimators.items() if e.plugin == name
+                ),
+                "scenarios": sorted(
+                    k for k, e in reg.scenarios.items() if e.plugin == name
+                ),
+                "error": reg.errors.get(name, ""),
+            }
+        )
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title="idbench plugins")
+    for col in ("plugin", "version", "models", "estimators", "scenarios", "error"):
+        table.add_column(col)
+    for r in rows:
+        table.add_row(
+            r["name"],
+            r["version"],
+            ", ".join(r["models"]),
+            ", ".join(r["estimators"]),
+            ", ".join(r["scenarios"]),
+            r["error"],
+        )
+    Console().print(table)
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    """``idbench compare``: run a comparison, write the tables, print a summary."""
+    from idbench.config import build_config, load_toml
+    from idbench.harness import Session
+    from idbench.plugins import build_registry
+    from idbench.report import summary_table
+    from idbench.sweep import compare, plan
+
+    toml = load_toml(args.config) if args.config else None
+    prior = args.prior
+    if prior is not None and len(prior) != 2:
+        raise UsageError(f"--prior {args.prior_text!r}: need MEAN,STD")
+    config = build_config(
+        quick=args.quick,
+        toml=toml,
+        estimators=args.estimators,
+        meshes=args.meshes,
+        truth_mesh=args.truth_mesh,
+        scenarios=args.scenarios,
+        obs_every=args.obs_every,
+        obs_points=args.obs_points,
+        noise=args.noise,
+        seeds=args.seeds,
+        steps=args.steps,
+        E_true=args.E_true,
+        nu=args.nu,
+        prior=prior,
+        timeout=args.timeout,
+    )
+    registry = build_registry()
+    if args.dry_run:
+        the_plan = plan(config, Session(registry))
+        nodes = ", ".join(f"{m}: {n} nodes" for m, n in the_plan.nodes.items())
+        print(
+            f"{len(the_plan.runs)} runs; meshes {nodes}; "
+            f"about {the_plan.solves} forward solves"
+        )
+        return 0
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    console = Console(stderr=True)
+    show = console.is_terminal and not args.quiet
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total}"),
+        TimeRemainingColumn(),
+        console=console,
+        disable=not show,
+    ) as bar:
+        task = bar.add_task("runs", total=None)
+
+        def progress(done: int, total: int, row: dict[str, Any]) -> None:
+            bar.update(
+                task,
+                completed=done,
+                total=total,
+                description=f"{row['estimator']} {row['mesh']} {row['status']}",
+            )
+            if not show and not args.quiet:
+                log.info(
+                    "run %d/%d %s %s: %s",
+                    done,
+                    total,
+                    row["estimator"],
+                    row["mesh"],
+                    row["status"],
+                )
+
+        runs, _ = compare(
+            config,
+            args.out,
+            jobs=args.jobs,
+            scheduler=args.scheduler,
+            registry=registry,
+            progress=progress,
+        )
+    if not args.quiet:
+        Console().print(summary_table(runs))
+        print(f"wrote {args.out / 'runs.parquet'} and {args.out / 'traces.parquet'}")
+    if args.plot:
+        from idbench.report import write_report
+
+        for path in write_report(args.out):
+            if not args.quiet:
+                print(f"wrote {path}")
+    return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    """``idbench report DIR``: figures (PNG, SVG) and report.md."""
+    from idbench.report import write_report
+
+    try:
+        written = write_report(args.directory)
+    except FileNotFoundError as exc:
+        raise UsageError(str(exc)) from None
+    for path in written:
+        print(f"wrote {path}")
+    return 0
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    """``idbench simulate``: one load path, written as an XDMF time series."""
+    import meshio
+    import numpy as np
+
+    from idbench.interfaces import ModelSpec
+    from idbench.plugins import build_registry
+    from idbench.truth import simulate_path
+
+    if args.steps < 1:
+        raise UsageError(f"--steps {args.steps}: must be >= 1")
+    if not 0 < args.E:
+        raise UsageError(f"--E {args.E}: must be > 0")
+    if not -1 < args.nu < 0.5:
+        raise UsageError(f"--nu {args.nu}: must be in (-1, 0.5)")
+    reg = build_registry()
+    try:
+        scenario = reg.scenario(args.scenario)
+        factory = reg.model(args.model)
+    except KeyError as exc:
+        raise UsageError(str(exc.args[0])) from None
+    spec = ModelSpec(mesh=args.mesh, scenario=scenario, n_steps=args.steps, nu=args.nu)
+    try:
+        model = factory(spec)
+    except (ValueError, OSError) as exc:
+        raise UsageError(f"--mesh {args.mesh!r}: {exc}") from None
+    theta = np.full(model.parameters.p, args.E)
+    states = simulate_path(model, theta)
+    points, tets = model.mesh()
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    with meshio.xdmf.TimeSeriesWriter(args.out, data_format="XML") as writer:
+        writer.write_points_cells(points, [("tetra", tets)])
+        for k, state in enumerate(states, start=1):
+            u = model.displacement_field(state)
+            writer.write_data(k / args.steps, point_data={"displacement": u})
+            tip = model.tip(state)
+            print(
+                f"step {k:3d}  load {k / args.steps:5.2f}  tip displacement "
+                f"{tip[0]: .5f} {tip[1]: .5f} {tip[2]: .5f} m"
+            )
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,70 @@
+"""Run a sweep on a Dask cluster (``pip install 'idbench[dask]'``).
+
+Each run is shipped as its small, picklable :class:`~idbench.harness.RunSpec`;
+a worker builds (once per process) its own registry and models, loads the truth
+from the shared cache (computed once by the client before dispatch, see
+:func:`idbench.sweep.prepare`) and sends back the run's rows. Results stream
+back in completion order and are written by the client as they arrive, exactly
+as in the serial path. A run whose worker dies is retried once by Dask, then
+recorded as failed.
+
+Workers should run one BLAS thread each (``OMP_NUM_THREADS=1``,
+``MKL_NUM_THREADS=1``) and see the same ``IDBENCH_CACHE_DIR`` (a shared file
+system) or compute the truth themselves.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+from typing import Any
+
+from idbench.config import ConfigError
+from idbench.harness import RunSpec
+
+log = logging.getLogger(__name__)
+
+RunResult = tuple[dict[str, Any], list[dict[str, Any]]]
+
+
+def _client(address: str) -> Any:
+    try:
+        from distributed import Client
+    except ImportError:
+        raise ConfigError(
+            f"--scheduler {address!r} needs Dask distributed: "
+            "pip install 'idbench[dask]'"
+        ) from None
+    try:
+        return Client(address, timeout="10s")
+    except (OSError, TimeoutError) as exc:
+        raise ConfigError(f"--scheduler {address!r}: cannot connect ({exc})") from None
+
+
+def execute_on_dask(runs: list[RunSpec], address: str) -> Iterator[RunResult]:
+    """Execute ``runs`` on the Dask scheduler at ``address``; yield as they finish."""
+    from distributed import as_completed
+
+    from idbench.sweep import run_in_worker, worker_lost
+
+    client = _client(address)
+    try:
+        futures = {
+            client.submit(
+                run_in_worker, spec, key=f"idbench-run-{spec.run_id}", retries=1
+            ): spec
+            for spec in runs
+        }
+        for fut in as_completed(futures):
+            spec = futures[fut]
+            try:
+                yield fut.result()
+            except Exception as exc:  # KilledWorker after retries, lost connection
+                log.warning("run %s lost on the cluster: %s", spec.run_id, exc)
+                row, traces = worker_lost(spec)
+                row["error"] = f"lost on the cluster: {type(exc).__name__}: {exc}"
+                yield row, traces
+            finally:
+                fut.release()
+    finally:
+        client.close()

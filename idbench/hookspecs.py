@@ -1,0 +1,44 @@
+"""Hook specifications: what a plugin may contribute.
+
+Every hook receives a ``register`` callback owned by the core. The core checks
+each registration, rejects duplicate names (naming both plugins) and keeps the
+registry, so plugins never see each other.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import pluggy
+
+hookspec = pluggy.HookspecMarker("idbench")
+
+
+@hookspec
+def register_models(register: Callable[[str, Callable[..., Any]], None]) -> None:
+    """Register forward-model factories.
+
+    Call ``register(name, factory)`` once per model, where ``factory(spec)``
+    takes an :class:`idbench.ModelSpec` and returns an object implementing
+    :class:`idbench.ForwardModel` (and optionally ``sensitivity``).
+    """
+
+
+@hookspec
+def register_estimators(register: Callable[[str, type], None]) -> None:
+    """Register estimator classes.
+
+    Call ``register(name, cls)`` once per estimator, where ``cls`` is a
+    dataclass whose fields are the estimator's settings (all with defaults) and
+    whose instances implement :class:`idbench.Estimator`.
+    """
+
+
+@hookspec
+def register_scenarios(register: Callable[[Any], None]) -> None:
+    """Register load paths.
+
+    Call ``register(scenario)`` once per :class:`idbench.Scenario`; its
+    ``name`` is the registry key.
+    """

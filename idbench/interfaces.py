@@ -1,0 +1,305 @@
+"""Protocols and value types shared by the core, the models and the estimators.
+
+The core knows nothing of finite elements or filters. A *forward model* advances
+a load path one quasi-static step at a time, for given parameters, from a given
+state; an *estimator* consumes one observation (or none) per load step and
+reports its current estimate. Both are structural (:class:`typing.Protocol`):
+anything with the right methods works.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from idbench.scenario import Scenario
+
+FloatArray = NDArray[np.float64]
+
+
+class ModelFailure(RuntimeError):
+    """A forward solve did not converge (or produced an inverted element).
+
+    Parameters
+    ----------
+    message
+        What went wrong.
+    step
+        The load-step index ``k`` (1..K) at which it happened.
+    """
+
+    def __init__(self, message: str, step: int | None = None) -> None:
+        super().__init__(message if step is None else f"step {step}: {message}")
+        self.step = step
+
+
+class Diverged(RuntimeError):
+    """An estimator's state became non-finite or left the parameter bounds."""
+
+    def __init__(self, message: str, step: int | None = None) -> None:
+        super().__init__(message if step is None else f"step {step}: {message}")
+        self.step = step
+
+
+class Skipped(RuntimeError):
+    """An estimator refuses a run up front (e.g. it would exceed a cost budget)."""
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    """The unknown parameters of a model.
+
+    Attributes
+    ----------
+    names
+        One name per parameter, e.g. ``("E",)`` or ``("E_region0", "E_region1")``.
+    lower, upper
+        Bounds per parameter; an estimate outside them is a divergence.
+    """
+
+    names: tuple[str, ...]
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        if not self.names:
+            raise ValueError("a model needs at least one parameter")
+        if not len(self.names) == len(self.lower) == len(self.upper):
+            raise ValueError("names, lower and upper must have the same length")
+        for n, lo, hi in zip(self.names, self.lower, self.upper, strict=True):
+            if not lo < hi:
+                raise ValueError(f"parameter {n!r}: lower {lo} must be < upper {hi}")
+
+    @property
+    def p(self) -> int:
+        """Number of parameters."""
+        return len(self.names)
+
+    def contains(self, theta: FloatArray) -> bool:
+        """Whether ``theta`` (p,) is finite and inside the bounds."""
+        theta = np.asarray(theta, dtype=float)
+        return bool(
+            np.all(np.isfinite(theta))
+            and np.all(theta > np.asarray(self.lower))
+            and np.all(theta < np.asarray(self.upper))
+        )
+
+
+@dataclass(frozen=True)
+class Cost:
+    """Work done by a model, cumulative since it was built.
+
+    Attributes
+    ----------
+    forward_solves
+        Calls to :meth:`ForwardModel.step` (one load step each).
+    newton_its
+        Newton iterations summed over those calls.
+    linear_solves
+        Back-substitutions, including those for sensitivities.
+    """
+
+    forward_solves: int = 0
+    newton_its: int = 0
+    linear_solves: int = 0
+
+    def __sub__(self, other: Cost) -> Cost:
+        return Cost(
+            self.forward_solves - other.forward_solves,
+            self.newton_its - other.newton_its,
+            self.linear_solves - other.linear_solves,
+        )
+
+    def __add__(self, other: Cost) -> Cost:
+        return Cost(
+            self.forward_solves + other.forward_solves,
+            self.newton_its + other.newton_its,
+            self.linear_solves + other.linear_solves,
+        )
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Gaussian prior on the parameters, in their natural (not log) units.
+
+    Attributes
+    ----------
+    mean, std
+        Per parameter, shape (p,).
+    """
+
+    mean: tuple[float, ...]
+    std: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        if len(self.mean) != len(self.std):
+            raise ValueError("prior mean and std must have the same length")
+        if any(not np.isfinite(s) or s <= 0 for s in self.std):
+            raise ValueError(f"prior std must be positive and finite, got {self.std}")
+        if any(not np.isfinite(m) for m in self.mean):
+            raise ValueError(f"prior mean must be finite, got {self.mean}")
+
+    @classmethod
+    def broadcast(cls, mean: float, std: float, p: int) -> Prior:
+        """The same prior for each of ``p`` parameters."""
+        return cls((float(mean),) * p, (float(std),) * p)
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What an estimator sees at one load step.
+
+    Attributes
+    ----------
+    values
+        Marker displacements, shape (m,), flattened ``[p0x, p0y, p0z, p1x, ...]``.
+    noise_std
+        Standard deviation of the additive Gaussian noise on each value.
+    step
+        Load-step index ``k`` (1..K).
+    """
+
+    values: FloatArray
+    noise_std: float
+    step: int
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """An estimator's answer after a load step.
+
+    Attributes
+    ----------
+    mean
+        Parameter estimate, shape (p,), natural units.
+    std
+        Its standard deviation, shape (p,); NaN where the estimator has none.
+    cost
+        Model work done by the estimator since :meth:`Estimator.start`.
+    state
+        The estimator's own model state at this step (free displacements), or
+        None if it keeps none; used for the shape error.
+    """
+
+    mean: FloatArray
+    std: FloatArray
+    cost: Cost
+    state: FloatArray | None = None
+
+
+@runtime_checkable
+class ForwardModel(Protocol):
+    """A quasi-static load path on a discretised body, parameterised by theta.
+
+    The model is stateless between calls: every state is passed in and returned
+    (a flat float array of the free displacements), so several sigma points can
+    advance from the same step.
+    """
+
+    parameters: ParameterSpec
+    n_steps: int
+
+    def reset(self) -> FloatArray:
+        """Return the unloaded state, shape (n,)."""
+        ...
+
+    def step(
+        self, theta: FloatArray, k: int, state: FloatArray, *, substeps: int = 1
+    ) -> FloatArray:
+        """Solve load step ``k`` (1..K) with parameters ``theta`` from ``state``.
+
+        Raises :class:`ModelFailure` when the solve does not converge.
+        """
+        ...
+
+    def observe(self, state: FloatArray) -> FloatArray:
+        """Marker displacements at ``state``, shape (m,)."""
+        ...
+
+    def grid(self, state: FloatArray) -> FloatArray:
+        """Displacements of the shape-error grid points, shape (g, 3)."""
+        ...
+
+    def cost(self) -> Cost:
+        """Cumulative work done since the model was built."""
+        ...
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-serialisable description of everything the results depend on."""
+        ...
+
+
+@runtime_checkable
+class SensitiveModel(ForwardModel, Protocol):
+    """A forward model that also gives d(observations)/d(theta)."""
+
+    def sensitivity(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
+        """Jacobian of :meth:`observe` w.r.t. theta at the converged ``state``.
+
+        Returns shape (m, p).
+        """
+        ...
+
+
+@runtime_checkable
+class Estimator(Protocol):
+    """Identifies a model's parameters from a stream of observations.
+
+    Implementations are dataclasses whose fields are their settings; ``start``
+    resets all run state, so one instance can serve several runs in sequence.
+    """
+
+    def start(self, model: ForwardModel, prior: Prior) -> None:
+        """Begin a run on ``model`` from ``prior``.
+
+        May raise :class:`Skipped` to refuse the run with a reason.
+        """
+        ...
+
+    def update(self, k: int, observation: Observation | None) -> Estimate:
+        """Advance to load step ``k`` (1..K), assimilating ``observation`` if any."""
+        ...
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """Everything a model factory needs to build a forward model.
+
+    Attributes
+    ----------
+    mesh
+        Mesh spec: ``"NXxNYxNZ"`` divisions, a bare node-count target, or a path.
+    scenario
+        The load path.
+    n_steps
+        Number of load steps K.
+    nu
+        Poisson ratio (fixed, unless a parameter).
+    markers
+        Number of marker points M; the model places them on its geometry
+        (for the beam: the two top end-face corners first).
+    grid
+        Points per axis (nx, ny, nz) of the regular shape-error grid inside the
+        body; the default (20, 4, 4) is the study's 4 x 4 x 20 grid, 20 along
+        the beam axis x.
+    parameters
+        What theta is: ``"E"`` (one modulus) or ``"E_regions"``.
+    options
+        Model-specific settings (e.g. ``{"regions": 2}``), JSON-serialisable.
+    """
+
+    mesh: str
+    scenario: Scenario
+    n_steps: int = 20
+    nu: float = 0.45
+    markers: int = 2
+    grid: tuple[int, int, int] = (20, 4, 4)
+    parameters: str = "E"
+    options: tuple[tuple[str, Any], ...] = field(default_factory=tuple)
+
+    def option(self, name: str, default: Any = None) -> Any:
+        """Look up a model-specific option."""
+        return dict(self.options).get(name, default)

@@ -1,0 +1,217 @@
+"""The plugin manager and the registry it fills.
+
+Built-in plugins ship in the ``idbench`` distribution and are declared in its
+``[project.entry-points.idbench]`` table, exactly like third-party plugins.
+:func:`get_plugin_manager` registers those first (by entry-point name), then
+loads third-party entry points unless ``IDBENCH_DISABLE_PLUGIN_AUTOLOAD`` is set.
+Nothing is loaded at import time.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.metadata
+import logging
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import pluggy
+
+from idbench import hookspecs
+from idbench.scenario import Scenario
+
+log = logging.getLogger(__name__)
+
+GROUP = "idbench"
+DISTRIBUTION = "idbench"
+AUTOLOAD_ENV = "IDBENCH_DISABLE_PLUGIN_AUTOLOAD"
+
+hookimpl = pluggy.HookimplMarker(GROUP)
+
+
+class PluginError(RuntimeError):
+    """A plugin registered something invalid or a name another plugin owns."""
+
+
+def _is_builtin(ep: importlib.metadata.EntryPoint) -> bool:
+    dist = getattr(ep, "dist", None)
+    return dist is not None and dist.metadata["Name"] == DISTRIBUTION
+
+
+def get_plugin_manager(*, autoload: bool | None = None) -> pluggy.PluginManager:
+    """Build a fresh plugin manager.
+
+    Parameters
+    ----------
+    autoload
+        Load third-party entry points. Default: yes, unless the environment
+        variable ``IDBENCH_DISABLE_PLUGIN_AUTOLOAD`` is set to a non-empty value
+        other than ``0``. Built-in plugins are always registered.
+
+    Returns
+    -------
+    pluggy.PluginManager
+        With the hook specs added and every plugin registered.
+    """
+    pm = pluggy.PluginManager(GROUP)
+    pm.add_hookspecs(hookspecs)
+    if autoload is None:
+        autoload = os.environ.get(AUTOLOAD_ENV, "") in ("", "0")
+    eps = importlib.metadata.entry_points(group=GROUP)
+    for ep in eps:
+        if _is_builtin(ep) and pm.get_plugin(ep.name) is None:
+            pm.register(ep.load(), name=ep.name)
+            _versions(pm)[ep.name] = ep.dist.version if ep.dist else ""
+    if autoload:
+        for ep in eps:
+            if pm.get_plugin(ep.name) is not None or pm.is_blocked(ep.name):
+                continue
+            try:
+                pm.register(ep.load(), name=ep.name)
+                pm.check_pending()
+            except Exception as exc:  # a broken plugin must not take down the rest
+                log.warning("plugin %r failed to load: %s", ep.name, exc)
+                pm.set_blocked(ep.name)  # unregisters it if it got registered
+                _load_errors(pm)[ep.name] = f"failed to load: {exc!r}"
+                continue
+            _versions(pm)[ep.name] = ep.dist.version if ep.dist else ""
+    pm.check_pending()
+    return pm
+
+
+def _load_errors(pm: pluggy.PluginManager) -> dict[str, str]:
+    errors: dict[str, str] = pm.__dict__.setdefault("_idbench_load_errors", {})
+    return errors
+
+
+def _versions(pm: pluggy.PluginManager) -> dict[str, str]:
+    versions: dict[str, str] = pm.__dict__.setdefault("_idbench_versions", {})
+    return versions
+
+
+@dataclass
+class Entry:
+    """One registered thing and the plugin it came from."""
+
+    name: str
+    obj: Any
+    plugin: str
+
+
+@dataclass
+class Registry:
+    """Models, estimators and scenarios contributed by the plugins.
+
+    Attributes
+    ----------
+    models, estimators, scenarios
+        Name -> :class:`Entry`.
+    errors
+        Plugin name -> message, for plugins that failed to load or register.
+    """
+
+    models: dict[str, Entry] = field(default_factory=dict)
+    estimators: dict[str, Entry] = field(default_factory=dict)
+    scenarios: dict[str, Entry] = field(default_factory=dict)
+    errors: dict[str, str] = field(default_factory=dict)
+
+    def model(self, name: str) -> Callable[..., Any]:
+        """The model factory registered as ``name``."""
+        return _lookup(self.models, name, "model").obj  # type: ignore[no-any-return]
+
+    def estimator(self, name: str) -> type:
+        """The estimator class registered as ``name``."""
+        return _lookup(self.estimators, name, "estimator").obj  # type: ignore[no-any-return]
+
+    def scenario(self, name: str) -> Scenario:
+        """The scenario registered as ``name``."""
+        return _lookup(self.scenarios, name, "scenario").obj  # type: ignore[no-any-return]
+
+
+def _lookup(table: dict[str, Entry], name: str, kind: str) -> Entry:
+    try:
+        return table[name]
+    except KeyError:
+        allowed = ", ".join(sorted(table)) or "none registered"
+        raise KeyError(f"unknown {kind} {name!r}; allowed: {allowed}") from None
+
+
+def _add(table: dict[str, Entry], kind: str, name: Any, obj: Any, plugin: str) -> None:
+    if not isinstance(name, str) or not name:
+        raise PluginError(
+            f"plugin {plugin!r} registered a {kind} with bad name {name!r}"
+        )
+    if name in table:
+        raise PluginError(
+            f"{kind} {name!r} is registered by both plugin {table[name].plugin!r} "
+            f"and plugin {plugin!r}; uninstall or disable one of them"
+        )
+    table[name] = Entry(name, obj, plugin)
+
+
+def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
+    """Call every plugin's ``register_*`` hooks and collect the results.
+
+    A plugin whose hook raises is recorded in :attr:`Registry.errors` and the
+    others go on; a duplicate name raises :class:`PluginError`.
+    """
+    pm = pm or get_plugin_manager()
+    reg = Registry(errors=dict(_load_errors(pm)))
+
+    def model_cb(plugin: str) -> Callable[[str, Callable[..., Any]], None]:
+        def register(name: str, factory: Callable[..., Any]) -> None:
+            if not callable(factory):
+                raise PluginError(f"plugin {plugin!r}: model {name!r} is not callable")
+            _add(reg.models, "model", name, factory, plugin)
+
+        return register
+
+    def estimator_cb(plugin: str) -> Callable[[str, type], None]:
+        def register(name: str, cls: type) -> None:
+            if not (isinstance(cls, type) and dataclasses.is_dataclass(cls)):
+                raise PluginError(
+                    f"plugin {plugin!r}: estimator {name!r} must be a dataclass type"
+                )
+            _add(reg.estimators, "estimator", name, cls, plugin)
+
+        return register
+
+    def scenario_cb(plugin: str) -> Callable[[Any], None]:
+        def register(scenario: Any) -> None:
+            if not isinstance(scenario, Scenario):
+                raise PluginError(f"plugin {plugin!r}: {scenario!r} is not a Scenario")
+            _add(reg.scenarios, "scenario", scenario.name, scenario, plugin)
+
+        return register
+
+    hooks: list[tuple[Any, Callable[[str], Any]]] = [
+        (pm.hook.register_scenarios, scenario_cb),
+        (pm.hook.register_models, model_cb),
+        (pm.hook.register_estimators, estimator_cb),
+    ]
+    for hook, make_cb in hooks:
+        for impl in hook.get_hookimpls():
+            plugin = pm.get_name(impl.plugin) or repr(impl.plugin)
+            if plugin in reg.errors:
+                continue
+            try:
+                impl.function(register=make_cb(plugin))
+            except PluginError:
+                raise
+            except Exception as exc:
+                log.warning("plugin %r failed while registering: %s", plugin, exc)
+                reg.errors[plugin] = f"failed while registering: {exc!r}"
+                for table in (reg.models, reg.estimators, reg.scenarios):
+                    for key in [k for k, e in table.items() if e.plugin == plugin]:
+                        del table[key]
+    return reg
+
+
+def plugin_version(pm: pluggy.PluginManager, name: str) -> str:
+    """Version of the distribution that provides plugin ``name``, or ``""``."""
+    if name in _versions(pm):
+        return _versions(pm)[name]
+    plugin = pm.get_plugin(name)
+    return str(getattr(plugin, "__version__", ""))

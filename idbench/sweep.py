@@ -1,0 +1,307 @@
+"""Run a comparison: validate, prepare shared inputs, execute, store.
+
+:func:`compare` is the Python API behind ``idbench compare``. Runs go to an
+executor (serial, local processes, or a Dask cluster); each finished run is
+written to the results directory as it arrives, so an interrupted sweep keeps
+every finished run and a rerun with the same directory skips them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.metadata
+import logging
+import multiprocessing as mp
+import os
+import platform
+import sys
+import tempfile
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from idbench.config import CompareConfig, ConfigError, suggest
+from idbench.harness import RunSpec, Session, base_row, execute, expand
+from idbench.plugins import Registry, build_registry
+from idbench.results import ResultStore
+
+log = logging.getLogger(__name__)
+
+RunResult = tuple[dict[str, Any], list[dict[str, Any]]]
+THREAD_ENV = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+MAX_ATTEMPTS = 2
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A validated comparison: its runs and what they will cost."""
+
+    config: CompareConfig
+    runs: list[RunSpec]
+    nodes: dict[str, int]
+    solves: int
+
+
+def plan(config: CompareConfig, session: Session) -> Plan:
+    """Validate ``config`` against the registry and build its runs.
+
+    Raises
+    ------
+    ConfigError
+        Naming the first bad value and what is allowed.
+    """
+    reg = session.registry
+    _known("model", [config.model], reg.models)
+    _known("estimator", config.estimators, reg.estimators)
+    _known("scenario", config.scenarios, reg.scenarios)
+    _known("reference estimator", [config.reference], reg.estimators)
+    for name, settings in config.estimator_settings.items():
+        _known("estimator (in settings)", [name], reg.estimators)
+        cls = reg.estimator(name)
+        fields = {f.name for f in dataclasses.fields(cls)}
+        for key in settings:
+            if key not in fields:
+                raise ConfigError(
+                    f"estimator {name!r} has no setting {key!r}{suggest(key, fields)}; "
+                    f"allowed: {', '.join(sorted(fields))}"
+                )
+        try:
+            cls(**settings)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"estimator {name!r}: {exc}") from None
+    runs = expand(config)
+    nodes: dict[str, int] = {}
+    solves = 0
+    for mesh in (*config.meshes, config.truth_mesh):
+        try:
+            model = session.model(
+                runs[0], mesh, role="truth" if mesh == config.truth_mesh else "est"
+            )
+        except ConfigError:
+            raise
+        except (ValueError, OSError, RuntimeError) as exc:
+            raise ConfigError(f"mesh {mesh!r}: {exc}") from None
+        nodes[mesh] = int(getattr(model, "n_nodes", 0))
+    for spec in runs:
+        est = reg.estimator(spec.estimator)(**dict(spec.settings))
+        model = session.model(spec, spec.mesh)
+        guess = getattr(est, "estimate_solves", None)
+        n_state = int(getattr(model, "n_state", 0))
+        p = model.parameters.p
+        solves += int(guess(n_state, p, spec.steps)) if guess else 2 * spec.steps
+    return Plan(config, runs, nodes, solves)
+
+
+def _known(kind: str, names: Any, table: dict[str, Any]) -> None:
+    for name in names:
+        if name not in table:
+            allowed = ", ".join(sorted(table)) or "none registered"
+            raise ConfigError(
+                f"unknown {kind} {name!r}{suggest(name, table)}; allowed: {allowed}"
+            )
+
+
+def manifest(config: CompareConfig) -> dict[str, Any]:
+    """Versions, solver backend and thread settings, for the results folder."""
+    versions: dict[str, str | None] = {}
+    for dist in (
+        "idbench",
+        "numpy",
+        "scipy",
+        "scikit-fem",
+        "filterpy",
+        "pandas",
+        "pypardiso",
+        "pluggy",
+        "distributed",
+    ):
+        try:
+            versions[dist] = importlib.metadata.version(dist)
+        except importlib.metadata.PackageNotFoundError:
+            versions[dist] = None
+    return {
+        "versions": versions,
+        "python": sys.version.split()[0],
+        "platform": platform.platform(),
+        "solver": os.environ.get("IDBENCH_SOLVER", "auto"),
+        "threads": {k: os.environ.get(k) for k in THREAD_ENV},
+        "cpu_count": os.cpu_count(),
+    }
+
+
+def compare(
+    config: CompareConfig | None = None,
+    out: str | Path | None = None,
+    *,
+    jobs: int = 1,
+    scheduler: str | None = None,
+    registry: Registry | None = None,
+    progress: Callable[[int, int, dict[str, Any]], None] | None = None,
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Run a comparison and return its runs and traces tables.
+
+    Parameters
+    ----------
+    config
+        The comparison (default: :class:`CompareConfig` defaults).
+    out
+        Results directory; finished runs in it are skipped. Default: a
+        temporary directory, removed afterwards.
+    jobs
+        Local worker processes (1: serial, in this process).
+    scheduler
+        Address of a Dask scheduler (``tcp://host:port``); needs ``distributed``.
+    registry
+        The plugin registry (default: built from the installed plugins). Only
+        the serial executor can use a registry built by hand.
+    progress
+        Called as ``progress(done, total, run_row)`` after each run.
+
+    Returns
+    -------
+    tuple of pandas.DataFrame
+        ``runs`` (one row per run) and ``traces`` (one row per run and step).
+    """
+    config = config or CompareConfig()
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise ConfigError(f"jobs {jobs!r}: must be a whole number >= 1")
+    session = Session(registry or build_registry())
+    the_plan = plan(config, session)
+    if out is None:
+        with tempfile.TemporaryDirectory(prefix="idbench-") as tmp:
+            return _compare(the_plan, Path(tmp), session, jobs, scheduler, progress)
+    return _compare(the_plan, Path(out), session, jobs, scheduler, progress)
+
+
+def _compare(
+    the_plan: Plan,
+    out: Path,
+    session: Session,
+    jobs: int,
+    scheduler: str | None,
+    progress: Callable[[int, int, dict[str, Any]], None] | None,
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    config = the_plan.config
+    store = ResultStore(out, config.to_dict(), manifest(config))
+    done = store.finished()
+    pending = [r for r in the_plan.runs if r.run_id not in done]
+    total = len(the_plan.runs)
+    count = total - len(pending)
+    if pending:
+        prepare(pending, session)
+    for row, traces in _execute_all(pending, session, jobs, scheduler):
+        store.write(row, traces)
+        count += 1
+        if progress:
+            progress(count, total, row)
+    return store.consolidate([r.run_id for r in the_plan.runs])
+
+
+def prepare(runs: list[RunSpec], session: Session) -> None:
+    """Compute each truth the runs need once, here, so workers load it from disk."""
+    seen = set()
+    for spec in runs:
+        scen = session.registry.scenario(spec.scenario)
+        for name in (spec.scenario, scen.transfer):
+            key = (
+                name,
+                spec.truth_mesh,
+                spec.steps,
+                spec.nu,
+                spec.parameters,
+                spec.model_options,
+                spec.E_true,
+            )
+            if name and name in session.registry.scenarios and key not in seen:
+                seen.add(key)
+                session.truth(spec, name)
+
+
+def _execute_all(
+    runs: list[RunSpec], session: Session, jobs: int, scheduler: str | None
+) -> Iterator[RunResult]:
+    if scheduler:
+        from idbench.distributed import execute_on_dask
+
+        yield from execute_on_dask(runs, scheduler)
+    elif jobs == 1:
+        for spec in runs:
+            yield execute(spec, session)
+    else:
+        yield from _execute_processes(runs, jobs)
+
+
+_WORKER_SESSION: Session | None = None
+
+
+def _worker_init() -> None:
+    global _WORKER_SESSION
+    _WORKER_SESSION = Session()
+
+
+def run_in_worker(spec: RunSpec) -> RunResult:
+    """Execute ``spec`` with this process's session (built on first use)."""
+    global _WORKER_SESSION
+    if _WORKER_SESSION is None:
+        _WORKER_SESSION = Session()
+    return execute(spec, _WORKER_SESSION)
+
+
+def single_thread_env() -> dict[str, str]:
+    """Environment that pins BLAS/MKL/OpenMP to one thread per worker."""
+    return {k: "1" for k in THREAD_ENV}
+
+
+def _execute_processes(runs: list[RunSpec], jobs: int) -> Iterator[RunResult]:
+    """Run on a local process pool; a dead worker costs only its runs in flight."""
+    attempts = {r.run_id: 0 for r in runs}
+    queue = list(runs)
+    saved = {k: os.environ.get(k) for k in THREAD_ENV}
+    os.environ.update(single_thread_env())
+    try:
+        while queue:
+            ctx = mp.get_context("spawn")
+            with ProcessPoolExecutor(
+                jobs, mp_context=ctx, initializer=_worker_init
+            ) as pool:
+                futures: dict[Future[RunResult], RunSpec] = {
+                    pool.submit(run_in_worker, spec): spec for spec in queue
+                }
+                queue = []
+                broken = False
+                pending_f = set(futures)
+                while pending_f:
+                    finished, pending_f = wait(pending_f, return_when=FIRST_COMPLETED)
+                    for fut in finished:
+                        spec = futures[fut]
+                        try:
+                            yield fut.result()
+                        except BrokenProcessPool:
+                            broken = True
+                            attempts[spec.run_id] += 1
+                            if attempts[spec.run_id] >= MAX_ATTEMPTS:
+                                yield worker_lost(spec)
+                            else:
+                                queue.append(spec)
+                    if broken:
+                        for fut in pending_f:
+                            queue.append(futures[fut])
+                        break
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def worker_lost(spec: RunSpec) -> RunResult:
+    """The row of a run whose worker died twice."""
+    row = base_row(spec)
+    row.update(status="failed", error="worker process died while running it (twice)")
+    return row, []

@@ -1,0 +1,131 @@
+"""Conformance checks for plugin authors: call them from your own tests.
+
+Each check raises :class:`AssertionError` with a message saying what is wrong.
+
+>>> from idbench.testing import check_model
+>>> check_model(make_model(spec), theta)   # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from idbench.interfaces import (
+    Cost,
+    Estimate,
+    FloatArray,
+    ForwardModel,
+    ParameterSpec,
+    Prior,
+)
+
+
+def check_model(
+    model: ForwardModel,
+    theta: FloatArray,
+    *,
+    steps: int = 2,
+    fd_rel_step: float = 1e-6,
+    fd_rtol: float = 1e-4,
+) -> None:
+    """Check a forward model against the protocol.
+
+    Checks the attributes and shapes, that ``reset`` gives a zero state, that
+    two runs of the first ``steps`` load steps are bitwise equal (determinism),
+    that ``cost()`` counts the step calls, and, if the model has
+    ``sensitivity``, that it matches central finite differences of
+    ``observe(step(...))`` to ``fd_rtol`` (relative to its largest entry).
+
+    Parameters
+    ----------
+    model
+        The model under test.
+    theta
+        A valid parameter vector, shape (p,).
+    steps
+        Load steps to run (<= ``model.n_steps``).
+    fd_rel_step, fd_rtol
+        Finite-difference relative step and tolerance.
+    """
+    theta = np.atleast_1d(np.asarray(theta, dtype=float))
+    assert isinstance(model, ForwardModel), "model lacks ForwardModel methods"
+    assert isinstance(model.parameters, ParameterSpec), (
+        "parameters must be ParameterSpec"
+    )
+    assert theta.shape == (model.parameters.p,), "theta shape != (p,)"
+    assert model.parameters.contains(theta), f"theta {theta} is outside the bounds"
+    assert isinstance(model.n_steps, int) and model.n_steps >= 1, "n_steps must be >= 1"
+    steps = min(steps, model.n_steps)
+    u0 = model.reset()
+    assert u0.ndim == 1 and np.all(u0 == 0), "reset() must give a flat zero state"
+    c0 = model.cost()
+    assert isinstance(c0, Cost), "cost() must return idbench.Cost"
+
+    def run() -> list[FloatArray]:
+        states, u = [], model.reset()
+        for k in range(1, steps + 1):
+            u = model.step(theta, k, u)
+            states.append(u)
+        return states
+
+    first, second = run(), run()
+    assert model.cost().forward_solves - c0.forward_solves == 2 * steps, (
+        "cost().forward_solves must count step() calls"
+    )
+    for a, b in zip(first, second, strict=True):
+        assert a.shape == u0.shape, "step() changed the state's shape"
+        assert np.array_equal(a, b), "two identical runs differ: not deterministic"
+    y = model.observe(first[-1])
+    assert y.ndim == 1 and np.all(np.isfinite(y)), "observe() must be a finite (m,)"
+    g = model.grid(first[-1])
+    assert g.ndim == 2 and g.shape[1] == 3, "grid() must have shape (G, 3)"
+    desc = model.describe()
+    assert isinstance(desc, dict), "describe() must return a dict"
+    sens = getattr(model, "sensitivity", None)
+    if sens is None:
+        return
+    k = steps
+    prev = first[-2] if steps > 1 else model.reset()
+    J = np.asarray(sens(theta, k, first[-1]))
+    assert J.shape == (y.size, theta.size), "sensitivity() must have shape (m, p)"
+    fd = np.empty_like(J)
+    for j in range(theta.size):
+        h = fd_rel_step * abs(theta[j])
+        tp, tm = theta.copy(), theta.copy()
+        tp[j] += h
+        tm[j] -= h
+        yp = model.observe(model.step(tp, k, prev))
+        ym = model.observe(model.step(tm, k, prev))
+        fd[:, j] = (yp - ym) / (2 * h)
+    scale = max(np.abs(fd).max(), np.finfo(float).tiny)
+    err = np.abs(J - fd).max() / scale
+    assert err <= fd_rtol, f"sensitivity differs from finite differences by {err:.2e}"
+
+
+def check_estimator(
+    cls: type, model: ForwardModel, prior: Prior, **settings: Any
+) -> None:
+    """Check an estimator class against the protocol on ``model``.
+
+    It must be a dataclass whose fields all have defaults, and one run over the
+    model's steps (no observations) must give finite estimates of shape (p,)
+    with cumulative, non-decreasing cost.
+    """
+    assert dataclasses.is_dataclass(cls), "an estimator class must be a dataclass"
+    for f in dataclasses.fields(cls):
+        has = f.default is not dataclasses.MISSING
+        has = has or f.default_factory is not dataclasses.MISSING
+        assert has, f"setting {f.name!r} needs a default"
+    est: Any = cls(**settings)
+    est.start(model, prior)
+    solves = 0
+    for k in range(1, model.n_steps + 1):
+        e = est.update(k, None)
+        assert isinstance(e, Estimate), "update() must return idbench.Estimate"
+        assert np.shape(e.mean) == (model.parameters.p,), "mean must have shape (p,)"
+        assert np.all(np.isfinite(e.mean)), f"non-finite estimate at step {k}"
+        assert e.cost.forward_solves >= solves, "cost must be cumulative"
+        solves = e.cost.forward_solves

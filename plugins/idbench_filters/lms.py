@@ -1,0 +1,97 @@
+r"""Normalised least mean squares (stochastic gradient) on xi.
+
+Like :mod:`idbench_filters.rls`, the estimator keeps one model state advanced
+with the current estimate (one forward solve a step) and, at an observation,
+linearises h(xi) = observe(u_k(xi)) with J = dh/dxi (m, p) from the model's
+``sensitivity`` (else finite differences in xi). The update is the normalised
+gradient step
+
+.. math::
+
+    \xi \leftarrow \xi + \mu \frac{J^T (y - h)}{\epsilon + \|J\|_F^2},
+
+stable for 0 < mu < 2. LMS carries no covariance: its std is NaN.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from idbench import Estimate, ForwardModel, Observation, Prior
+from idbench_filters._common import (
+    TRANSFORMS,
+    RunState,
+    advance,
+    check_choice,
+    check_estimate,
+    check_positive,
+    check_step,
+    observation_jacobian,
+    prior_xi,
+    to_theta,
+)
+
+
+@dataclass
+class Lms:
+    """Normalised LMS: xi += mu J^T e / (eps + |J|^2).
+
+    Attributes
+    ----------
+    transform
+        ``"log"`` (xi = ln theta, default) or ``"identity"``.
+    sigma_floor
+        Kept for a uniform interface; LMS does not weight by the noise.
+    mu
+        Step size in (0, 2); 0.5 (default) halves a linear error per observation.
+    eps
+        Regularisation of the normalisation (units of |J|^2, m^2 per xi^2),
+        default 1e-12.
+    fd_step
+        Relative finite-difference step in xi, used only when the model has no
+        ``sensitivity``.
+    """
+
+    transform: str = "log"
+    sigma_floor: float = 1e-6
+    mu: float = 0.5
+    eps: float = 1e-12
+    fd_step: float = 1e-6
+    _run: RunState | None = field(default=None, init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        check_choice("transform", self.transform, TRANSFORMS)
+        check_positive("sigma_floor", self.sigma_floor)
+        check_positive("mu", self.mu)
+        if self.mu >= 2:
+            raise ValueError(f"mu = {self.mu!r} is not allowed; use 0 < mu < 2")
+        check_positive("eps", self.eps, allow_zero=True)
+        check_positive("fd_step", self.fd_step)
+
+    def start(self, model: ForwardModel, prior: Prior) -> None:
+        """Begin a run from the prior mean; state = reset()."""
+        self._xi, _ = prior_xi(prior, model.parameters.p, self.transform)
+        self._u = np.asarray(model.reset(), dtype=float)
+        self._run = RunState(model, model.cost())
+
+    def update(self, k: int, observation: Observation | None) -> Estimate:
+        """Advance the own state one step, then one gradient step if observed."""
+        run = self._run
+        if run is None:
+            raise RuntimeError("call start() before update()")
+        model = run.model
+        check_step(k, observation, model.n_steps)
+        xi = self._xi
+        u_prev = self._u
+        u = advance(model, to_theta(xi, self.transform), k, u_prev)
+        if observation is not None:
+            J = observation_jacobian(
+                model, xi, k, u, u_prev, self.transform, self.fd_step
+            )
+            e = np.asarray(observation.values, dtype=float) - model.observe(u)
+            xi = xi + self.mu * (J.T @ e) / (self.eps + float(np.sum(J * J)))
+        check_estimate(model, xi, k, self.transform, u)
+        self._xi, self._u = xi, u
+        return run.estimate(xi, None, self.transform, u)

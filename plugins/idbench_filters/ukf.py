@@ -1,0 +1,177 @@
+"""Full unscented Kalman filter on the augmented state [u; xi].
+
+Built on filterpy's :class:`~filterpy.kalman.UnscentedKalmanFilter` with
+:class:`~filterpy.kalman.MerweScaledSigmaPoints` (tested with filterpy 2.0.0).
+The covariance P is a full (n, n) matrix, n = len(u) + p, so every step costs
+2n + 1 forward solves: this is the joint estimation that becomes infeasible on
+fine meshes, kept for small ones and as a cross-check of the RO-UKF.
+
+Sigma points chi = x +- sqrt((n + lambda) P) with
+lambda = alpha^2 (n + kappa) - n. The matrix square root symmetrises P and
+clips its eigenvalues from below, S = diag(sqrt(max(w, eps w_max))) V^T with
+P = V diag(w) V^T and S^T S ~ P (filterpy takes the rows of S), so a
+rank-deficient P (the displacements start exactly known) still samples.
+The process noise is zero: u_k is a function of theta and the warm start.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+from idbench import Diverged, Estimate, ForwardModel, Observation, Prior, Skipped
+from idbench_filters._common import (
+    TRANSFORMS,
+    FloatArray,
+    RunState,
+    advance,
+    check_choice,
+    check_estimate,
+    check_positive,
+    check_step,
+    noise_var,
+    prior_xi,
+    to_theta,
+)
+
+EIG_FLOOR = 1e-14  # relative eigenvalue floor of the sampled square root
+
+
+def clipped_sqrt(P: FloatArray) -> FloatArray:
+    """Row square root S of the symmetrised P with S^T S = P (eigenvalues clipped).
+
+    Eigenvalues below ``EIG_FLOOR * max(w)`` are raised to it, so S has full rank.
+    """
+    w, V = np.linalg.eigh(0.5 * (P + P.T))
+    top = max(float(w.max()), np.finfo(float).tiny)
+    w = np.maximum(w, EIG_FLOOR * top)
+    return np.sqrt(w)[:, None] * V.T
+
+
+@dataclass
+class Ukf:
+    """Full UKF (filterpy) on [state; xi] with a full covariance.
+
+    Attributes
+    ----------
+    transform
+        ``"log"`` (xi = ln theta, default) or ``"identity"``.
+    sigma_floor
+        Lower bound (m) on the observation noise std used in R.
+    max_solves
+        Budget of forward solves a step; :meth:`start` raises
+        :class:`idbench.Skipped` when 2n + 1 exceeds it (default 600, about a
+        100-node beam).
+    alpha, beta, kappa
+        filterpy's scaled sigma point parameters (Van der Merwe): spread
+        alpha sqrt(n + kappa) standard deviations; beta = 2 is optimal for
+        Gaussians. The defaults (0.1, 2, 0) keep the log-modulus sigma points
+        within about 1.7 standard deviations up to the budget.
+    """
+
+    transform: str = "log"
+    sigma_floor: float = 1e-6
+    max_solves: int = 600
+    alpha: float = 0.1
+    beta: float = 2.0
+    kappa: float = 0.0
+    _run: RunState | None = field(default=None, init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        check_choice("transform", self.transform, TRANSFORMS)
+        check_positive("sigma_floor", self.sigma_floor)
+        if not (isinstance(self.max_solves, int) and self.max_solves >= 1):
+            raise ValueError(
+                f"max_solves = {self.max_solves!r} is not allowed; "
+                "it must be an integer >= 1"
+            )
+        check_positive("alpha", self.alpha)
+        if self.alpha > 1:
+            raise ValueError(
+                f"alpha = {self.alpha!r} is not allowed; use 0 < alpha <= 1"
+            )
+        check_positive("beta", self.beta, allow_zero=True)
+        if not np.isfinite(self.kappa):
+            raise ValueError(
+                f"kappa = {self.kappa!r} is not allowed; it must be finite"
+            )
+
+    def start(self, model: ForwardModel, prior: Prior) -> None:
+        """Begin a run; raise Skipped if 2n + 1 solves a step exceed ``max_solves``."""
+        p = model.parameters.p
+        mu, p_xi = prior_xi(prior, p, self.transform)
+        u0 = np.asarray(model.reset(), dtype=float)
+        n = u0.size + p
+        if 2 * n + 1 > self.max_solves:
+            raise Skipped(
+                f"full UKF needs 2n+1 = {2 * n + 1} forward solves a step "
+                f"(n = {u0.size} state + {p} parameters), over max_solves = "
+                f"{self.max_solves}; use a coarser mesh or raise max_solves"
+            )
+        if n + self.kappa <= 0:
+            raise ValueError(f"kappa = {self.kappa} needs n + kappa > 0 (n = {n})")
+        self._nu = u0.size
+        self._k = 0
+        points = MerweScaledSigmaPoints(
+            n,
+            alpha=self.alpha,
+            beta=self.beta,
+            kappa=self.kappa,
+            sqrt_method=clipped_sqrt,
+        )
+        ukf = UnscentedKalmanFilter(
+            dim_x=n,
+            dim_z=len(model.observe(u0)),
+            dt=1.0,
+            hx=self._hx,
+            fx=self._fx,
+            points=points,
+            sqrt_fn=clipped_sqrt,
+        )
+        ukf.x = np.concatenate([u0, mu])
+        P = np.zeros((n, n))
+        P[u0.size :, u0.size :] = p_xi
+        ukf.P = P
+        ukf.Q = np.zeros((n, n))
+        self._ukf = ukf
+        self._run = RunState(model, model.cost())
+
+    @property
+    def solves_per_step(self) -> int:
+        """Forward solves a step: 2n + 1."""
+        return int(self._ukf.points_fn.num_sigmas())
+
+    def _fx(self, x: FloatArray, dt: float) -> FloatArray:
+        assert self._run is not None
+        nu = self._nu
+        theta = to_theta(x[nu:], self.transform)
+        u = advance(self._run.model, theta, self._k, x[:nu])
+        return np.concatenate([u, x[nu:]])
+
+    def _hx(self, x: FloatArray) -> FloatArray:
+        assert self._run is not None
+        return np.asarray(self._run.model.observe(x[: self._nu]), dtype=float)
+
+    def update(self, k: int, observation: Observation | None) -> Estimate:
+        """Predict to step k (2n + 1 solves), then update with the observation."""
+        run = self._run
+        if run is None:
+            raise RuntimeError("call start() before update()")
+        check_step(k, observation, run.model.n_steps)
+        ukf = self._ukf
+        self._k = k
+        try:
+            ukf.predict()
+            ukf.P = 0.5 * (ukf.P + ukf.P.T)
+            if observation is not None:
+                R = noise_var(observation, self.sigma_floor)
+                ukf.update(np.asarray(observation.values, dtype=float), R=R)
+                ukf.P = 0.5 * (ukf.P + ukf.P.T)
+        except np.linalg.LinAlgError as exc:
+            raise Diverged(f"linear algebra failed: {exc}", step=k) from exc
+        nu = self._nu
+        x, P = ukf.x, ukf.P
+        check_estimate(run.model, x[nu:], k, self.transform, P, x)
+        return run.estimate(x[nu:], P[nu:, nu:], self.transform, x[:nu])

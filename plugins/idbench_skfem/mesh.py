@@ -1,0 +1,250 @@
+"""Beam meshes: parse a mesh spec into linear tetrahedra and find the boundary.
+
+A mesh spec is one of
+
+- ``"NXxNYxNZ"``: element divisions along x, y, z of the structured beam
+  (each hex split into 6 tetrahedra around one diagonal, scikit-fem's
+  :meth:`skfem.MeshTet.init_tensor`);
+- a bare integer ``"N"``: the structured beam with about N nodes, ny = nz and
+  elements as near cubic as the section allows;
+- anything else: a path to a tetrahedral mesh file that meshio reads. The body
+  is its bounding box: the clamped face is x = min x, the loaded face x = max x,
+  both found geometrically.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+LENGTH = 0.2
+"""Default beam length along x (m)."""
+
+WIDTH = 0.03
+"""Default beam width along y (m)."""
+
+HEIGHT = 0.03
+"""Default beam height along z (m)."""
+
+_DIVISIONS = re.compile(r"^\s*(\d+)\s*[xX]\s*(\d+)\s*[xX]\s*(\d+)\s*$")
+_MAX_NODES = 2_000_000
+
+
+@dataclass(frozen=True)
+class BeamMesh:
+    """A tetrahedral beam and its boundary.
+
+    Attributes
+    ----------
+    spec
+        The mesh spec it was built from.
+    points
+        Node coordinates, shape (N, 3).
+    tets
+        Connectivity, shape (T, 4), positively oriented.
+    lower, upper
+        Bounding-box corners, shape (3,) each.
+    clamped
+        Indices of the nodes on the clamped face x = min x.
+    loaded_faces
+        Node triples of the boundary triangles on the loaded face x = max x,
+        shape (F, 3).
+    """
+
+    spec: str
+    points: NDArray[np.float64]
+    tets: NDArray[np.int64]
+    lower: NDArray[np.float64]
+    upper: NDArray[np.float64]
+    clamped: NDArray[np.int64]
+    loaded_faces: NDArray[np.int64]
+
+    @property
+    def size(self) -> NDArray[np.float64]:
+        """Edge lengths (L, W, H) of the bounding box, shape (3,)."""
+        return self.upper - self.lower
+
+    def digest(self) -> str:
+        """SHA-256 of the node coordinates and the connectivity."""
+        h = hashlib.sha256()
+        h.update(np.ascontiguousarray(self.points, dtype="<f8").tobytes())
+        h.update(np.ascontiguousarray(self.tets, dtype="<i8").tobytes())
+        return h.hexdigest()
+
+    def nodal_traction_weights(self) -> NDArray[np.float64]:
+        """Nodal weights of a uniform traction on the loaded face, shape (N,).
+
+        For P1 triangles the consistent load of a uniform traction t is
+        ``t * area / 3`` per vertex; the weights sum to the face area.
+        """
+        p = self.points[self.loaded_faces]
+        area = 0.5 * np.linalg.norm(
+            np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1
+        )
+        w = np.zeros(len(self.points))
+        np.add.at(w, self.loaded_faces.ravel(), np.repeat(area / 3.0, 3))
+        return w
+
+
+def divisions_for_nodes(
+    n_nodes: int, length: float = LENGTH, width: float = WIDTH
+) -> tuple[int, int, int]:
+    """Element divisions (nx, ny, ny) of the structured beam with about ``n_nodes``.
+
+    Scans the section divisions ny, takes the nx that best matches the node
+    count, and keeps the candidate that minimises
+    ``|log(nodes / n_nodes)| + |log(hx / hy)|`` (node count and element shape).
+    """
+    if n_nodes < 8:
+        raise ValueError(f"mesh spec {n_nodes!r}: a node-count target must be >= 8")
+    best: tuple[float, tuple[int, int, int]] | None = None
+    for ny in range(1, int(math.sqrt(n_nodes)) + 1):
+        nx = max(1, round(n_nodes / (ny + 1) ** 2 - 1))
+        nodes = (nx + 1) * (ny + 1) ** 2
+        score = abs(math.log(nodes / n_nodes)) + abs(
+            math.log((length / nx) / (width / ny))
+        )
+        if best is None or score < best[0]:
+            best = (score, (nx, ny, ny))
+    assert best is not None
+    return best[1]
+
+
+def structured(
+    nx: int,
+    ny: int,
+    nz: int,
+    size: tuple[float, float, float] = (LENGTH, WIDTH, HEIGHT),
+    spec: str | None = None,
+) -> BeamMesh:
+    """Build the structured beam with ``nx x ny x nz`` hexes, each split into 6 tets."""
+    from skfem import MeshTet
+
+    for name, n in (("nx", nx), ("ny", ny), ("nz", nz)):
+        if n < 1:
+            raise ValueError(f"mesh divisions: {name} = {n}, must be >= 1")
+    if (nx + 1) * (ny + 1) * (nz + 1) > _MAX_NODES:
+        raise ValueError(f"mesh {nx}x{ny}x{nz}: more than {_MAX_NODES} nodes")
+    m = MeshTet.init_tensor(
+        np.linspace(0.0, size[0], nx + 1),
+        np.linspace(0.0, size[1], ny + 1),
+        np.linspace(0.0, size[2], nz + 1),
+    )
+    return from_arrays(m.p.T, m.t.T, spec or f"{nx}x{ny}x{nz}")
+
+
+def from_arrays(
+    points: NDArray[np.float64], tets: NDArray[np.int64], spec: str
+) -> BeamMesh:
+    """Build a :class:`BeamMesh` from coordinates (N, 3) and tets (T, 4).
+
+    Orients every tet positively and finds the clamped and loaded faces.
+    """
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    tets = np.ascontiguousarray(tets, dtype=np.int64).copy()
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"mesh {spec!r}: points must have shape (N, 3)")
+    if tets.ndim != 2 or tets.shape[1] != 4 or len(tets) == 0:
+        raise ValueError(f"mesh {spec!r}: needs tetrahedra, shape (T, 4)")
+    used = np.unique(tets)
+    if len(used) != len(points):  # drop nodes no tet uses (e.g. gmsh geometry points)
+        remap = np.full(len(points), -1, dtype=np.int64)
+        remap[used] = np.arange(len(used))
+        points, tets = points[used], remap[tets]
+    x = points[tets]
+    det = np.einsum(
+        "ti,ti->t", x[:, 1] - x[:, 0], np.cross(x[:, 2] - x[:, 0], x[:, 3] - x[:, 0])
+    )
+    scale = float(np.max(np.ptp(points, axis=0)))
+    if np.any(np.abs(det) <= 1e-12 * scale**3):
+        raise ValueError(f"mesh {spec!r}: has degenerate (zero-volume) tetrahedra")
+    flip = det < 0
+    tets[flip, 2], tets[flip, 3] = tets[flip, 3].copy(), tets[flip, 2].copy()
+    lower, upper = points.min(axis=0), points.max(axis=0)
+    tol = 1e-9 * scale
+    clamped = np.flatnonzero(np.abs(points[:, 0] - lower[0]) <= tol)
+    on_end = np.abs(points[:, 0] - upper[0]) <= tol
+    faces = np.concatenate(
+        [tets[:, [1, 2, 3]], tets[:, [0, 2, 3]], tets[:, [0, 1, 3]], tets[:, [0, 1, 2]]]
+    )
+    faces = faces[on_end[faces].all(axis=1)]
+    key = np.sort(faces, axis=1)
+    _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+    loaded = faces[first[counts == 1]]
+    if len(clamped) < 3 or len(loaded) == 0:
+        raise ValueError(
+            f"mesh {spec!r}: could not find the clamped face x = {lower[0]:g} "
+            f"and the loaded face x = {upper[0]:g}"
+        )
+    return BeamMesh(spec, points, tets, lower, upper, clamped, loaded)
+
+
+def read_file(path: str | Path, spec: str | None = None) -> BeamMesh:
+    """Read a tetrahedral mesh file with meshio."""
+    import meshio
+
+    path = Path(path)
+    chatter = io.StringIO()
+    try:  # meshio prints its own error and may even sys.exit(1): keep it quiet
+        with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
+            m = meshio.read(path)
+    except (Exception, SystemExit) as exc:
+        why = " ".join(chatter.getvalue().split()) or f"{type(exc).__name__}: {exc}"
+        raise ValueError(
+            f"meshio cannot read it ({why}); give a tetrahedral mesh file "
+            "(.msh, .vtu, .xdmf, ...) or NXxNYxNZ or a node count"
+        ) from None
+    tets = [c.data for c in m.cells if c.type == "tetra"]
+    if not tets:
+        kinds = sorted({c.type for c in m.cells})
+        raise ValueError(
+            f"mesh file {str(path)!r} has no 'tetra' cells (found {kinds}); "
+            "only linear tetrahedra are supported"
+        )
+    points = np.asarray(m.points, dtype=float)
+    if points.shape[1] != 3:
+        raise ValueError(f"mesh file {str(path)!r} is not 3-D")
+    return from_arrays(points, np.concatenate(tets), spec or str(path))
+
+
+def parse(spec: str) -> BeamMesh:
+    """Build the beam mesh named by ``spec`` (see the module docstring).
+
+    Raises
+    ------
+    ValueError
+        Naming the bad spec and what is allowed.
+    """
+    if not isinstance(spec, str) or not spec.strip():
+        raise ValueError(
+            f"mesh spec {spec!r}: expected 'NXxNYxNZ' (e.g. '20x4x4'), a node "
+            "count (e.g. '500') or a path to a tetrahedral mesh file"
+        )
+    s = spec.strip()
+    if (m := _DIVISIONS.match(s)) is not None:
+        nx, ny, nz = (int(g) for g in m.groups())
+        if min(nx, ny, nz) < 1:
+            raise ValueError(f"mesh spec {spec!r}: divisions must be >= 1")
+        return structured(nx, ny, nz, spec=s)
+    if s.isdigit():
+        n = int(s)
+        if not 8 <= n <= _MAX_NODES:
+            raise ValueError(
+                f"mesh spec {spec!r}: a node count must be between 8 and {_MAX_NODES}"
+            )
+        return structured(*divisions_for_nodes(n), spec=s)
+    path = Path(s).expanduser()
+    if not path.is_file():
+        raise ValueError(
+            f"mesh spec {spec!r} is neither 'NXxNYxNZ' divisions (e.g. '20x4x4'), "
+            "a node count (e.g. '500'), nor an existing mesh file"
+        )
+    return read_file(path, spec=s)

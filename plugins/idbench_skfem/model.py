@@ -1,0 +1,363 @@
+"""The St Venant-Kirchhoff cantilever beam as an idbench forward model.
+
+:class:`SvkBeam` solves each quasi-static load step by Newton's method, warm
+started from the state passed in, on the free displacements of a P1 tet mesh
+clamped at x = min x and loaded by a dead uniform traction on x = max x.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from idbench import Cost, ModelFailure, ModelSpec, ParameterSpec, Scenario
+from idbench_skfem import mesh as meshes
+from idbench_skfem.assembly import Assembler, Kinematics
+from idbench_skfem.probes import grid_points, interpolation_matrix, marker_points
+from idbench_skfem.regions import parameter_regions
+from idbench_skfem.solver import SolverError, make_solver, resolve_backend
+
+log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+
+MODEL_VERSION = "svk-beam/1"
+"""Bump when the numerics change: part of :meth:`SvkBeam.describe` (cache key)."""
+
+RTOL = 1e-8
+"""Newton tolerance on ||residual|| relative to ||external force|| of the step."""
+
+ATOL = 1e-12
+"""Absolute floor, relative to ||external force|| at the end of the load path."""
+
+MAX_ITERATIONS = 25
+_BACKTRACKS = 8
+
+
+class SvkBeam:
+    """P1 St Venant-Kirchhoff cantilever under an end traction, stepped by Newton.
+
+    Parameters
+    ----------
+    beam
+        The mesh and its boundary.
+    scenario
+        The load path; ``scenario.traction(k, n_steps)`` is the end traction.
+    n_steps
+        Number of load steps K.
+    nu
+        Poisson's ratio.
+    markers
+        Number of marker points (see :func:`idbench_skfem.probes.marker_points`).
+    grid
+        Shape-error grid point counts (nx, ny, nz).
+    parameters
+        ``"E"`` or ``"E_regions"`` (see :mod:`idbench_skfem.regions`).
+    options
+        ``regions``, ``inclusion``, ``rtol``, ``atol``, ``max_iterations``,
+        ``sensitivity_refine``, ``solver`` (``"pardiso"``/``"scipy"``; default
+        from ``IDBENCH_SOLVER``).
+
+    Attributes
+    ----------
+    last_residuals
+        Residual norms of the Newton iterations of the last (sub-)step solved.
+    """
+
+    def __init__(
+        self,
+        beam: meshes.BeamMesh,
+        scenario: Scenario,
+        n_steps: int = 20,
+        nu: float = 0.45,
+        markers: int = 2,
+        grid: tuple[int, int, int] = (20, 4, 4),
+        parameters: str = "E",
+        options: dict[str, Any] | None = None,
+    ) -> None:
+        if n_steps < 1:
+            raise ValueError(f"n_steps = {n_steps}: need at least one load step")
+        opts = dict(options or {})
+        self.beam = beam
+        self.scenario = scenario
+        self.n_steps = int(n_steps)
+        self.nu = float(nu)
+        self.options = opts
+        self.rtol = float(opts.get("rtol", RTOL))
+        self.max_iterations = int(opts.get("max_iterations", MAX_ITERATIONS))
+        self.sensitivity_refine = bool(opts.get("sensitivity_refine", True))
+        self.backend = resolve_backend(opts.get("solver"))
+
+        points, tets = beam.points, beam.tets
+        free = np.ones(len(points), dtype=bool)
+        free[beam.clamped] = False
+        self.n_nodes = len(points)
+        self._asm = Assembler(points, tets, free, self.nu)
+        self.n_state = self._asm.n_free
+        self.parameters: ParameterSpec
+        self.parameters, self._regions = parameter_regions(
+            parameters, points[tets].mean(axis=1), beam.lower, beam.upper, opts.get
+        )
+        self._parameter_kind = parameters
+        self._pattern = self._asm.pattern(upper=self.backend == "pardiso")
+        self._solver = make_solver(
+            self.backend, self._pattern.indptr, self._pattern.indices
+        )
+
+        weights = beam.nodal_traction_weights()
+        self._load_weights = np.repeat(weights, 3)[self._asm.free_dofs]
+        self._load_dir = np.tile(np.eye(3), self.n_nodes)[
+            :, self._asm.free_dofs
+        ]  # (3, n)
+        end = np.linalg.norm(self.external_force(self.n_steps))
+        self.atol = float(opts.get("atol", ATOL * end))
+
+        f2f = self._asm.full_to_free
+        self.marker_points = marker_points(int(markers), beam.lower, beam.upper)
+        self.grid_counts = tuple(int(g) for g in grid)
+        self.grid_points = grid_points(self.grid_counts, beam.lower, beam.upper)  # type: ignore[arg-type]
+        centre = 0.5 * (beam.lower + beam.upper)
+        centre[0] = beam.upper[0]
+        self._obs = interpolation_matrix(self.marker_points, points, tets, f2f)
+        self._grid = interpolation_matrix(self.grid_points, points, tets, f2f)
+        self._tip = interpolation_matrix(centre[None, :], points, tets, f2f)
+
+        self.last_residuals: list[float] = []
+        self._cost = [0, 0, 0]
+        self._factored_key: tuple[bytes, bytes] | None = None
+
+    # -- the ForwardModel protocol -------------------------------------------
+
+    def reset(self) -> FloatArray:
+        """Return the unloaded state: zeros, shape (n_state,)."""
+        return np.zeros(self.n_state)
+
+    def step(
+        self, theta: FloatArray, k: int, state: FloatArray, *, substeps: int = 1
+    ) -> FloatArray:
+        """Solve load step ``k`` (1..K) with parameters ``theta``, from ``state``.
+
+        With ``substeps = n`` the traction goes from step k-1's to step k's in
+        n equal increments, each solved by Newton.
+
+        Raises
+        ------
+        ModelFailure
+            No convergence within ``max_iterations``, a non-finite residual, or
+            an inverted element (det F <= 0) that backtracking cannot avoid.
+        """
+        modulus = self._modulus(theta, k)
+        if not 1 <= k <= self.n_steps:
+            raise ValueError(f"load step k = {k}: must be in 1..{self.n_steps}")
+        if substeps < 1:
+            raise ValueError(f"substeps = {substeps}: must be >= 1")
+        u = np.array(state, dtype=np.float64)
+        if u.shape != (self.n_state,):
+            raise ValueError(f"state has shape {u.shape}, expected ({self.n_state},)")
+        self._cost[0] += 1
+        self._factored_key = None
+        t0, t1 = (
+            self.scenario.traction(k - 1, self.n_steps),
+            self.scenario.traction(k, self.n_steps),
+        )
+        factored = False
+        for j in range(1, substeps + 1):
+            traction = t0 + (j / substeps) * (t1 - t0)
+            u, its = self._newton(modulus, self._load(traction), u, k)
+            factored = factored or its > 0
+        if factored:
+            self._factored_key = (
+                np.asarray(theta, dtype=np.float64).tobytes(),
+                u.tobytes(),
+            )
+        return u
+
+    def observe(self, state: FloatArray) -> FloatArray:
+        """Marker displacements, shape (3M,), ``[p0x, p0y, p0z, p1x, ...]``."""
+        return self._obs @ state
+
+    def grid(self, state: FloatArray) -> FloatArray:
+        """Displacements of the shape-error grid points, shape (G, 3)."""
+        return (self._grid @ state).reshape(-1, 3)
+
+    def tip(self, state: FloatArray) -> FloatArray:
+        """Displacement of the end-face centre, shape (3,)."""
+        return self._tip @ state
+
+    def sensitivity(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
+        """D observe / d theta at the converged ``state``, shape (3M, p).
+
+        du/dE_r = -K^-1 g_r(u), g_r the internal force of region r at unit
+        modulus. Reuses the last Newton factorization when ``state`` and
+        ``theta`` are those of the step just solved (plus one step of iterative
+        refinement with K(u), option ``sensitivity_refine``, default on: the
+        factorization is of the last iterate, off by O(|last update|)), else
+        factors K(u) once.
+        """
+        modulus = self._modulus(theta, k)
+        u = np.asarray(state, dtype=np.float64)
+        key = (np.asarray(theta, dtype=np.float64).tobytes(), u.tobytes())
+        kin = self._asm.kinematics(u, modulus)
+        exact = key != self._factored_key
+        if exact:
+            self._factor(kin, modulus, k)
+            self._factored_key = key
+        kin_unit = self._asm.kinematics(u, np.ones(self._asm.n_elements))
+        g = self._asm.region_forces(kin_unit, self._regions, self.parameters.p)
+        du = -self._solver.solve(g)
+        self._cost[2] += self.parameters.p
+        if not exact and self.sensitivity_refine:
+            # the factorization is of the last Newton iterate, not of K(u): one
+            # step of iterative refinement with K(u) removes that O(|du|) error
+            data = self._asm.tangent_data(kin, modulus, self._pattern)
+            du += self._solver.solve(-g - self._pattern.matvec(data, du))
+            self._cost[2] += self.parameters.p
+        return np.asarray(self._obs @ du.reshape(self.n_state, -1))
+
+    def cost(self) -> Cost:
+        """Cumulative forward solves, Newton iterations and linear solves."""
+        return Cost(*self._cost)
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-serialisable description of everything the results depend on."""
+        s = self.scenario
+        return {
+            "model": "svk-beam",
+            "code_version": MODEL_VERSION,
+            "mesh": self.beam.spec,
+            "n_nodes": self.n_nodes,
+            "n_elements": len(self.beam.tets),
+            "mesh_sha256": self.beam.digest(),
+            "nu": self.nu,
+            "parameters": self._parameter_kind,
+            "parameter_names": list(self.parameters.names),
+            "options": {k: v for k, v in sorted(self.options.items()) if k != "solver"},
+            "markers": len(self.marker_points),
+            "grid": list(self.grid_counts),
+            "scenario": {"name": s.name, "direction": list(s.direction),
+                         "magnitude": s.magnitude},
+            "n_steps": self.n_steps,
+            "rtol": self.rtol,
+            "atol": self.atol,
+            "max_iterations": self.max_iterations,
+        }  # fmt: skip
+
+    # -- extras: mesh output, residual and tangent for tests -------------------
+
+    def mesh(self) -> tuple[FloatArray, NDArray[np.int64]]:
+        """Node coordinates (N, 3) and tets (T, 4)."""
+        return self.beam.points, self.beam.tets
+
+    def displacement_field(self, state: FloatArray) -> FloatArray:
+        """Displacement of every node (N, 3), zeros on the clamped ones."""
+        full = np.zeros(3 * self.n_nodes)
+        full[self._asm.free_dofs] = state
+        return full.reshape(-1, 3)
+
+    def external_force(self, k: int) -> FloatArray:
+        """Nodal external force on the free dofs at load step ``k``, (n_state,)."""
+        return self._load(self.scenario.traction(k, self.n_steps))
+
+    def internal_force(self, theta: FloatArray, state: FloatArray) -> FloatArray:
+        """Assemble the internal force f_int(state; theta), shape (n_state,)."""
+        modulus = self._modulus(theta, None)
+        return self._asm.forces(self._asm.kinematics(np.asarray(state, float), modulus))
+
+    def residual(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
+        """Newton residual f_int(state; theta) - f_ext(k), shape (n_state,)."""
+        return self.internal_force(theta, state) - self.external_force(k)
+
+    def tangent(self, theta: FloatArray, state: FloatArray) -> Any:
+        """Assemble the full free-free tangent at ``state`` (scipy CSR)."""
+        modulus = self._modulus(theta, None)
+        kin = self._asm.kinematics(np.asarray(state, float), modulus)
+        return self._pattern.matrix(self._asm.tangent_data(kin, modulus, self._pattern))
+
+    # -- internals -------------------------------------------------------------
+
+    def _modulus(self, theta: FloatArray, k: int | None) -> FloatArray:
+        th = np.asarray(theta, dtype=np.float64).reshape(-1)
+        if th.shape != (self.parameters.p,):
+            raise ValueError(
+                f"theta has shape {th.shape}, expected ({self.parameters.p},)"
+            )
+        if not np.all(np.isfinite(th)) or np.any(th <= 0):
+            raise ModelFailure(
+                f"parameters {th.tolist()} are not positive and finite", step=k
+            )
+        return th[self._regions]
+
+    def _load(self, traction: FloatArray) -> FloatArray:
+        return self._load_weights * (np.asarray(traction) @ self._load_dir)
+
+    def _factor(self, kin: Kinematics, modulus: FloatArray, k: int) -> None:
+        data = self._asm.tangent_data(kin, modulus, self._pattern)
+        try:
+            self._solver.factor(data)
+        except SolverError as exc:
+            raise ModelFailure(f"tangent factorization failed: {exc}", step=k) from exc
+
+    def _newton(
+        self, modulus: FloatArray, f_ext: FloatArray, u: FloatArray, k: int
+    ) -> tuple[FloatArray, int]:
+        """Newton iterations for one load; returns the state and the iterations."""
+        asm = self._asm
+        tol = max(self.rtol * float(np.linalg.norm(f_ext)), self.atol)
+        res: list[float] = []
+        self.last_residuals = res
+        kin = asm.kinematics(u, modulus)
+        if not np.all(kin.det > 0):
+            raise ModelFailure("the starting state has inverted elements", step=k)
+        for it in range(self.max_iterations + 1):
+            r = asm.forces(kin) - f_ext
+            norm = float(np.linalg.norm(r))
+            res.append(norm)
+            if not np.isfinite(norm):
+                raise ModelFailure(
+                    f"non-finite residual at Newton iteration {it}", step=k
+                )
+            if norm <= tol:
+                self._cost[1] += it
+                return u, it
+            if it == self.max_iterations or norm > 1e10 * max(res[0], tol):
+                self._cost[1] += it
+                raise ModelFailure(
+                    f"Newton did not converge in {it} iterations: |r| = {norm:.3e} "
+                    f"> tol {tol:.3e} (first |r| = {res[0]:.3e})",
+                    step=k,
+                )
+            self._factor(kin, modulus, k)
+            du = self._solver.solve(-r)
+            self._cost[2] += 1
+            if not np.all(np.isfinite(du)):
+                raise ModelFailure("non-finite Newton update", step=k)
+            for _ in range(_BACKTRACKS + 1):
+                u_new = u + du
+                kin = asm.kinematics(u_new, modulus)
+                if np.all(kin.det > 0):
+                    break
+                du = 0.5 * du
+            else:
+                self._cost[1] += it + 1
+                raise ModelFailure(
+                    "inverted element (det F <= 0) in every backtrack", step=k
+                )
+            u = u_new
+        raise AssertionError("unreachable")  # pragma: no cover
+
+
+def make_model(spec: ModelSpec) -> SvkBeam:
+    """Build the model described by ``spec`` (registered as ``"svk-beam"``)."""
+    return SvkBeam(
+        meshes.parse(spec.mesh),
+        spec.scenario,
+        n_steps=spec.n_steps,
+        nu=spec.nu,
+        markers=spec.markers,
+        grid=tuple(spec.grid),  # type: ignore[arg-type]
+        parameters=spec.parameters,
+        options=dict(spec.options),
+    )

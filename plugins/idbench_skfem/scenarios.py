@@ -1,0 +1,35 @@
+"""The built-in load paths of the cantilever beam (DESIGN.md section 7)."""
+
+from __future__ import annotations
+
+import math
+
+from idbench import Scenario
+
+BEND_TRACTION = 8.9
+"""End traction (Pa) for bending and mixed paths: tip moves about 0.05 m."""
+
+STRETCH_TRACTION = 250.0
+"""End traction (Pa) for stretching: about 5% elongation."""
+
+
+def _mixed(angle_deg: float) -> Scenario:
+    a = math.radians(angle_deg)
+    return Scenario(
+        name=f"mixed-{angle_deg:g}",
+        direction=(math.cos(a), -math.sin(a), 0.0),
+        magnitude=BEND_TRACTION,
+        transfer="stretch-x",
+        description=f"traction in the x-y plane, {angle_deg:g} deg from +x to -y",
+    )
+
+
+SCENARIOS: tuple[Scenario, ...] = (
+    Scenario("bend-y", (0.0, -1.0, 0.0), BEND_TRACTION, "stretch-x", "bending in -y"),
+    Scenario("bend-z", (0.0, 0.0, -1.0), BEND_TRACTION, "stretch-x", "bending in -z"),
+    Scenario(
+        "stretch-x", (1.0, 0.0, 0.0), STRETCH_TRACTION, "bend-y", "stretching in +x"
+    ),
+    _mixed(30.0),
+    _mixed(60.0),
+)

@@ -1,0 +1,238 @@
+"""Sparse direct solvers with a fixed pattern: PARDISO (pypardiso's MKL) and scipy.
+
+Both factor a symmetric matrix given as CSR data in a pattern fixed at
+construction and keep the last factorization for further right-hand sides.
+
+- :class:`PardisoSolver`: MKL PARDISO, real symmetric indefinite (mtype -2, the
+  SVK tangent can be indefinite far from equilibrium), upper triangle, zero-based
+  indices; the symbolic analysis (phase 11, METIS ordering) runs once and every
+  later factorization is numeric only (phase 22).
+- :class:`ScipySolver`: SuperLU (``scipy.sparse.linalg.splu``) on the full
+  matrix with the minimum-degree ordering of A^T + A and symmetric pivoting.
+
+:func:`make_solver` picks one: ``backend`` argument, else the environment
+variable ``IDBENCH_SOLVER`` (``pardiso`` or ``scipy``), else PARDISO when
+pypardiso is importable.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import os
+from typing import Protocol
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from numpy.typing import NDArray
+
+log = logging.getLogger(__name__)
+
+SOLVER_ENV = "IDBENCH_SOLVER"
+BACKENDS = ("pardiso", "scipy")
+
+
+class SolverError(RuntimeError):
+    """The factorization failed (e.g. a singular matrix)."""
+
+
+class LinearSolver(Protocol):
+    """A direct solver for matrices with one fixed sparsity pattern."""
+
+    name: str
+    upper: bool
+    """Whether the solver wants only the upper triangle of the pattern."""
+
+    def factor(self, data: NDArray[np.float64]) -> None:
+        """Factor the matrix with CSR ``data`` (in the fixed pattern)."""
+        ...
+
+    def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Solve with the last factorization; ``rhs`` (n,) or (n, k)."""
+        ...
+
+
+def pardiso_available() -> bool:
+    """Whether pypardiso (and MKL) can be loaded."""
+    try:
+        _mkl()
+    except (ImportError, OSError):
+        return False
+    return True
+
+
+_MKL: ctypes.CDLL | None = None
+
+
+def _mkl() -> ctypes.CDLL:
+    global _MKL
+    if _MKL is None:
+        import pypardiso
+
+        _MKL = pypardiso.PyPardisoSolver().libmkl  # pypardiso finds mkl_rt for us
+    return _MKL
+
+
+class PardisoSolver:
+    """MKL PARDISO, symmetric indefinite, analysis once, numeric factor per call.
+
+    Parameters
+    ----------
+    indptr, indices
+        Upper-triangle CSR pattern (zero-based, sorted column indices).
+    """
+
+    name = "pardiso"
+    upper = True
+
+    def __init__(self, indptr: NDArray[np.int32], indices: NDArray[np.int32]) -> None:
+        lib = _mkl()
+        self._fn = lib.pardiso
+        i32p = ctypes.POINTER(ctypes.c_int32)
+        self._fn.argtypes = [ctypes.POINTER(ctypes.c_int64)] + [i32p] * 5 + [
+            ctypes.c_void_p, i32p, i32p, i32p, i32p, i32p, i32p,
+            ctypes.c_void_p, ctypes.c_void_p, i32p,
+        ]  # fmt: skip
+        self._fn.restype = None
+        self.n = len(indptr) - 1
+        self._ia = np.ascontiguousarray(indptr, dtype=np.int32)
+        self._ja = np.ascontiguousarray(indices, dtype=np.int32)
+        self._pt = np.zeros(64, dtype=np.int64)
+        self._iparm = np.zeros(64, dtype=np.int32)
+        ip = self._iparm
+        ip[0] = 1  # user-set iparm
+        ip[1] = 2  # METIS nested dissection
+        ip[7] = 2  # iterative refinement steps with perturbed pivots
+        ip[9] = 8  # pivot perturbation 1e-8
+        ip[10] = 0  # no scaling: keeps the analysis independent of the values
+        ip[12] = 0  # no weighted matching (same reason)
+        ip[17] = -1  # report nnz of the factor
+        ip[20] = 1  # Bunch-Kaufman 1x1 and 2x2 pivoting
+        ip[34] = 1  # zero-based indexing
+        self._data = np.zeros(len(self._ja))
+        self._analysed = False
+        self._factored = False
+        self._c = {
+            name: ctypes.c_int32(v)
+            for name, v in (("maxfct", 1), ("mnum", 1), ("mtype", -2), ("n", self.n),
+                            ("msglvl", 0))
+        }  # fmt: skip
+        self._perm = np.zeros(0, dtype=np.int32)
+
+    def _call(
+        self, phase: int, b: NDArray[np.float64], x: NDArray[np.float64], nrhs: int
+    ) -> None:
+        err = ctypes.c_int32(0)
+        c = self._c
+        i32p = ctypes.POINTER(ctypes.c_int32)
+        self._fn(
+            self._pt.ctypes.data_as(ctypes.POINTER(ctypes.c_int64)),
+            ctypes.byref(c["maxfct"]), ctypes.byref(c["mnum"]),
+            ctypes.byref(c["mtype"]),
+            ctypes.byref(ctypes.c_int32(phase)), ctypes.byref(c["n"]),
+            self._data.ctypes.data, self._ia.ctypes.data_as(i32p),
+            self._ja.ctypes.data_as(i32p), self._perm.ctypes.data_as(i32p),
+            ctypes.byref(ctypes.c_int32(nrhs)), self._iparm.ctypes.data_as(i32p),
+            ctypes.byref(c["msglvl"]), b.ctypes.data, x.ctypes.data, ctypes.byref(err),
+        )  # fmt: skip
+        if err.value != 0:
+            raise SolverError(f"PARDISO phase {phase} failed with error {err.value}")
+
+    def factor(self, data: NDArray[np.float64]) -> None:
+        """Numeric factorization (runs the symbolic analysis the first time)."""
+        self._data[:] = data
+        dummy = np.zeros(1)
+        if not self._analysed:
+            self._call(11, dummy, dummy, 1)
+            self._analysed = True
+            log.debug("PARDISO analysis: n=%d, nnz(L)=%d", self.n, self._iparm[17])
+        self._factored = False
+        self._call(22, dummy, dummy, 1)
+        self._factored = True
+
+    def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Forward and back substitution with the last factorization."""
+        if not self._factored:
+            raise SolverError("solve before factor")
+        b = np.asfortranarray(rhs, dtype=np.float64)
+        x = np.zeros_like(b)
+        self._call(33, b, x, 1 if b.ndim == 1 else b.shape[1])
+        return np.ascontiguousarray(x)
+
+    def __del__(self) -> None:
+        if getattr(self, "_analysed", False):
+            dummy = np.zeros(1)
+            try:
+                self._call(-1, dummy, dummy, 1)
+            except Exception:  # interpreter shutdown
+                pass
+
+
+class ScipySolver:
+    """SuperLU on the full symmetric matrix, minimum degree on A^T + A.
+
+    Parameters
+    ----------
+    indptr, indices
+        Full CSR pattern (sorted column indices).
+    """
+
+    name = "scipy"
+    upper = False
+
+    def __init__(self, indptr: NDArray[np.int32], indices: NDArray[np.int32]) -> None:
+        n = len(indptr) - 1
+        self._a = sp.csr_matrix((np.zeros(len(indices)), indices, indptr), shape=(n, n))
+        self._lu: spla.SuperLU | None = None
+
+    def factor(self, data: NDArray[np.float64]) -> None:
+        """LU factorization (the matrix is symmetric: CSR = CSC of its transpose)."""
+        self._a.data[:] = data
+        try:
+            # CSR of a symmetric matrix is its CSC: no conversion needed
+            csc = sp.csc_matrix(
+                (self._a.data, self._a.indices, self._a.indptr), shape=self._a.shape
+            )
+            self._lu = spla.splu(
+                csc,
+                permc_spec="MMD_AT_PLUS_A",
+                diag_pivot_thresh=0.01,
+                options={"SymmetricMode": True},
+            )
+        except RuntimeError as exc:  # "Factor is exactly singular"
+            self._lu = None
+            raise SolverError(f"SuperLU failed: {exc}") from exc
+
+    def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Substitution with the last factorization."""
+        if self._lu is None:
+            raise SolverError("solve before factor")
+        return self._lu.solve(np.asarray(rhs, dtype=np.float64))
+
+
+def resolve_backend(backend: str | None = None) -> str:
+    """Pick the backend: argument, else ``IDBENCH_SOLVER``, else the fastest."""
+    choice = backend or os.environ.get(SOLVER_ENV, "").strip().lower() or None
+    if choice is None:
+        return "pardiso" if pardiso_available() else "scipy"
+    if choice not in BACKENDS:
+        raise ValueError(
+            f"solver backend {choice!r}: allowed are {', '.join(BACKENDS)}"
+        )
+    if choice == "pardiso" and not pardiso_available():
+        raise ValueError(
+            "solver backend 'pardiso' requested but pypardiso/MKL is not available"
+        )
+    return choice
+
+
+def make_solver(
+    backend: str, indptr: NDArray[np.int32], indices: NDArray[np.int32]
+) -> LinearSolver:
+    """Build the solver ``backend`` (see :func:`resolve_backend`) on a pattern."""
+    if backend == "pardiso":
+        return PardisoSolver(indptr, indices)
+    if backend == "scipy":
+        return ScipySolver(indptr, indices)
+    raise ValueError(f"solver backend {backend!r}: allowed are {', '.join(BACKENDS)}")

@@ -1,0 +1,52 @@
+"""idbench.testing's conformance checks pass on good plugins and catch bad ones."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from toymodels import LinearToy, SensitiveLinearToy
+
+import idbench
+from idbench.testing import check_estimator, check_model
+
+
+@pytest.fixture(scope="module")
+def registry():
+    return idbench.build_registry(idbench.get_plugin_manager(autoload=False))
+
+
+def test_beam_model_conforms(registry):
+    spec = idbench.ModelSpec(
+        mesh="6x2x2", scenario=registry.scenario("bend-y"), n_steps=4, markers=2
+    )
+    check_model(registry.model("svk-beam")(spec), np.array([5000.0]))
+
+
+def test_wrong_sensitivity_is_caught():
+    model = SensitiveLinearToy(p=1)
+    check_model(model, np.array([2.0]))  # the exact one passes
+    good = model.sensitivity
+    model.sensitivity = lambda theta, k, state: 1.1 * good(theta, k, state)
+    with pytest.raises(AssertionError, match="finite differences"):
+        check_model(model, np.array([2.0]))
+
+
+def test_nondeterministic_model_is_caught():
+    model = LinearToy(p=1)
+    rng = np.random.default_rng(0)
+    step = model.step
+    model.step = lambda theta, k, state, substeps=1: (
+        step(theta, k, state) + rng.normal(scale=1e-12, size=state.shape)
+    )
+    with pytest.raises(AssertionError, match="deterministic"):
+        check_model(model, np.array([2.0]))
+
+
+@pytest.mark.parametrize("name", ["ro-ukf", "rls", "lms", "batch-ls"])
+def test_builtin_estimators_conform(registry, name):
+    check_estimator(
+        registry.estimator(name),
+        LinearToy(p=2),
+        idbench.Prior((1.0, 2.0), (1.0, 1.0)),
+        transform="identity",
+    )

@@ -1,0 +1,85 @@
+"""The truth cache and ``idbench simulate``."""
+
+from __future__ import annotations
+
+import meshio
+import numpy as np
+import pytest
+
+import idbench
+from idbench import truth
+from idbench.cli import main
+
+
+@pytest.fixture()
+def beam(tmp_path, monkeypatch):
+    monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    reg = idbench.build_registry(idbench.get_plugin_manager(autoload=False))
+    spec = idbench.ModelSpec(mesh="6x2x2", scenario=reg.scenario("bend-y"), n_steps=3)
+    return reg.model("svk-beam")(spec)
+
+
+def test_truth_is_cached_and_reused(beam):
+    theta = np.array([5000.0])
+    first = truth.simulate_truth(beam, theta)
+    solves = beam.cost().forward_solves
+    again = truth.simulate_truth(beam, theta)
+    assert beam.cost().forward_solves == solves  # loaded, not simulated
+    np.testing.assert_array_equal(first.states, again.states)
+    np.testing.assert_array_equal(first.grid, again.grid)
+    assert first.observations.shape == (3, 6)
+    # another modulus is another entry
+    other = truth.simulate_truth(beam, np.array([4000.0]))
+    assert beam.cost().forward_solves == solves + 3
+    assert np.abs(other.states[-1]).max() > np.abs(first.states[-1]).max()
+    assert len(list(truth.cache_dir().glob("truth-*.npz"))) == 2
+
+
+def test_truncated_cache_entry_is_recomputed(beam):
+    theta = np.array([5000.0])
+    first = truth.simulate_truth(beam, theta)
+    (entry,) = truth.cache_dir().glob("truth-*.npz")
+    entry.write_bytes(entry.read_bytes()[:100])
+    again = truth.simulate_truth(beam, theta)
+    np.testing.assert_array_equal(first.states, again.states)
+    with np.load(entry, allow_pickle=False) as data:  # rewritten whole
+        assert data["states"].shape == first.states.shape
+
+
+def test_key_ignores_probes_but_not_physics(beam):
+    desc = beam.describe()
+    key = truth.truth_key(beam, np.array([5000.0]))
+    assert key != truth.truth_key(beam, np.array([5001.0]))
+    beam.describe = lambda: {**desc, "markers": 99}
+    assert truth.truth_key(beam, np.array([5000.0])) == key
+    beam.describe = lambda: {**desc, "nu": 0.3}
+    assert truth.truth_key(beam, np.array([5000.0])) != key
+
+
+def test_simulate_cli_writes_xdmf_time_series(tmp_path, capsys):
+    out = tmp_path / "beam.xdmf"
+    code = main(["simulate", "--mesh", "6x2x2", "--scenario", "bend-y",
+                 "--steps", "3", "--out", str(out)])  # fmt: skip
+    assert code == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("step")]
+    assert len(lines) == 3
+    tip_y = [float(ln.split()[-3]) for ln in lines]
+    assert tip_y[0] < 0 and tip_y[2] < tip_y[1] < tip_y[0]  # bending in -y grows
+    with meshio.xdmf.TimeSeriesReader(out) as reader:
+        points, _cells = reader.read_points_cells()
+        assert reader.num_steps == 3
+        _t, point_data, _ = reader.read_data(2)
+    u = point_data["displacement"]
+    assert u.shape == points.shape
+    assert u[:, 1].min() == pytest.approx(tip_y[2], rel=0.2)
+
+
+def test_simulate_cli_rejects_bad_input(tmp_path, capsys):
+    out = str(tmp_path / "x.xdmf")
+    assert main(["simulate", "--mesh", "6x2x2", "--scenario", "twist",
+                 "--out", out]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert "twist" in err and "bend-y" in err and "Traceback" not in err
+    assert main(["simulate", "--mesh", "nonsense", "--scenario", "bend-y",
+                 "--out", out]) == 2  # fmt: skip
+    assert "nonsense" in capsys.readouterr().err
