@@ -33,6 +33,124 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
     return df.groupby(keys, dropna=False, sort=True).agg(**agg).reset_index()
 
 
+BUDGETS_HZ = (30, 60)
+FRONTIER_KEYS = ["scenario", "mesh", "model_nodes", "estimator"]
+
+
+def frontier(
+    runs: pd.DataFrame, traces: pd.DataFrame, budgets_hz: tuple[int, ...] = BUDGETS_HZ
+) -> pd.DataFrame:
+    r"""Shape error reached against wall time per step, per (mesh, estimator).
+
+    Only runs with status ok count; sparsity settings and seeds are pooled, as
+    in :func:`summarise`. The wall time of a step is the estimator's
+    ``update`` time (the traces' ``wall_s``: per step, not cumulative; the
+    harness's metrics solves are not in it). Per (mesh, estimator) it is
+
+    .. math::
+
+        t_{step} = \max(\operatorname{median}_{k, s} w_{k,s},
+                         \operatorname{mean}_s \tfrac{1}{K} \sum_k w_{k,s}),
+
+    the larger of the typical step (median over steps and seeds) and the
+    amortised step (total estimator time / K, mean over seeds). A filter works
+    evenly and is charged its typical step; an estimator that defers its work
+    (``batch-ls`` with ``refit="end"`` fits once at step K and costs nothing
+    before) is charged its amortised cost, which a real-time loop could only
+    meet by spreading the fit over the steps. Without traces, ``wall_s_step``
+    of the runs (the mean step) is used.
+
+    Parameters
+    ----------
+    runs, traces
+        The tables of a comparison (``runs.parquet``, ``traces.parquet``).
+    budgets_hz
+        Real-time rates; each gives a column ``within_<rate>hz`` (the step
+        fits in 1/rate seconds) and ``best_<rate>hz`` (the row of lowest shape
+        error among those, per scenario).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per (scenario, mesh, model_nodes, estimator), sorted by
+        scenario and wall time: ``seeds``, ``shape_error_final``,
+        ``shape_error_mean_final`` (means over seeds), ``wall_s_median``,
+        ``wall_s_amortised``, ``wall_s_step``, ``rate_hz`` (1 / wall_s_step),
+        ``pareto`` (no other row of the scenario is at least as fast and at
+        least as accurate, and strictly better in one), and the budget columns.
+    """
+    ok = runs[runs["status"] == "ok"] if "status" in runs else runs
+    if ok.empty or "shape_error_final" not in ok:
+        return pd.DataFrame()
+    keys = [k for k in FRONTIER_KEYS if k in ok.columns]
+    agg: dict[str, Any] = {
+        "seeds": ("run_id", "size"),
+        "shape_error_final": ("shape_error_final", "mean"),
+        "shape_error_mean_final": ("shape_error_mean_final", "mean"),
+    }
+    agg = {k: v for k, v in agg.items() if v[0] in ok.columns}
+    table = ok.groupby(keys, dropna=False, sort=True).agg(**agg)
+    if not traces.empty and "wall_s" in traces:
+        tr = traces.merge(ok[["run_id", *keys]], on="run_id")
+        per_run = tr.groupby("run_id")["wall_s"].agg(["sum", "size"])
+        amortised = ok.set_index("run_id")[keys].join(per_run)
+        amortised["wall_s"] = amortised["sum"] / amortised["size"]
+        table["wall_s_median"] = tr.groupby(keys, dropna=False)["wall_s"].median()
+        table["wall_s_amortised"] = amortised.groupby(keys, dropna=False)[
+            "wall_s"
+        ].mean()
+    else:
+        mean_step = ok.groupby(keys, dropna=False)["wall_s_step"].mean()
+        table["wall_s_median"] = mean_step
+        table["wall_s_amortised"] = mean_step
+    table["wall_s_step"] = table[["wall_s_median", "wall_s_amortised"]].max(axis=1)
+    table["rate_hz"] = 1.0 / table["wall_s_step"]
+    table = table.reset_index()
+    parts = []
+    by = ["scenario"] if "scenario" in keys else []
+    groups = list(table.groupby(by, sort=True)) if by else [((), table)]
+    for _, df in groups:
+        df = df.sort_values(["wall_s_step", "shape_error_final"]).copy()
+        df["pareto"] = pareto_front(
+            df["wall_s_step"].to_numpy(), df["shape_error_final"].to_numpy()
+        )
+        for hz in budgets_hz:
+            within = df["wall_s_step"] <= 1.0 / hz
+            df[f"within_{hz}hz"] = within
+            best = df.loc[within, "shape_error_final"]
+            df[f"best_{hz}hz"] = False
+            if best.notna().any():
+                df.loc[best.idxmin(), f"best_{hz}hz"] = True
+        parts.append(df)
+    return pd.concat(parts).reset_index(drop=True)
+
+
+def pareto_front(cost: np.ndarray, error: np.ndarray) -> np.ndarray:
+    """Which points no other point dominates (lower is better on both axes).
+
+    Point i is dominated when some j has cost_j <= cost_i and
+    error_j <= error_i with at least one strict. NaN points are never on the
+    front and dominate nothing.
+
+    Parameters
+    ----------
+    cost, error
+        (n,) arrays.
+
+    Returns
+    -------
+    numpy.ndarray
+        (n,) booleans.
+    """
+    c = np.asarray(cost, dtype=float)[:, None]
+    e = np.asarray(error, dtype=float)[:, None]
+    finite = np.isfinite(c[:, 0]) & np.isfinite(e[:, 0])
+    no_worse = (c.T <= c) & (e.T <= e)  # [i, j]: j is no worse than i
+    better = (c.T < c) | (e.T < e)
+    dominated = (no_worse & better & finite[None, :]).any(axis=1)
+    return finite & ~dominated
+
+
 SUMMARY_COLUMNS = {
     "scenario": "scenario",
     "model_nodes": "nodes",
@@ -130,7 +248,67 @@ def _figures(runs: pd.DataFrame, traces: pd.DataFrame) -> dict[str, Any]:
         )
         ax.legend(fontsize="xx-small", ncol=2)
         figs["estimates_vs_step"] = fig
+    table = frontier(runs, traces)
+    if not table.empty:
+        figs["realtime_frontier"] = frontier_figure(table)
     return figs
+
+
+def frontier_figure(table: pd.DataFrame) -> Any:
+    """Shape error against wall time per step (log-log), from :func:`frontier`.
+
+    One marker per (mesh, estimator), labelled with its node count; one colour
+    per estimator; vertical lines at the real-time budgets; the Pareto front of
+    each scenario as a step line.
+    """
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    scenarios = sorted(table["scenario"].unique()) if "scenario" in table else [None]
+    markers = "osD^v<>"
+    for i, (est, df) in enumerate(table.groupby("estimator", sort=True)):
+        for j, scen in enumerate(scenarios):
+            d = df if scen is None else df[df["scenario"] == scen]
+            label = str(est) if len(scenarios) == 1 else f"{est} {scen}"
+            ax.plot(
+                d["wall_s_step"],
+                d["shape_error_final"],
+                markers[j % len(markers)],
+                color=f"C{i}",
+                label=label,
+                ms=6,
+            )
+            for _, row in d.iterrows():
+                ax.annotate(
+                    f"{row['model_nodes']:.0f}",
+                    (row["wall_s_step"], row["shape_error_final"]),
+                    xytext=(4, 3),
+                    textcoords="offset points",
+                    fontsize="x-small",
+                )
+    for scen in scenarios:
+        d = table if scen is None else table[table["scenario"] == scen]
+        front = d[d["pareto"]].sort_values("wall_s_step")
+        ax.plot(
+            front["wall_s_step"],
+            front["shape_error_final"],
+            "k-",
+            drawstyle="steps-post",
+            lw=0.8,
+            alpha=0.6,
+            label="Pareto front" if scen == scenarios[0] else None,
+        )
+    for hz, ls in zip(BUDGETS_HZ, ("--", ":"), strict=False):
+        ax.axvline(1.0 / hz, color="grey", ls=ls, lw=1, label=f"{hz} Hz budget")
+    ax.set(
+        xscale="log",
+        yscale="log",
+        xlabel="wall time per step (s)",
+        ylabel="shape error at the last step (m, sum over grid)",
+        title="Real-time frontier: accuracy against cost per step",
+    )
+    ax.legend(fontsize="x-small")
+    return fig
 
 
 def write_report(directory: str | Path) -> list[Path]:
@@ -168,6 +346,19 @@ def write_report(directory: str | Path) -> list[Path]:
         _markdown(summary),
         "",
     ]
+    table = frontier(runs, traces)
+    if not table.empty:
+        lines += [
+            "## Real-time frontier",
+            "",
+            "Wall time per step: the larger of the median estimator step and the"
+            " total estimator time / steps (amortised), measured on this machine;"
+            " `pareto`: no other row is both faster and more accurate;"
+            " `best_<rate>hz`: lowest shape error within that budget.",
+            "",
+            _markdown(table),
+            "",
+        ]
     lines += [f"![{p.stem}]({p.name})" for p in written if p.suffix == ".png"]
     md = root / "report.md"
     md.write_text("\n".join(lines) + "\n")
