@@ -29,3 +29,16 @@ def test_fig2_identified_E_rises_with_resolution_and_stays_below_truth(tmp_path)
     assert len(ro) == 3
     assert np.all(np.diff(ro["E"].to_numpy()) > 0)  # approaches E_true from below
     assert np.all(ro["ratio"] < 1.0)
+
+
+def test_fig3_fig4_effective_E_depends_on_direction_and_strength(tmp_path):
+    study = load("fig3_fig4_effective_stiffness")
+    table = study.compute(quick=True, out=tmp_path)
+    eff = table.pivot(index="step", columns="scenario", values="eff_ratio")
+    assert eff["stretch-x"].min() > eff["bend-y"].max() + 0.3  # direction
+    assert eff["stretch-x"].iloc[0] - eff["stretch-x"].iloc[-1] > 0.03  # strength
+    last = table[table["step"] == table["step"].max()]
+    # the filter ends on the level's best constant, found independently
+    np.testing.assert_allclose(last["E_ukf"], last["E_eff"], rtol=0.05)
+    study.plot(table, tmp_path / "fig.png")
+    assert (tmp_path / "fig.png").stat().st_size > 10_000
