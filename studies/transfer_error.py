@@ -1,0 +1,162 @@
+"""Beyond the paper: identify E on one manipulation, predict another.
+
+The paper warns that the effective modulus of a coarse mesh depends on the
+deformation, so a value fitted on one manipulation misleads on another. For
+each source load path, the RO-UKF identifies E on the model mesh; that E then
+simulates the source's transfer target (``stretch-x`` for bending and mixed
+paths, ``bend-y`` for ``stretch-x``) and the shape error at the last step is
+compared with two baselines on the same mesh and target: E identified by the
+RO-UKF on the target's own data ("fit on target"), and E_true ("direct").
+All three are plain forward simulations of the target path with a constant E.
+
+Run ``python studies/transfer_error.py [--quick] [--out DIR]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from idbench import metrics
+from idbench.config import CompareConfig
+from idbench.harness import RunSpec, Session, expand
+from idbench.sweep import compare
+from idbench.truth import simulate_path
+
+# Parameters (full size: the paper's 239- and 510-node models, truth 11,700)
+SOURCES = ("bend-y", "bend-z", "mixed-30", "mixed-60", "stretch-x")
+MESHES = ("14x3x3", "20x4x4")
+TRUTH = "80x11x11"
+ESTIMATOR = "ro-ukf"
+SEEDS = 3
+BARS = {
+    "transfer_error": "E fitted on source (transfer)",
+    "fit_on_target": "E fitted on target",
+    "direct": "E_true (direct)",
+}
+
+QUICK = {
+    "scenarios": ("bend-y", "stretch-x"),
+    "meshes": ("8x2x2",),
+    "truth_mesh": "24x4x4",
+    "seeds": 1,
+    "steps": 6,
+}
+
+
+def predict(session: Session, spec: RunSpec, scenario: str, theta: float) -> float:
+    """Final-step shape error (sum, m) of ``scenario`` on the run's mesh at E."""
+    model = session.model(spec, spec.mesh, scenario, role="metrics")
+    truth = session.truth(spec, scenario)
+    states = simulate_path(model, np.atleast_1d(theta))
+    return metrics.shape_error(model.grid(states[-1]), truth.grid[-1])[0]
+
+
+def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
+    """Shape error on the transfer target per (source, model mesh).
+
+    Columns: ``transfer_error`` (E identified on the source), ``fit_on_target``
+    (E identified on the target itself, same seed), ``direct`` (E_true), each
+    a mean over seeds with ``*_sd``; ``E_source`` and ``E_target`` the mean
+    identified moduli; ``transfer_vs_fit`` the ratio of the first two errors.
+    """
+    settings = {
+        "scenarios": SOURCES,
+        "meshes": MESHES,
+        "truth_mesh": TRUTH,
+        "estimators": (ESTIMATOR,),
+        "seeds": SEEDS,
+    }
+    if quick:
+        settings.update(QUICK)
+    config = CompareConfig(**settings)
+    runs, _ = compare(config, out)
+    specs = {s.run_id: s for s in expand(config)}
+    ok = runs[runs["status"] == "ok"].set_index(["scenario", "mesh", "seed"])
+    session = Session()
+    rows = []
+    for (source, mesh, seed), run in ok.iterrows():
+        target = run["transfer_scenario"]
+        if (target, mesh, seed) not in ok.index:
+            continue
+        E_target = ok.loc[(target, mesh, seed), "E_final"]
+        spec = specs[run["run_id"]]
+        rows.append(
+            {
+                "source": source,
+                "target": target,
+                "mesh": mesh,
+                "model_nodes": int(run["model_nodes"]),
+                "seed": seed,
+                "E_source": run["E_final"],
+                "E_target": E_target,
+                "transfer_error": run["transfer_error"],
+                "fit_on_target": predict(session, spec, target, E_target),
+                "direct": run["transfer_error_direct"],
+            }
+        )
+    per_seed = pd.DataFrame(rows)
+    table = (
+        per_seed.groupby(["source", "target", "mesh", "model_nodes"], sort=False)
+        .agg(
+            E_source=("E_source", "mean"),
+            E_target=("E_target", "mean"),
+            transfer_error=("transfer_error", "mean"),
+            transfer_error_sd=("transfer_error", "std"),
+            fit_on_target=("fit_on_target", "mean"),
+            fit_on_target_sd=("fit_on_target", "std"),
+            direct=("direct", "mean"),
+            n_seeds=("seed", "size"),
+        )
+        .reset_index()
+    )
+    table["transfer_vs_fit"] = table["transfer_error"] / table["fit_on_target"]
+    table["E_true"] = float(config.E_true)
+    return table
+
+
+def plot(table: pd.DataFrame, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    meshes = list(dict.fromkeys(table["mesh"]))
+    fig, axes = plt.subplots(
+        1, len(meshes), figsize=(5 * len(meshes), 4), sharey=True, squeeze=False
+    )
+    width = 0.8 / len(BARS)
+    for ax, mesh in zip(axes[0], meshes, strict=True):
+        df = table[table["mesh"] == mesh]
+        x = np.arange(len(df))
+        for i, (col, label) in enumerate(BARS.items()):
+            sd = df.get(f"{col}_sd")
+            ax.bar(
+                x + (i - (len(BARS) - 1) / 2) * width,
+                df[col],
+                width,
+                yerr=None if sd is None else sd.fillna(0),
+                capsize=2,
+                label=label,
+            )
+        labels = df["source"] + "\n-> " + df["target"]
+        ax.set_xticks(x, labels.tolist())
+        ax.set(
+            yscale="log",
+            title=f"{mesh} ({int(df['model_nodes'].iloc[0])} nodes)",
+        )
+    axes[0, 0].set_ylabel("shape error on target, last step (m)")
+    axes[0, -1].legend(fontsize="small")
+    fig.suptitle(f"Transfer error: identify on one path, predict another ({ESTIMATOR})")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--out", type=Path, default=Path("results/transfer"))
+    args = parser.parse_args()
+    table = compute(args.quick, args.out)
+    print(table.to_string(index=False))
+    plot(table, args.out / "transfer_error.png")
