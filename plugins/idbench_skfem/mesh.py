@@ -36,6 +36,10 @@ HEIGHT = 0.03
 
 _DIVISIONS = re.compile(r"^\s*(\d+)\s*[xX]\s*(\d+)\s*[xX]\s*(\d+)\s*$")
 _MAX_NODES = 2_000_000
+_OTHER_SOLIDS = {
+    "hexahedron", "hexahedron20", "hexahedron24", "hexahedron27", "wedge",
+    "wedge15", "pyramid", "pyramid13", "pyramid14", "tetra10", "tetra20",
+}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -154,6 +158,14 @@ def from_arrays(
         raise ValueError(f"mesh {spec!r}: points must have shape (N, 3)")
     if tets.ndim != 2 or tets.shape[1] != 4 or len(tets) == 0:
         raise ValueError(f"mesh {spec!r}: needs tetrahedra, shape (T, 4)")
+    if not np.all(np.isfinite(points)):
+        raise ValueError(f"mesh {spec!r}: has non-finite node coordinates")
+    outside = (tets < 0) | (tets >= len(points))
+    if np.any(outside):
+        raise ValueError(
+            f"mesh {spec!r}: a tetrahedron refers to node {int(tets[outside][0])}, "
+            f"but the nodes are numbered 0..{len(points) - 1}"
+        )
     used = np.unique(tets)
     if len(used) != len(points):  # drop nodes no tet uses (e.g. gmsh geometry points)
         remap = np.full(len(points), -1, dtype=np.int64)
@@ -164,10 +176,15 @@ def from_arrays(
         "ti,ti->t", x[:, 1] - x[:, 0], np.cross(x[:, 2] - x[:, 0], x[:, 3] - x[:, 0])
     )
     scale = float(np.max(np.ptp(points, axis=0)))
-    if np.any(np.abs(det) <= 1e-12 * scale**3):
-        raise ValueError(f"mesh {spec!r}: has degenerate (zero-volume) tetrahedra")
+    flat = np.abs(det) <= 1e-12 * scale**3
+    if np.any(flat):
+        raise ValueError(
+            f"mesh {spec!r}: has {int(flat.sum())} degenerate (zero-volume) "
+            f"tetrahedra, e.g. tetrahedron {int(np.argmax(flat))}"
+        )
     flip = det < 0
     tets[flip, 2], tets[flip, 3] = tets[flip, 3].copy(), tets[flip, 2].copy()
+    _check_not_folded(points, tets, spec)
     lower, upper = points.min(axis=0), points.max(axis=0)
     tol = 1e-9 * scale
     clamped = np.flatnonzero(np.abs(points[:, 0] - lower[0]) <= tol)
@@ -179,12 +196,51 @@ def from_arrays(
     key = np.sort(faces, axis=1)
     _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
     loaded = faces[first[counts == 1]]
-    if len(clamped) < 3 or len(loaded) == 0:
+    on_start = np.zeros(len(points), dtype=bool)
+    on_start[clamped] = True
+    flat_start = on_start[tets].sum(axis=1) >= 3  # a tet with a face on x = min x
+    if len(clamped) < 3 or not np.any(flat_start) or len(loaded) == 0:
+        which = "loaded face x = max x" if len(loaded) == 0 else ""
+        if len(clamped) < 3 or not np.any(flat_start):
+            which = "clamped face x = min x"
         raise ValueError(
-            f"mesh {spec!r}: could not find the clamped face x = {lower[0]:g} "
-            f"and the loaded face x = {upper[0]:g}"
+            f"mesh {spec!r}: has no {which} (x = {lower[0]:g} .. {upper[0]:g}); "
+            "the beam must have flat end faces normal to x"
         )
     return BeamMesh(spec, points, tets, lower, upper, clamped, loaded)
+
+
+def _check_not_folded(
+    points: NDArray[np.float64], tets: NDArray[np.int64], spec: str
+) -> None:
+    """Raise ValueError if tetrahedra overlap their neighbours (inverted elements).
+
+    Vertex order is not a test of inversion (the tets were just re-oriented):
+    a tet is inverted when it lies on the same side of a shared face as its
+    neighbour, i.e. the two vertices opposite an interior face are not on
+    opposite sides of it, or a face is shared by more than two tets.
+    """
+    local = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])
+    faces = np.sort(tets[:, local].reshape(-1, 3), axis=1)
+    opposite = tets.reshape(-1)
+    p0, p1, p2 = (points[faces[:, i]] for i in range(3))
+    side = np.sign(
+        np.einsum("fi,fi->f", np.cross(p1 - p0, p2 - p0), points[opposite] - p0)
+    )
+    n = len(points)
+    keys = faces if n >= 2**21 else (faces[:, 0] * n + faces[:, 1]) * n + faces[:, 2]
+    _, inverse, counts = np.unique(
+        keys, axis=0, return_inverse=True, return_counts=True
+    )
+    inverse = inverse.reshape(-1)
+    balance = np.bincount(inverse, weights=side)
+    bad_face = (counts > 2) | ((counts == 2) & (balance != 0))
+    if np.any(bad_face):
+        bad = np.unique(np.flatnonzero(bad_face[inverse]) // 4)
+        raise ValueError(
+            f"mesh {spec!r}: has inverted tetrahedra ({len(bad)} overlap a "
+            f"neighbour, e.g. tetrahedron {int(bad[0])}); fix or remesh it"
+        )
 
 
 def read_file(path: str | Path, spec: str | None = None) -> BeamMesh:
@@ -199,14 +255,20 @@ def read_file(path: str | Path, spec: str | None = None) -> BeamMesh:
     except (Exception, SystemExit) as exc:
         why = " ".join(chatter.getvalue().split()) or f"{type(exc).__name__}: {exc}"
         raise ValueError(
-            f"meshio cannot read it ({why}); give a tetrahedral mesh file "
-            "(.msh, .vtu, .xdmf, ...) or NXxNYxNZ or a node count"
+            f"mesh file {str(path)!r}: meshio cannot read it ({why}); give a "
+            "tetrahedral mesh file (.msh, .vtu, .xdmf, ...) or NXxNYxNZ or a "
+            "node count"
         ) from None
     tets = [c.data for c in m.cells if c.type == "tetra"]
+    kinds = sorted({c.type for c in m.cells})
     if not tets:
-        kinds = sorted({c.type for c in m.cells})
         raise ValueError(
             f"mesh file {str(path)!r} has no 'tetra' cells (found {kinds}); "
+            "only linear tetrahedra are supported"
+        )
+    if others := sorted(set(kinds) & _OTHER_SOLIDS):
+        raise ValueError(
+            f"mesh file {str(path)!r} mixes tetrahedra with {others} cells; "
             "only linear tetrahedra are supported"
         )
     points = np.asarray(m.points, dtype=float)
