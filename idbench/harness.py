@@ -9,11 +9,13 @@ inputs (the truth, the reference fit, the direct simulation) are memoised in a
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
 import time
 import traceback
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -36,6 +38,31 @@ from idbench.scenario import Sparsity
 from idbench.truth import Truth, simulate_path, simulate_truth, stable_hash
 
 log = logging.getLogger(__name__)
+
+
+class EstimatorError(RuntimeError):
+    """An estimator raised something other than a divergence or a skip.
+
+    The message names the estimator, its plugin, the call and the step.
+    """
+
+    def __init__(self, message: str, step: int | None = None) -> None:
+        super().__init__(message)
+        self.step = step
+
+
+@contextlib.contextmanager
+def _blame(who: str, call: str, step: int | None = None) -> Iterator[None]:
+    """Re-raise an unexpected exception of an estimator as :class:`EstimatorError`."""
+    try:
+        yield
+    except (Diverged, ModelFailure, Skipped, ConfigError):
+        raise
+    except Exception as exc:
+        at = f" at step {step}" if step is not None else ""
+        raise EstimatorError(
+            f"{who} raised in {call}{at}: {type(exc).__name__}: {exc}", step=step
+        ) from exc
 
 
 @dataclass(frozen=True)
@@ -264,6 +291,13 @@ def execute(
         row.update(status="skipped", error=str(exc))
     except (Diverged, ModelFailure) as exc:
         row.update(status="diverged", error=str(exc), failed_step=exc.step)
+    except EstimatorError as exc:
+        row.update(
+            status="failed",
+            error=str(exc),
+            failed_step=np.nan if exc.step is None else exc.step,
+            traceback=traceback.format_exc(),
+        )
     except (KeyboardInterrupt, SystemExit):
         raise
     except (ConfigError, KeyError) as exc:
@@ -326,17 +360,23 @@ def _run(
         row[f"{n}_ref"] = np.nan
 
     cls = session.registry.estimator(spec.estimator)
-    try:
-        estimator = cls(**dict(spec.settings))
-    except TypeError as exc:
-        allowed = ", ".join(f.name for f in dataclasses.fields(cls))
-        raise ConfigError(
-            f"estimator {spec.estimator!r}: {exc}; allowed settings: {allowed}"
-        ) from None
+    who = (
+        f"estimator {spec.estimator!r} "
+        f"(plugin {session.registry.estimators[spec.estimator].plugin!r})"
+    )
+    with _blame(who, "its constructor"):
+        try:
+            estimator = cls(**dict(spec.settings))
+        except TypeError as exc:
+            allowed = ", ".join(f.name for f in dataclasses.fields(cls))
+            raise ConfigError(
+                f"estimator {spec.estimator!r}: {exc}; allowed settings: {allowed}"
+            ) from None
     truth = session.truth(spec)
     stream = session.observations(spec)
     direct = session.direct(spec)
-    estimator.start(model, session.prior(model, spec))
+    with _blame(who, "start()"):
+        estimator.start(model, session.prior(model, spec))
 
     shadow = metrics_model.reset()
     means = np.full((spec.steps, len(names)), np.nan)
@@ -344,10 +384,11 @@ def _run(
     newton_before = 0
     for k, obs in enumerate(stream, start=1):
         t0 = time.perf_counter()
-        est = estimator.update(k, obs)
+        with _blame(who, "update()", k):
+            est = estimator.update(k, obs)
+            mean = np.asarray(est.mean, dtype=float)
+            std = np.asarray(est.std, dtype=float)
         dt = time.perf_counter() - t0
-        mean = np.asarray(est.mean, dtype=float)
-        std = np.asarray(est.std, dtype=float)
         if not model.parameters.contains(mean):
             raise Diverged(f"estimate {mean} non-finite or outside bounds", step=k)
         means[k - 1] = mean

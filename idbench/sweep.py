@@ -74,6 +74,11 @@ def plan(config: CompareConfig, session: Session) -> Plan:
             cls(**settings)
         except (TypeError, ValueError) as exc:
             raise ConfigError(f"estimator {name!r}: {exc}") from None
+        except Exception as exc:  # a plugin's own bug, still one clean line
+            raise ConfigError(
+                f"estimator {name!r} (plugin {reg.estimators[name].plugin!r}) "
+                f"raised {type(exc).__name__}: {exc}"
+            ) from None
     runs = expand(config)
     nodes: dict[str, int] = {}
     solves = 0
@@ -88,7 +93,11 @@ def plan(config: CompareConfig, session: Session) -> Plan:
             raise ConfigError(f"mesh {mesh!r}: {exc}") from None
         nodes[mesh] = int(getattr(model, "n_nodes", 0))
     for spec in runs:
-        est = reg.estimator(spec.estimator)(**dict(spec.settings))
+        try:
+            est = reg.estimator(spec.estimator)(**dict(spec.settings))
+        except Exception as exc:  # the run will fail and say so; plan on
+            log.warning("estimator %r cannot be built: %s", spec.estimator, exc)
+            est = None
         model = session.model(spec, spec.mesh)
         guess = getattr(est, "estimate_solves", None)
         n_state = int(getattr(model, "n_state", 0))
