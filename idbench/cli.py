@@ -141,6 +141,42 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("report", help="figures and report.md for a compare output")
     r.add_argument("directory", type=Path, help="the --out DIR of idbench compare")
 
+    k = sub.add_parser(
+        "calibrate", help="map the effective E of a coarse mesh over load space"
+    )
+    k.add_argument("--mesh", required=True, help="coarse model mesh spec")
+    k.add_argument("--truth-mesh", default="80x11x11", help="truth mesh spec")
+    k.add_argument(
+        "--angles",
+        type=_floats("angles"),
+        help="traction directions, degrees from +x (stretch) to -y (bend), 0..90",
+    )
+    k.add_argument(
+        "--steps", type=_number("steps", int), default=10, help="load levels"
+    )
+    k.add_argument(
+        "--E-true", dest="E_true", type=_number("E-true"), default=5000.0,
+        help="true E (Pa)",
+    )  # fmt: skip
+    k.add_argument("--nu", type=_number("nu"), default=0.45, help="Poisson ratio")
+    k.add_argument("--model", default="svk-beam", help="registered model name")
+    k.add_argument(
+        "--evaluate",
+        type=_names,
+        help="held-back scenarios to score (default mixed-30,mixed-60,bend-z,"
+        "stretch-x; 'none' skips)",
+    )
+    k.add_argument(
+        "--seeds", type=_number("seeds", int), default=3, help="RO-UKF seeds"
+    )
+    k.add_argument(
+        "--out",
+        type=Path,
+        default=Path("idbench-calibration"),
+        help="output directory (default ./idbench-calibration)",
+    )
+    k.add_argument("-q", "--quiet", action="store_true")
+
     s = sub.add_parser("simulate", help="simulate a load path and write ParaView files")
     s.add_argument("--mesh", required=True, help="mesh spec")
     s.add_argument("--scenario", required=True, help="scenario name")
@@ -171,6 +207,7 @@ def main(argv: list[str] | None = None) -> int:
             "plugins": cmd_plugins,
             "compare": cmd_compare,
             "simulate": cmd_simulate,
+            "calibrate": cmd_calibrate,
         }[args.command]
         return handler(args)
     except (UsageError, ConfigError) as exc:
@@ -326,6 +363,76 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     for path in written:
         print(f"wrote {path}")
+    return 0
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    """``idbench calibrate``: the E_eff map, its collapse and held-back scores."""
+    from rich.console import Console
+
+    from idbench.calibrate import (
+        ANGLES,
+        HELD_BACK,
+        CalibrationSettings,
+        calibrate,
+        collapse,
+        evaluate,
+    )
+    from idbench.plugins import build_registry
+
+    settings = CalibrationSettings(
+        mesh=args.mesh,
+        truth_mesh=args.truth_mesh,
+        angles=args.angles or ANGLES,
+        steps=args.steps,
+        E_true=args.E_true,
+        nu=args.nu,
+        model=args.model,
+    )
+    scenarios = HELD_BACK if args.evaluate is None else args.evaluate
+    if tuple(scenarios) == ("none",):
+        scenarios = ()
+    if args.seeds < 1:
+        raise UsageError(f"--seeds {args.seeds}: must be >= 1")
+    registry = build_registry()
+    for name, table in (("scenario", registry.scenarios), ("model", registry.models)):
+        wanted = scenarios if name == "scenario" else (args.model,)
+        for value in wanted:
+            if value not in table:
+                raise UsageError(
+                    f"unknown {name} {value!r}; known: {', '.join(sorted(table))}"
+                )
+    console = Console(stderr=True)
+
+    def progress(done: int, total: int, angle: float) -> None:
+        if not args.quiet:
+            console.print(f"calibrated {done}/{total}: {angle:g} deg")
+
+    try:
+        result = calibrate(settings, registry, progress)
+    except (ValueError, OSError) as exc:
+        raise UsageError(str(exc)) from None
+    written = result.save(args.out)
+    fit = collapse(result)
+    fit.to_csv(args.out / "collapse.csv", index=False)
+    written.append(args.out / "collapse.csv")
+    if scenarios:
+        scores = evaluate(
+            result, scenarios, seeds=args.seeds, registry=registry,
+            out=args.out / "ro-ukf",
+        )  # fmt: skip
+        scores.to_parquet(args.out / "evaluation.parquet", index=False)
+        scores.to_csv(args.out / "evaluation.csv", index=False)
+        written += [args.out / "evaluation.parquet", args.out / "evaluation.csv"]
+    if not args.quiet:
+        wide = result.table.pivot(index="fraction", columns="angle", values="ratio")
+        print("E_eff / E_true by load fraction (rows) and angle in degrees (columns)")
+        print(wide.round(3).to_string())
+        print(fit.round(4).to_string(index=False))
+        if scenarios:
+            print(scores.round(6).to_string(index=False))
+        for path in written:
+            print(f"wrote {path}")
     return 0
 
 
