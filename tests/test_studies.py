@@ -42,3 +42,17 @@ def test_fig3_fig4_effective_E_depends_on_direction_and_strength(tmp_path):
     np.testing.assert_allclose(last["E_ukf"], last["E_eff"], rtol=0.05)
     study.plot(table, tmp_path / "fig.png")
     assert (tmp_path / "fig.png").stat().st_size > 10_000
+
+
+def test_calibrated_E_predicts_a_held_back_stretch_that_one_constant_misses(tmp_path):
+    study = load("calibrated_stiffness")
+    cal, fit, scores = study.compute(quick=True, out=tmp_path)
+    err = scores.pivot(index="scenario", columns="method", values="shape_error_path")
+    assert err.loc["stretch-x", "calibrated"] < 0.5 * err.loc["stretch-x", "constant"]
+    # on bending-like held-back paths it is as good as the bending constant
+    bending = ["mixed-30", "mixed-60", "bend-z"]
+    assert np.all(err.loc[bending, "calibrated"] < 1.5 * err.loc[bending, "constant"])
+    assert np.all(err.loc[bending, "calibrated"] < 0.2 * err.loc[bending, "E_true"])
+    assert set(fit["coordinates"]) == {"angle, fraction", "tip", "tip_angle"}
+    study.plot(cal, scores, tmp_path / "fig.png")
+    assert (tmp_path / "fig.png").stat().st_size > 10_000
