@@ -90,7 +90,14 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         except ConfigError:
             raise
         except (ValueError, OSError, RuntimeError) as exc:
-            raise ConfigError(f"mesh {mesh!r}: {exc}") from None
+            text = str(exc)  # readers often name the mesh already
+            message = text if repr(mesh) in text else f"mesh {mesh!r}: {text}"
+            raise ConfigError(message) from None
+        except Exception as exc:  # a model plugin's own bug, still one clean line
+            raise ConfigError(
+                f"model {config.model!r} (plugin {reg.models[config.model].plugin!r}) "
+                f"raised {type(exc).__name__} building mesh {mesh!r}: {exc}"
+            ) from None
         nodes[mesh] = int(getattr(model, "n_nodes", 0))
     for spec in runs:
         try:

@@ -26,7 +26,7 @@ import pytest
 
 import idbench
 from idbench.cli import main
-from idbench.config import CompareConfig
+from idbench.config import CompareConfig, ConfigError
 from idbench.plugins import AUTOLOAD_ENV
 from idbench.sweep import compare
 from idbench_skfem import mesh as meshes
@@ -524,3 +524,25 @@ def test_plugin_constructor_crash_on_given_settings_is_one_clean_line(
     assert "'crash-init' (plugin 'faulty-plug')" in line
     assert "refuse to exist" in line
     assert not (tmp_path / "out").exists()
+
+
+class BrokenModelPlugin:
+    """A model plugin whose factory has a bug (not a bad-input error)."""
+
+    @idbench.hookimpl
+    def register_models(self, register: Callable[[str, Any], None]) -> None:
+        def factory(spec: idbench.ModelSpec) -> Any:
+            raise TypeError("unsupported operand type(s)")
+
+        register("broken-model", factory)
+
+
+def test_a_model_plugin_bug_is_one_clean_line_naming_the_plugin(tmp_path):
+    pm = idbench.get_plugin_manager(autoload=False)
+    pm.register(BrokenModelPlugin(), name="broken-plug")
+    reg = idbench.build_registry(pm)
+    with pytest.raises(ConfigError) as info:
+        compare(tiny(model="broken-model", estimators=("rls",)), tmp_path, registry=reg)
+    text = str(info.value)
+    assert "'broken-model' (plugin 'broken-plug') raised TypeError" in text
+    assert "\n" not in text
