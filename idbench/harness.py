@@ -13,6 +13,8 @@ import contextlib
 import dataclasses
 import json
 import logging
+import signal
+import threading
 import time
 import traceback
 from collections.abc import Iterator
@@ -49,6 +51,43 @@ class EstimatorError(RuntimeError):
     def __init__(self, message: str, step: int | None = None) -> None:
         super().__init__(message)
         self.step = step
+
+
+class RunTimeout(BaseException):
+    """A run overran its ``timeout``.
+
+    A BaseException, so broad ``except Exception`` blocks in plugin code
+    cannot swallow it.
+    """
+
+
+@contextlib.contextmanager
+def _deadline(seconds: float | None) -> Iterator[None]:
+    """Interrupt the run after ``seconds`` of wall time, even mid-step.
+
+    Uses ``SIGALRM``, so it works where the run executes in a main thread on
+    POSIX (serial and process-pool runs); elsewhere (Dask worker threads) the
+    harness's check between steps is the only limit.
+    """
+    usable = (
+        seconds is not None
+        and hasattr(signal, "setitimer")
+        and threading.current_thread() is threading.main_thread()
+    )
+    if not usable:
+        yield
+        return
+
+    def expire(signum: int, frame: Any) -> None:
+        raise RunTimeout(f"run exceeded --timeout {seconds:g} s (stopped mid-step)")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.setitimer(signal.ITIMER_REAL, float(seconds))  # type: ignore[arg-type]
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+        signal.signal(signal.SIGALRM, previous)
 
 
 @contextlib.contextmanager
@@ -286,7 +325,10 @@ def execute(
     traces: list[dict[str, Any]] = []
     t_start = time.perf_counter()
     try:
-        _run(spec, session, row, traces, t_start)
+        with _deadline(spec.timeout):
+            _run(spec, session, row, traces, t_start)
+    except RunTimeout as exc:
+        row.update(status="failed", error=str(exc))
     except Skipped as exc:
         row.update(status="skipped", error=str(exc))
     except (Diverged, ModelFailure) as exc:

@@ -13,6 +13,7 @@ import json
 import math
 import subprocess
 import sys
+import time
 import types
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -546,3 +547,37 @@ def test_a_model_plugin_bug_is_one_clean_line_naming_the_plugin(tmp_path):
     text = str(info.value)
     assert "'broken-model' (plugin 'broken-plug') raised TypeError" in text
     assert "\n" not in text
+
+
+@dataclass
+class HangsAt(BadValueAt):
+    """Hangs in update() at step ``at``, swallowing ordinary exceptions."""
+
+    def update(self, k: int, observation: Any) -> idbench.Estimate:
+        while k >= self.at:
+            try:
+                time.sleep(0.05)
+            except Exception:  # a careless plugin: the timeout must still win
+                pass
+        return super().update(k, observation)
+
+
+class HangingPlugin:
+    @idbench.hookimpl
+    def register_estimators(self, register: Callable[[str, type], None]) -> None:
+        register("hangs", HangsAt)
+
+
+def test_a_hanging_estimator_is_stopped_by_the_timeout_mid_step(tmp_path):
+    pm = idbench.get_plugin_manager(autoload=False)
+    pm.register(HangingPlugin(), name="hang-plug")
+    reg = idbench.build_registry(pm)
+    cfg = tiny(estimators=("hangs", "rls"), timeout=1.5)
+    start = time.perf_counter()
+    runs, _ = compare(cfg, tmp_path, registry=reg)
+    assert time.perf_counter() - start < 60
+    rows = by_estimator(runs)
+    assert rows.loc["hangs", "status"] == "failed"
+    assert "exceeded --timeout 1.5 s" in rows.loc["hangs", "error"]
+    assert rows.loc["hangs", "wall_s"] < 5
+    assert rows.loc["rls", "status"] == "ok"
