@@ -103,7 +103,11 @@ def plot(table: pd.DataFrame, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 4))
-    styles = {DIRECT: {"color": "k", "ls": "--", "marker": "s"}}
+    styles = {
+        DIRECT: {"color": "k", "ls": "--", "marker": "s"},
+        "ro-ukf": {"color": "C0", "marker": "o", "ms": 8, "mfc": "none"},
+        "rls": {"color": "C1", "ls": ":", "marker": "x", "ms": 7},
+    }
     for method, df in table.groupby("method", sort=False):
         ax.errorbar(
             df["model_nodes"],

@@ -123,7 +123,7 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
     meshes = list(dict.fromkeys(table["mesh"]))
     fig, axes = plt.subplots(
-        1, len(meshes), figsize=(5 * len(meshes), 4), sharey=True, squeeze=False
+        1, len(meshes), figsize=(5.5 * len(meshes), 4), sharey=True, squeeze=False
     )
     width = 0.8 / len(BARS)
     for ax, mesh in zip(axes[0], meshes, strict=True):
@@ -140,7 +140,7 @@ def plot(table: pd.DataFrame, path: Path) -> None:
                 label=label,
             )
         labels = df["source"] + "\n-> " + df["target"]
-        ax.set_xticks(x, labels.tolist())
+        ax.set_xticks(x, labels.tolist(), fontsize="small")
         ax.set(
             yscale="log",
             title=f"{mesh} ({int(df['model_nodes'].iloc[0])} nodes)",
