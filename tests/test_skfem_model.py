@@ -157,7 +157,12 @@ def test_bad_arguments():
 
 @pytest.mark.parametrize(
     "options",
-    [{"regions": 2}, {"regions": 3}, {"inclusion": (0.1, 0.2, 0, 0.03, 0, 0.03)}],
+    [
+        {"regions": 2},
+        {"regions": 3},
+        {"inclusion": (0.1, 0.2, 0, 0.03, 0, 0.03)},
+        {"inclusion": (0.05, 0.15, 0, 0.015, 0, 0.03), "regions": 2},
+    ],
 )
 def test_sensitivity_matches_finite_differences(options):
     m = SvkBeam(
@@ -187,6 +192,35 @@ def test_sensitivity_matches_finite_differences(options):
         for s in (reused, again, exact):
             np.testing.assert_allclose(s[:, j], fd, rtol=0, atol=1e-6 * scale)
     assert np.all(np.isfinite(other))
+
+
+def test_inclusion_with_background_slabs():
+    """The box is the last region; the rest is split into ``regions`` slabs."""
+    box = (0.08, 0.12, 0.0075, 0.0225, 0.0075, 0.0225)
+    m = SvkBeam(
+        mesh.parse("20x4x4"),
+        BEND_Y,
+        n_steps=1,
+        parameters="E_regions",
+        options={"inclusion": box, "regions": 3},
+    )
+    assert m.parameters.names == tuple(f"E_region{r}" for r in range(4))
+    c = m.beam.points[m.beam.tets].mean(axis=1)
+    inside = np.all((c >= box[0::2]) & (c <= box[1::2]), axis=1)
+    assert np.all(m._regions[inside] == 3)
+    assert inside.sum() == 4 * 2 * 2 * 6  # the box is 4x2x2 hexes of this mesh
+    slab = np.minimum((c[:, 0] / 0.2 * 3).astype(int), 2)
+    np.testing.assert_array_equal(m._regions[~inside], slab[~inside])
+    one = SvkBeam(
+        mesh.parse("20x4x4"), BEND_Y, n_steps=1, parameters="E_regions",
+        options={"inclusion": box},
+    )  # fmt: skip
+    np.testing.assert_array_equal(one._regions, inside.astype(int))
+    with pytest.raises(ValueError, match="some slab contains no element"):
+        SvkBeam(
+            mesh.parse("4x1x1"), BEND_Y, n_steps=1, parameters="E_regions",
+            options={"inclusion": (0.0, 0.1, 0, 0.03, 0, 0.03), "regions": 2},
+        )  # fmt: skip
 
 
 def test_single_modulus_sensitivity_is_minus_u_over_E_in_linear_limit():

@@ -34,8 +34,9 @@ def parameter_regions(
         Bounding box of the body.
     option
         ``spec.option``: ``regions`` (default 2) equal slabs along x, or
-        ``inclusion`` = (x0, x1, y0, y1, z0, z1): region 1 is that box, region
-        0 the rest.
+        ``inclusion`` = (x0, x1, y0, y1, z0, z1): that box is the last region
+        and the rest is split into ``regions`` (default 1) equal slabs along x,
+        so p = regions + 1 (default: region 0 the rest, region 1 the box).
 
     Returns
     -------
@@ -50,6 +51,12 @@ def parameter_regions(
     if kind != "E_regions":
         raise ValueError(f"parameters {kind!r}: allowed are {', '.join(KINDS)}")
     inclusion = option("inclusion")
+    slabs = option("regions", 2 if inclusion is None else 1)
+    if not isinstance(slabs, int) or isinstance(slabs, bool) or slabs < 1:
+        raise ValueError(f"regions = {slabs!r}: need an integer >= 1")
+    t = (centroids[:, 0] - lower[0]) / (upper[0] - lower[0])
+    regions = np.minimum((t * slabs).astype(np.int64), slabs - 1)
+    p = slabs
     if inclusion is not None:
         box = np.asarray(inclusion, dtype=float)
         if box.shape != (6,) or np.any(box[1::2] <= box[0::2]):
@@ -61,15 +68,9 @@ def parameter_regions(
             raise ValueError(
                 f"inclusion {inclusion!r} contains no element or all of them"
             )
-        regions = inside.astype(np.int64)
-        p = 2
-    else:
-        p = option("regions", 2)
-        if not isinstance(p, int) or isinstance(p, bool) or p < 1:
-            raise ValueError(f"regions = {p!r}: need an integer >= 1")
-        t = (centroids[:, 0] - lower[0]) / (upper[0] - lower[0])
-        regions = np.minimum((t * p).astype(np.int64), p - 1)
-        if len(np.unique(regions)) != p:
-            raise ValueError(f"regions = {p}: some slab contains no element; use fewer")
+        regions[inside] = slabs
+        p = slabs + 1
+    if len(np.unique(regions)) != p:
+        raise ValueError(f"regions = {slabs}: some slab contains no element; use fewer")
     names = tuple(f"E_region{r}" for r in range(p))
     return ParameterSpec(names, (lo,) * p, (hi,) * p), regions
