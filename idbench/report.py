@@ -266,6 +266,7 @@ def frontier_figure(table: pd.DataFrame) -> Any:
     fig, ax = plt.subplots(figsize=(7, 4.5))
     scenarios = sorted(table["scenario"].unique()) if "scenario" in table else [None]
     markers = "osD^v<>"
+    labelled: list[tuple[float, float, float]] = []
     for i, (est, df) in enumerate(table.groupby("estimator", sort=True)):
         for j, scen in enumerate(scenarios):
             d = df if scen is None else df[df["scenario"] == scen]
@@ -279,6 +280,14 @@ def frontier_figure(table: pd.DataFrame) -> Any:
                 ms=6,
             )
             for _, row in d.iterrows():
+                here = (
+                    row["model_nodes"],
+                    row["wall_s_step"],
+                    row["shape_error_final"],
+                )
+                if any(_near(here, q) for q in labelled):
+                    continue  # an equal mesh's label is already there
+                labelled.append(here)
                 ax.annotate(
                     f"{row['model_nodes']:.0f}",
                     (row["wall_s_step"], row["shape_error_final"]),
@@ -309,6 +318,15 @@ def frontier_figure(table: pd.DataFrame) -> Any:
     )
     ax.legend(fontsize="x-small")
     return fig
+
+
+def _near(a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
+    """Same node count and within 15% on both axes of a log-log plot."""
+    return bool(
+        a[0] == b[0]
+        and abs(np.log(a[1] / b[1])) < 0.14
+        and abs(np.log(a[2] / b[2])) < 0.14
+    )
 
 
 def write_report(directory: str | Path) -> list[Path]:
