@@ -1,0 +1,43 @@
+"""The heterogeneous-inclusion study in --quick mode: cost and contrast claims."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+SCRIPT = (
+    Path(__file__).resolve().parent.parent / "studies" / "heterogeneous_inclusion.py"
+)
+
+
+def load():
+    spec = importlib.util.spec_from_file_location("heterogeneous_inclusion", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "c"))
+
+
+def test_inclusion_found_stiffer_at_p2_and_ro_ukf_costs_p_plus_1(tmp_path):
+    table = load().compute(quick=True, out=tmp_path)
+    measured = table[table["estimator"] != "ukf (2n+1)"].set_index(["p", "estimator"])
+    assert measured["ok"].sum() == measured["runs"].sum() == 6
+    # stretching with an inclusion + background model: the stiff region is found
+    # stiffer than the background (truth: 3x) by the reference fit
+    assert measured.loc[(2, "batch-ls"), "contrast"] > 1.5
+    # the RO-UKF's cost a step is p + 1 forward solves, RLS's one
+    for p in (2, 4):
+        assert measured.loc[(p, "ro-ukf"), "solves_step"] == p + 1
+        assert measured.loc[(p, "rls"), "solves_step"] == 1
+    # the full UKF (2n + 1, n = 3 x free nodes + p) fits the budget only on 9x2x2
+    ukf = table[table["estimator"] == "ukf (2n+1)"]
+    assert set(ukf.loc[ukf["affordable"].astype(bool), "mesh"]) == {"9x2x2"}
+    assert ukf.loc[
+        (ukf["mesh"] == "9x2x2") & (ukf["p"] == 2), "solves_step"
+    ].item() == (2 * (3 * 81 + 2) + 1)
