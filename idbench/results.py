@@ -94,6 +94,21 @@ class ResultStore:
                 done.add(run_id)
         return done
 
+    def failed(self) -> set[str]:
+        """Run ids stored with status ``failed``.
+
+        A crash, a lost worker or a timeout: a resume tries them again; ok,
+        diverged and skipped runs are results and are kept.
+        """
+        out = set()
+        for run_id in self.finished():
+            part = pd.read_parquet(
+                self.parts / f"{run_id}.runs.parquet", columns=["status"]
+            )
+            if (part["status"] == "failed").any():
+                out.add(run_id)
+        return out
+
     def write(self, run: dict[str, Any], traces: list[dict[str, Any]]) -> None:
         """Store one finished run (traces first, so a run part implies both)."""
         run_id = run["run_id"]

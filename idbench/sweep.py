@@ -205,6 +205,10 @@ def _compare(
     config = the_plan.config
     store = ResultStore(out, config.to_dict(), manifest(config))
     done = store.finished()
+    retry = store.failed()
+    if retry:
+        log.info("retrying %d run(s) that failed before", len(retry))
+    done -= retry
     pending = [r for r in the_plan.runs if r.run_id not in done]
     total = len(the_plan.runs)
     count = total - len(pending)

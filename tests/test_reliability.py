@@ -581,3 +581,41 @@ def test_a_hanging_estimator_is_stopped_by_the_timeout_mid_step(tmp_path):
     assert "exceeded --timeout 1.5 s" in rows.loc["hangs", "error"]
     assert rows.loc["hangs", "wall_s"] < 5
     assert rows.loc["rls", "status"] == "ok"
+
+
+@dataclass
+class Flaky(BadValueAt):
+    """Crashes at start while ``Flaky.broken`` (e.g. a licence server is down)."""
+
+    broken = True
+    value: float = 4000.0
+
+    def start(self, model: Any, prior: idbench.Prior) -> None:
+        if Flaky.broken:
+            raise _PluginCrash("server unavailable")
+        super().start(model, prior)
+
+
+class FlakyPlugin:
+    @idbench.hookimpl
+    def register_estimators(self, register: Callable[[str, type], None]) -> None:
+        register("flaky", Flaky)
+
+
+def test_resume_retries_failed_runs_and_keeps_the_others(tmp_path, monkeypatch):
+    pm = idbench.get_plugin_manager(autoload=False)
+    pm.register(FlakyPlugin(), name="flaky-plug")
+    reg = idbench.build_registry(pm)
+    cfg = tiny(estimators=("flaky", "rls"))
+    monkeypatch.setattr(Flaky, "broken", True)
+    first, _ = compare(cfg, tmp_path, registry=reg)
+    assert by_estimator(first).loc["flaky", "status"] == "failed"
+    rls_id = by_estimator(first).loc["rls", "run_id"]
+    rls_part = tmp_path / "parts" / f"{rls_id}.runs.parquet"
+    stamp = rls_part.stat().st_mtime_ns
+    monkeypatch.setattr(Flaky, "broken", False)
+    second, _ = compare(cfg, tmp_path, registry=reg)
+    rows = by_estimator(second)
+    assert rows.loc["flaky", "status"] == "ok"
+    assert rows.loc["flaky", "E_final"] == 4000.0
+    assert rls_part.stat().st_mtime_ns == stamp  # a finished run is not redone
