@@ -106,7 +106,7 @@ def compute(
     }
     if quick:
         s.update(QUICK)
-    variant_dirs = {k.replace(" ", "-") for k in s["variants"]}
+    variant_dirs = {"-" + k.replace(" ", "-"): k for k in s["variants"]}
     rows = []
     for p in s["p_values"]:
         common = {
@@ -160,7 +160,7 @@ def compute(
             runs, traces = compare(config, where, jobs=jobs)
             per_step = traces.groupby("run_id")[["n_solves", "wall_s"]].mean()
             runs = runs.join(per_step.add_suffix("_trace"), on="run_id")
-            label = suffix[1:].replace("-", " ") if suffix[1:] in variant_dirs else ""
+            label = variant_dirs.get(suffix, "")
             rows.extend(score(r, p, label) for _, r in runs.iterrows())
     table = (
         pd.DataFrame(rows)
@@ -257,7 +257,8 @@ def full_ukf_cost(meshes: tuple[str, ...], p_values: tuple[int, ...]) -> pd.Data
 def plot(table: pd.DataFrame, path: Path) -> None:
     import matplotlib.pyplot as plt
 
-    measured = table[table["estimator"] != "ukf (2n+1)"]
+    # runs with no successful seed are left out (their cost stops at a failure)
+    measured = table[(table["estimator"] != "ukf (2n+1)") & (table["ok"] > 0)]
     analytic = table[table["estimator"] == "ukf (2n+1)"]
     fig, axes = plt.subplots(2, 3, figsize=(15, 8.5))
     ax = dict(
@@ -287,8 +288,8 @@ def plot(table: pd.DataFrame, path: Path) -> None:
         ax["solves"].plot(df["p"], df["solves_step"], color="grey", ls="-.", lw=1)
         ax["solves"].annotate(
             f"full UKF, {mesh} ({df['model_nodes'].iloc[0]:.0f} nodes)",
-            (df["p"].iloc[0], df["solves_step"].iloc[0]),
-            fontsize=7, color="grey", va="bottom",
+            (df["p"].iloc[-1], df["solves_step"].iloc[-1]),
+            fontsize=7, color="grey", va="bottom", ha="right",
         )  # fmt: skip
     budget = int(analytic["budget"].iloc[0])
     ax["solves"].axhline(budget, color="r", lw=1, label=f"UKF budget ({budget})")
@@ -298,7 +299,7 @@ def plot(table: pd.DataFrame, path: Path) -> None:
         yscale="log",
         title="inclusion modulus (truth 3 E_true)",
     )
-    ax["bg"].set(ylabel="mean E_slab / E_true", title="background moduli")
+    ax["bg"].set(ylabel="mean E_slab / E_true", yscale="log", title="background moduli")
     ax["contrast"].set(
         ylabel="E_inclusion / mean E_slab",
         yscale="log",
@@ -320,7 +321,7 @@ def plot(table: pd.DataFrame, path: Path) -> None:
         a.set_xticks(sorted(table["p"].unique()))
         a.set_xlabel(p_label)
     ax["incl"].legend(fontsize=7)
-    ax["solves"].legend(fontsize=7, loc="center right")
+    ax["solves"].legend(fontsize=6, loc="center left")
     fig.suptitle(
         f"Stiff inclusion ({STIFFER:g} E_true, 5% of the volume): "
         f"regional E and cost against p"
