@@ -2,51 +2,33 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
-import pytest
-
-STUDIES = Path(__file__).resolve().parent.parent / "studies"
 
 
-def load(name: str):
-    spec = importlib.util.spec_from_file_location(name, STUDIES / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "c"))
-
-
-def test_fig2_identified_E_rises_with_resolution_and_stays_below_truth(tmp_path):
-    table = load("fig2_stiffness_vs_resolution").compute(quick=True, out=tmp_path)
+def test_fig2_identified_E_rises_with_resolution_and_stays_below_truth(study, tmp_path):
+    table = study("fig2_stiffness_vs_resolution").compute(quick=True, out=tmp_path)
     ro = table[table["estimator"] == "ro-ukf"].sort_values("model_nodes")
     assert len(ro) == 3
     assert np.all(np.diff(ro["E"].to_numpy()) > 0)  # approaches E_true from below
     assert np.all(ro["ratio"] < 1.0)
 
 
-def test_fig3_fig4_effective_E_depends_on_direction_and_strength(tmp_path):
-    study = load("fig3_fig4_effective_stiffness")
-    table = study.compute(quick=True, out=tmp_path)
+def test_fig3_fig4_effective_E_depends_on_direction_and_strength(study, tmp_path):
+    module = study("fig3_fig4_effective_stiffness")
+    table = module.compute(quick=True, out=tmp_path)
     eff = table.pivot(index="step", columns="scenario", values="eff_ratio")
     assert eff["stretch-x"].min() > eff["bend-y"].max() + 0.3  # direction
     assert eff["stretch-x"].iloc[0] - eff["stretch-x"].iloc[-1] > 0.03  # strength
     last = table[table["step"] == table["step"].max()]
     # the filter ends on the level's best constant, found independently
     np.testing.assert_allclose(last["E_ukf"], last["E_eff"], rtol=0.05)
-    study.plot(table, tmp_path / "fig.png")
+    module.plot(table, tmp_path / "fig.png")
     assert (tmp_path / "fig.png").stat().st_size > 10_000
 
 
-def test_calibrated_E_predicts_a_held_back_stretch_that_one_constant_misses(tmp_path):
-    study = load("calibrated_stiffness")
-    cal, fit, scores = study.compute(quick=True, out=tmp_path)
+def test_calibrated_E_predicts_a_held_back_stretch_one_constant_misses(study, tmp_path):
+    module = study("calibrated_stiffness")
+    cal, fit, scores = module.compute(quick=True, out=tmp_path)
     err = scores.pivot(index="scenario", columns="method", values="shape_error_path")
     assert err.loc["stretch-x", "calibrated"] < 0.5 * err.loc["stretch-x", "constant"]
     # on bending-like held-back paths it is as good as the bending constant
@@ -54,5 +36,5 @@ def test_calibrated_E_predicts_a_held_back_stretch_that_one_constant_misses(tmp_
     assert np.all(err.loc[bending, "calibrated"] < 1.5 * err.loc[bending, "constant"])
     assert np.all(err.loc[bending, "calibrated"] < 0.2 * err.loc[bending, "E_true"])
     assert set(fit["coordinates"]) == {"angle, fraction", "tip", "tip_angle"}
-    study.plot(cal, scores, tmp_path / "fig.png")
+    module.plot(cal, scores, tmp_path / "fig.png")
     assert (tmp_path / "fig.png").stat().st_size > 10_000

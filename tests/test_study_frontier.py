@@ -2,30 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
-import pytest
-
-STUDY = Path(__file__).resolve().parent.parent / "studies" / "realtime_frontier.py"
 
 
-def load():
-    spec = importlib.util.spec_from_file_location("realtime_frontier", STUDY)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "c"))
-
-
-def test_full_ukf_costs_tens_of_ro_ukf_steps_on_the_same_mesh(tmp_path):
-    study = load()
-    table = study.compute(quick=True, out=tmp_path)
+def test_full_ukf_costs_tens_of_ro_ukf_steps_on_the_same_mesh(study, tmp_path):
+    module = study("realtime_frontier")
+    table = module.compute(quick=True, out=tmp_path)
     # the full UKF fits its (quick) budget of solves only on the coarsest mesh
     ukf = table[table["estimator"] == "ukf"]
     assert len(ukf) == 1
@@ -37,5 +19,5 @@ def test_full_ukf_costs_tens_of_ro_ukf_steps_on_the_same_mesh(tmp_path):
     # the frontier answers the budget question: one best row per budget
     assert table["best_30hz"].sum() == 1
     assert np.all(table.loc[table["best_30hz"], "within_30hz"])
-    study.plot(table, tmp_path / "realtime_frontier.png")
+    module.plot(table, tmp_path / "realtime_frontier.png")
     assert (tmp_path / "realtime_frontier.png").stat().st_size > 1000

@@ -2,30 +2,9 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
 
-import pytest
-
-SCRIPT = (
-    Path(__file__).resolve().parent.parent / "studies" / "heterogeneous_inclusion.py"
-)
-
-
-def load():
-    spec = importlib.util.spec_from_file_location("heterogeneous_inclusion", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "c"))
-
-
-def test_inclusion_found_stiffer_at_p2_and_ro_ukf_costs_p_plus_1(tmp_path):
-    table = load().compute(quick=True, out=tmp_path)
+def test_inclusion_found_stiffer_at_p2_and_ro_ukf_costs_p_plus_1(study, tmp_path):
+    table = study("heterogeneous_inclusion").compute(quick=True, out=tmp_path)
     measured = table[table["estimator"] != "ukf (2n+1)"].set_index(["p", "estimator"])
     assert measured["ok"].sum() == measured["runs"].sum() == 6
     # stretching with an inclusion + background model: the stiff region is found
