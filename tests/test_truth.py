@@ -46,6 +46,48 @@ def test_truncated_cache_entry_is_recomputed(beam):
         assert data["states"].shape == first.states.shape
 
 
+class _Payload:
+    """Unpickling this would create a file: proof that pickle ran."""
+
+    def __init__(self, marker: str) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+def test_a_pickled_cache_entry_is_never_unpickled(beam, tmp_path):
+    theta = np.array([5000.0])
+    first = truth.simulate_truth(beam, theta)
+    (entry,) = truth.cache_dir().glob("truth-*.npz")
+    with np.load(entry, allow_pickle=False) as data:
+        key = data["key"]
+    marker = tmp_path / "pwned"
+    evil = np.array([_Payload(str(marker))], dtype=object)
+    with open(entry, "wb") as fh:
+        np.savez(fh, key=key, states=evil)  # object array: stored as a pickle
+    again = truth.simulate_truth(beam, theta)
+    assert not marker.exists()
+    np.testing.assert_array_equal(first.states, again.states)
+
+
+def test_no_pickle_or_eval_in_the_code():
+    import pathlib
+    import re
+
+    root = pathlib.Path(__file__).resolve().parent.parent
+    sources = [*(root / "idbench").rglob("*.py"), *(root / "plugins").rglob("*.py")]
+    assert len(sources) > 20
+    banned = re.compile(
+        r"^\s*(import|from)\s+(pickle|cloudpickle|dill|shelve|marshal)\b"
+        r"|\b(eval|exec)\(|allow_pickle\s*=\s*True|read_pickle|to_pickle",
+        re.M,
+    )
+    texts = {p.name: p.read_text() for p in sources}
+    hits = [f"{n}: {m[0]}" for n, t in texts.items() for m in banned.finditer(t)]
+    assert hits == []
+
+
 def test_key_ignores_probes_but_not_physics(beam):
     desc = beam.describe()
     key = truth.truth_key(beam, np.array([5000.0]))
