@@ -15,7 +15,7 @@ E_std = E * std(xi). With ``"identity"``, xi = theta.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -226,3 +226,24 @@ class RunState:
             cost=self.model.cost() - self.cost0,
             state=None if state is None else np.array(state, dtype=float),
         )
+
+
+@dataclass
+class Settings:
+    """The settings every estimator here starts with, checked once.
+
+    Attributes
+    ----------
+    transform
+        ``"log"`` (xi = ln theta, default) or ``"identity"``.
+    sigma_floor
+        Lower bound (m) on the observation noise std used in R.
+    """
+
+    transform: str = "log"
+    sigma_floor: float = 1e-6
+    _run: RunState | None = field(default=None, init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        check_choice("transform", self.transform, TRANSFORMS)
+        check_positive("sigma_floor", self.sigma_floor)

@@ -23,16 +23,16 @@ before; ``refit="each"`` refits, warm-started, at every observed step.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from idbench import Diverged, Estimate, ForwardModel, Observation, Prior
 from idbench_filters._common import (
-    TRANSFORMS,
     FloatArray,
     RunState,
+    Settings,
     advance,
     check_choice,
     check_estimate,
@@ -50,7 +50,7 @@ METHODS = ("trf", "dogbox")
 
 
 @dataclass
-class BatchLs:
+class BatchLs(Settings):
     """Least squares over the whole path, re-simulated at every evaluation.
 
     Attributes
@@ -72,19 +72,15 @@ class BatchLs:
         (default 100).
     """
 
-    transform: str = "log"
-    sigma_floor: float = 1e-6
     refit: str = "end"
     method: str = "trf"
     xtol: float = 1e-10
     ftol: float = 1e-10
     gtol: float = 1e-10
     max_nfev: int = 100
-    _run: RunState | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        check_choice("transform", self.transform, TRANSFORMS)
-        check_positive("sigma_floor", self.sigma_floor)
+        super().__post_init__()
         check_choice("refit", self.refit, REFITS)
         check_choice("method", self.method, METHODS)
         for name in ("xtol", "ftol", "gtol"):

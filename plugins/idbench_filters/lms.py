@@ -15,16 +15,15 @@ stable for 0 < mu < 2. LMS carries no covariance: its std is NaN.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from idbench import Estimate, ForwardModel, Observation, Prior
 from idbench_filters._common import (
-    TRANSFORMS,
     RunState,
+    Settings,
     advance,
-    check_choice,
     check_estimate,
     check_positive,
     check_step,
@@ -35,7 +34,7 @@ from idbench_filters._common import (
 
 
 @dataclass
-class Lms:
+class Lms(Settings):
     """Normalised LMS: xi += mu J^T e / (eps + |J|^2).
 
     Attributes
@@ -54,16 +53,12 @@ class Lms:
         ``sensitivity``.
     """
 
-    transform: str = "log"
-    sigma_floor: float = 1e-6
     mu: float = 0.5
     eps: float = 1e-12
     fd_step: float = 1e-6
-    _run: RunState | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        check_choice("transform", self.transform, TRANSFORMS)
-        check_positive("sigma_floor", self.sigma_floor)
+        super().__post_init__()
         check_positive("mu", self.mu)
         if self.mu >= 2:
             raise ValueError(f"mu = {self.mu!r} is not allowed; use 0 < mu < 2")

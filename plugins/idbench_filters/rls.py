@@ -19,16 +19,15 @@ the one the innovation was computed with (the estimate before the update).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from idbench import Diverged, Estimate, ForwardModel, Observation, Prior
 from idbench_filters._common import (
-    TRANSFORMS,
     RunState,
+    Settings,
     advance,
-    check_choice,
     check_estimate,
     check_positive,
     check_step,
@@ -40,7 +39,7 @@ from idbench_filters._common import (
 
 
 @dataclass
-class Rls:
+class Rls(Settings):
     """Recursive least squares with forgetting on xi.
 
     Attributes
@@ -56,15 +55,11 @@ class Rls:
         ``sensitivity``.
     """
 
-    transform: str = "log"
-    sigma_floor: float = 1e-6
     forgetting: float = 1.0
     fd_step: float = 1e-6
-    _run: RunState | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        check_choice("transform", self.transform, TRANSFORMS)
-        check_positive("sigma_floor", self.sigma_floor)
+        super().__post_init__()
         check_positive("forgetting", self.forgetting)
         if self.forgetting > 1:
             raise ValueError(

@@ -24,16 +24,16 @@ For a linear-Gaussian model this is exactly the Kalman filter.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
 
 from idbench import Diverged, Estimate, ForwardModel, Observation, Prior
 from idbench_filters._common import (
-    TRANSFORMS,
     FloatArray,
     RunState,
+    Settings,
     advance,
     check_choice,
     check_estimate,
@@ -62,7 +62,7 @@ def sigma_directions(p: int, kind: str) -> FloatArray:
 
 
 @dataclass
-class RoUkf:
+class RoUkf(Settings):
     """Reduced-order UKF on [state; xi] with a rank-p factored covariance.
 
     Attributes
@@ -78,15 +78,11 @@ class RoUkf:
         the parameters constant, as the reference implementations do.
     """
 
-    transform: str = "log"
-    sigma_floor: float = 1e-6
     sigma_points: str = "simplex"
     param_noise: float = 0.0
-    _run: RunState | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        check_choice("transform", self.transform, TRANSFORMS)
-        check_positive("sigma_floor", self.sigma_floor)
+        super().__post_init__()
         check_choice("sigma_points", self.sigma_points, SIGMA_POINTS)
         check_positive("param_noise", self.param_noise, allow_zero=True)
 

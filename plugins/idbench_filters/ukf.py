@@ -16,18 +16,17 @@ The process noise is zero: u_k is a function of theta and the warm start.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
 from idbench import Diverged, Estimate, ForwardModel, Observation, Prior, Skipped
 from idbench_filters._common import (
-    TRANSFORMS,
     FloatArray,
     RunState,
+    Settings,
     advance,
-    check_choice,
     check_estimate,
     check_positive,
     check_step,
@@ -51,7 +50,7 @@ def clipped_sqrt(P: FloatArray) -> FloatArray:
 
 
 @dataclass
-class Ukf:
+class Ukf(Settings):
     """Full UKF (filterpy) on [state; xi] with a full covariance.
 
     Attributes
@@ -71,17 +70,13 @@ class Ukf:
         within about 1.7 standard deviations up to the budget.
     """
 
-    transform: str = "log"
-    sigma_floor: float = 1e-6
     max_solves: int = 600
     alpha: float = 0.1
     beta: float = 2.0
     kappa: float = 0.0
-    _run: RunState | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        check_choice("transform", self.transform, TRANSFORMS)
-        check_positive("sigma_floor", self.sigma_floor)
+        super().__post_init__()
         if not (isinstance(self.max_solves, int) and self.max_solves >= 1):
             raise ValueError(
                 f"max_solves = {self.max_solves!r} is not allowed; "
