@@ -44,10 +44,8 @@ class Rls(Settings):
 
     Attributes
     ----------
-    transform
-        ``"log"`` (xi = ln theta, default) or ``"identity"``.
-    sigma_floor
-        Lower bound (m) on the observation noise std used in R.
+    transform, sigma_floor
+        The shared settings, see :class:`~idbench_filters._common.Settings`.
     forgetting
         Forgetting factor lambda in (0, 1]; 1 (default) forgets nothing.
     fd_step

@@ -67,10 +67,8 @@ class RoUkf(Settings):
 
     Attributes
     ----------
-    transform
-        ``"log"`` (xi = ln theta, default) or ``"identity"``.
-    sigma_floor
-        Lower bound (m) on the observation noise std used in R.
+    transform, sigma_floor
+        The shared settings, see :class:`~idbench_filters._common.Settings`.
     sigma_points
         ``"simplex"`` (p + 1 solves a step, default) or ``"star"`` (2p + 1).
     param_noise

@@ -55,10 +55,8 @@ class Ukf(Settings):
 
     Attributes
     ----------
-    transform
-        ``"log"`` (xi = ln theta, default) or ``"identity"``.
-    sigma_floor
-        Lower bound (m) on the observation noise std used in R.
+    transform, sigma_floor
+        The shared settings, see :class:`~idbench_filters._common.Settings`.
     max_solves
         Budget of forward solves a step; :meth:`start` raises
         :class:`idbench.Skipped` when 2n + 1 exceeds it (default 600, about a
