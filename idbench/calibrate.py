@@ -21,6 +21,7 @@ E_true, one constant E and the RO-UKF with observations.
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -37,6 +38,8 @@ from idbench.metrics import shape_error
 from idbench.plugins import Registry, build_registry
 from idbench.scenario import Scenario
 from idbench.truth import simulate_truth
+
+log = logging.getLogger(__name__)
 
 #: Calibration angles (degrees from +x towards -y), dense near 0 where E_eff
 #: changes fastest (any transverse load soon dominates the response); 30 and
@@ -258,6 +261,8 @@ def calibrate(
             )
         if progress:
             progress(i, len(settings.angles), angle)
+        else:
+            log.info("calibrated %d/%d: %g deg", i, len(settings.angles), angle)
     return Calibration(pd.DataFrame(rows), settings)
 
 

@@ -219,6 +219,12 @@ def _compare(
         count += 1
         if progress:
             progress(count, total, row)
+        else:
+            log.info(
+                "run %d/%d: %s on %s, %s: %s",
+                count, total, row["estimator"], row["mesh"], row["scenario"],
+                row["status"],
+            )  # fmt: skip
     return store.consolidate([r.run_id for r in the_plan.runs])
 
 

@@ -16,6 +16,7 @@ Run ``python studies/calibrated_stiffness.py [--quick] [--out DIR]``.
 from __future__ import annotations
 
 import argparse
+import logging
 from pathlib import Path
 
 import pandas as pd
@@ -114,6 +115,7 @@ def plot(cal: Calibration, scores: pd.DataFrame, path: Path) -> None:
 
 
 if __name__ == "__main__":
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--out", type=Path, default=Path("results/calibrated"))

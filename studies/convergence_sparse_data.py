@@ -32,6 +32,7 @@ Run ``python studies/convergence_sparse_data.py [--quick] [--out DIR]``.
 from __future__ import annotations
 
 import argparse
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -322,6 +323,7 @@ def plot(table: pd.DataFrame, path: Path, dpi: int = 110) -> None:
 
 
 if __name__ == "__main__":
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--out", type=Path, default=Path("results/convergence"))

@@ -39,6 +39,7 @@ Run ``python studies/heterogeneous_inclusion.py [--quick] [--out DIR]``.
 from __future__ import annotations
 
 import argparse
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -331,6 +332,7 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
 
 if __name__ == "__main__":
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--out", type=Path, default=Path("results/inclusion"))
