@@ -325,8 +325,7 @@ def execute(
     traces: list[dict[str, Any]] = []
     t_start = time.perf_counter()
     try:
-        with _deadline(spec.timeout):
-            _run(spec, session, row, traces, t_start)
+        _run(spec, session, row, traces)
     except RunTimeout as exc:
         row.update(status="failed", error=str(exc))
     except Skipped as exc:
@@ -386,7 +385,6 @@ def _run(
     session: Session,
     row: dict[str, Any],
     traces: list[dict[str, Any]],
-    t_start: float,
 ) -> None:
     model = session.model(spec, spec.mesh)
     metrics_model = session.model(spec, spec.mesh, role="metrics")
@@ -417,9 +415,54 @@ def _run(
     truth = session.truth(spec)
     stream = session.observations(spec)
     direct = session.direct(spec)
-    with _blame(who, "start()"):
-        estimator.start(model, session.prior(model, spec))
+    with _deadline(spec.timeout):  # the estimator's own work, not shared inputs
+        t_start = time.perf_counter()
+        with _blame(who, "start()"):
+            estimator.start(model, session.prior(model, spec))
+        est, means = _estimate(
+            spec, estimator, who, stream, truth, direct, traces,
+            (model, metrics_model), t_start,
+        )  # fmt: skip
 
+    final_mean, final_std = means[-1], np.asarray(est.std, dtype=float)
+    ref = session.reference(spec)
+    for j, n in enumerate(names):
+        row[f"{n}_final"] = float(final_mean[j])
+        row[f"{n}_std_final"] = float(final_std[j]) if final_std.size > j else np.nan
+        row[f"{n}_ref"] = float(ref[j])
+    settle = metrics.settling_step(means, ref)
+    row["settling_step"] = settle if settle is not None else np.nan
+    used = metrics.observations_used(settle, spec.obs_every)
+    row["settling_obs"] = used if used is not None else np.nan
+    last = traces[-1]
+    row["shape_error_final"] = last["shape_error"]
+    row["shape_error_mean_final"] = last["shape_error_mean"]
+    row["shape_error_direct"], row["shape_error_direct_mean"] = metrics.shape_error(
+        direct[-1], truth.grid[-1]
+    )
+    row.update(_transfer(spec, session, final_mean))
+    row["n_solves"] = est.cost.forward_solves
+    row["newton_its"] = est.cost.newton_its
+    row["wall_s_step"] = float(np.mean([t["wall_s"] for t in traces]))
+
+
+def _estimate(
+    spec: RunSpec,
+    estimator: Any,
+    who: str,
+    stream: list[Observation | None],
+    truth: Truth,
+    direct: FloatArray,
+    traces: list[dict[str, Any]],
+    models: tuple[ForwardModel, ForwardModel],
+    t_start: float,
+) -> tuple[Any, FloatArray]:
+    """Feed the stream to the estimator; score and trace every step.
+
+    Returns the last :class:`~idbench.interfaces.Estimate` and the means (K, p).
+    """
+    model, metrics_model = models
+    names = model.parameters.names
     shadow = metrics_model.reset()
     means = np.full((spec.steps, len(names)), np.nan)
     solves_before = 0
@@ -466,28 +509,9 @@ def _run(
         newton_before = est.cost.newton_its
         traces.append(trace)
         if spec.timeout is not None and time.perf_counter() - t_start > spec.timeout:
-            raise TimeoutError(f"run exceeded --timeout {spec.timeout:g} s at step {k}")
+            raise RunTimeout(f"run exceeded --timeout {spec.timeout:g} s at step {k}")
 
-    final_mean, final_std = means[-1], np.asarray(est.std, dtype=float)
-    ref = session.reference(spec)
-    for j, n in enumerate(names):
-        row[f"{n}_final"] = float(final_mean[j])
-        row[f"{n}_std_final"] = float(final_std[j]) if final_std.size > j else np.nan
-        row[f"{n}_ref"] = float(ref[j])
-    settle = metrics.settling_step(means, ref)
-    row["settling_step"] = settle if settle is not None else np.nan
-    used = metrics.observations_used(settle, spec.obs_every)
-    row["settling_obs"] = used if used is not None else np.nan
-    last = traces[-1]
-    row["shape_error_final"] = last["shape_error"]
-    row["shape_error_mean_final"] = last["shape_error_mean"]
-    row["shape_error_direct"], row["shape_error_direct_mean"] = metrics.shape_error(
-        direct[-1], truth.grid[-1]
-    )
-    row.update(_transfer(spec, session, final_mean))
-    row["n_solves"] = est.cost.forward_solves
-    row["newton_its"] = est.cost.newton_its
-    row["wall_s_step"] = float(np.mean([t["wall_s"] for t in traces]))
+    return est, means
 
 
 def _transfer(spec: RunSpec, session: Session, theta: FloatArray) -> dict[str, Any]:

@@ -20,10 +20,6 @@ from idbench.config import ConfigError
 STRETCH, BEND = 250.0, 8.9
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "c"))
-
 
 def synthetic(angles=(0.0, 10.0, 45.0, 90.0), steps=4) -> Calibration:
     rng = np.random.default_rng(3)

@@ -36,10 +36,6 @@ TRUTH, MODEL, STEPS = "12x3x3", "4x1x1", 5
 BUILTIN_ESTIMATORS = {"ro-ukf", "ukf", "rls", "lms", "batch-ls"}
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "c"))
-
 
 def tiny(**overrides: Any) -> CompareConfig:
     base: dict[str, Any] = {
@@ -432,8 +428,13 @@ def test_crashing_plugin_estimators_are_named_and_isolated(registry, tmp_path):
     cfg = tiny(estimators=("rls", *CRASHES, "batch-ls"))
     runs, traces = compare(cfg, tmp_path / "out", registry=registry)
     check_crash_rows(runs, traces)
-    again, _ = compare(cfg, tmp_path / "out", registry=registry)  # finished: kept
-    assert list(again["status"]) == list(runs["status"])
+    parts = tmp_path / "out" / "parts"
+    stamps = {r: (parts / f"{r}.runs.parquet").stat().st_mtime_ns for r in runs.run_id}
+    again, _ = compare(cfg, tmp_path / "out", registry=registry)
+    assert list(again["status"]) == list(runs["status"])  # they crash again
+    for run_id, status in zip(runs["run_id"], runs["status"], strict=True):
+        redone = (parts / f"{run_id}.runs.parquet").stat().st_mtime_ns != stamps[run_id]
+        assert redone == (status == "failed")  # failed runs retried, results kept
 
 
 @pytest.fixture

@@ -13,7 +13,7 @@ def test_full_ukf_costs_tens_of_ro_ukf_steps_on_the_same_mesh(study, tmp_path):
     assert len(ukf) == 1
     nodes = ukf["model_nodes"].iloc[0]
     ro = table[(table["estimator"] == "ro-ukf") & (table["model_nodes"] == nodes)]
-    # 2n + 1 = 97 sigma-point solves a step against the RO-UKF's 2
+    # 2n + 1 = 99 sigma-point solves a step against the RO-UKF's 2
     ratio = ukf["wall_s_step"].iloc[0] / ro["wall_s_step"].iloc[0]
     assert ratio > 10, ratio
     # the frontier answers the budget question: one best row per budget
