@@ -23,7 +23,7 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -33,9 +33,9 @@ from scipy.interpolate import PchipInterpolator
 
 from idbench.config import CompareConfig, ConfigError
 from idbench.effective import effective_path
-from idbench.interfaces import FloatArray, ForwardModel, ModelSpec
+from idbench.interfaces import FloatArray, ForwardModel, ModelFailure, ModelSpec
 from idbench.metrics import shape_error
-from idbench.plugins import Registry, build_registry
+from idbench.plugins import Entry, Registry, build_registry
 from idbench.scenario import Scenario
 from idbench.truth import simulate_truth
 
@@ -45,8 +45,9 @@ log = logging.getLogger(__name__)
 #: changes fastest (any transverse load soon dominates the response); 30 and
 #: 60 degrees are held back.
 ANGLES = (0.0, 0.5, 1.0, 2.0, 5.0, 15.0, 45.0, 75.0, 90.0)
-#: Registered manipulations for :func:`evaluate`: mixed-30, mixed-60 and bend-z
-#: are held back; stretch-x lies on a calibrated direction, at other levels.
+#: Registered manipulations for :func:`evaluate`: mixed-30 and mixed-60 are off
+#: the angle grid, bend-z out of the calibrated plane (the azimuth is ignored);
+#: stretch-x lies on the 0-degree path, with its odd steps between levels.
 HELD_BACK = ("mixed-30", "mixed-60", "bend-z", "stretch-x")
 
 
@@ -174,6 +175,21 @@ class Calibration:
         """End traction (Pa) of the calibration path at ``angle``."""
         s = self.settings
         return reference_magnitude(angle, s.stretch_magnitude, s.bend_magnitude)  # type: ignore[arg-type]
+
+    def manipulation(self, angle: float) -> Scenario:
+        """A load path ``angle`` degrees off +x, to the calibration's traction.
+
+        Named ``pull-<angle>`` (transfer target ``bend-y``); for
+        :func:`evaluate` on directions off the angle grid, e.g. 3 or 10
+        degrees, where E_eff changes fastest.
+        """
+        return Scenario(
+            f"pull-{angle:g}",
+            tuple(direction(angle)),  # type: ignore[arg-type]
+            self.magnitude_at(angle),
+            transfer="bend-y",
+            description=f"end traction {angle:g} deg off +x towards -y",
+        )
 
     def E_eff(self, direction: Sequence[float] | FloatArray, magnitude: float) -> float:
         """Calibrated effective E (Pa) for a traction of ``magnitude`` Pa.
@@ -308,7 +324,7 @@ def collapse(calibration: Calibration) -> pd.DataFrame:
 
 def evaluate(
     calibration: Calibration,
-    scenarios: Sequence[str] = HELD_BACK,
+    scenarios: Sequence[str | Scenario] = HELD_BACK,
     *,
     steps: int = 20,
     seeds: int = 3,
@@ -317,6 +333,8 @@ def evaluate(
 ) -> pd.DataFrame:
     """Shape error on held-back manipulations, four ways of choosing E.
 
+    ``scenarios`` are registered names or :class:`~idbench.scenario.Scenario`
+    objects (e.g. :meth:`Calibration.manipulation` at an angle off the grid).
     Methods: ``E_true`` (direct simulation), ``constant`` (one E for every
     manipulation, identified once on bending: the map at 90 degrees and full
     load, as a one-experiment calibration would give), ``calibrated``
@@ -331,10 +349,20 @@ def evaluate(
     from idbench.sweep import compare
 
     registry = registry or build_registry()
+    extra = {sc.name: sc for sc in scenarios if isinstance(sc, Scenario)}
+    if extra:  # ad-hoc manipulations: a registry that knows them too
+        registry = replace(
+            registry,
+            scenarios={
+                **registry.scenarios,
+                **{n: Entry(n, sc, "calibrate") for n, sc in extra.items()},
+            },
+        )
+    names = [sc.name if isinstance(sc, Scenario) else sc for sc in scenarios]
     s = calibration.settings
     constant = calibration.E_eff(direction(90.0), calibration.magnitude_at(90.0))
     rows: list[dict[str, Any]] = []
-    for name in scenarios:
+    for name in names:
         scenario = registry.scenario(name)
         spec = _replace(s, steps=steps)
         truth = simulate_truth(
@@ -366,7 +394,7 @@ def evaluate(
         estimators=("ro-ukf",),
         meshes=(s.mesh,),
         truth_mesh=s.truth_mesh,
-        scenarios=tuple(scenarios),
+        scenarios=tuple(names),
         seeds=seeds,
         steps=steps,
         E_true=s.E_true,
@@ -378,7 +406,7 @@ def evaluate(
     ok = runs[runs["status"] == "ok"]
     path = traces[traces["run_id"].isin(ok["run_id"])]
     path = path.merge(ok[["run_id", "scenario"]], on="run_id")
-    for name in scenarios:
+    for name in names:
         mine = ok[ok["scenario"] == name]
         estimates = mine["E_final"]
         rows.append(
@@ -408,7 +436,10 @@ def _errors(
     state = model.reset()
     errors = np.empty(len(moduli))
     for k, e in enumerate(moduli, start=1):
-        state = model.step(np.array([e]), k, state)
+        try:
+            state = model.step(np.array([e]), k, state)
+        except ModelFailure:
+            state = model.step(np.array([e]), k, state, substeps=8)
         errors[k - 1] = shape_error(model.grid(state), truth_grid[k - 1])[1]
     return errors
 

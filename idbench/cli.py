@@ -167,6 +167,12 @@ def build_parser() -> argparse.ArgumentParser:
         "stretch-x; 'none' skips)",
     )
     k.add_argument(
+        "--evaluate-angles",
+        type=_floats("evaluate-angles"),
+        default=(3.0, 10.0),
+        help="also score ad-hoc paths at these angles (default 3,10: off the grid)",
+    )
+    k.add_argument(
         "--seeds", type=_number("seeds", int), default=3, help="RO-UKF seeds"
     )
     k.add_argument(
@@ -378,6 +384,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         collapse,
         evaluate,
     )
+    from idbench.interfaces import ModelFailure
     from idbench.plugins import build_registry
 
     settings = CalibrationSettings(
@@ -394,6 +401,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         scenarios = ()
     if args.seeds < 1:
         raise UsageError(f"--seeds {args.seeds}: must be >= 1")
+    for angle in args.evaluate_angles:
+        if not 0 <= angle <= 90:
+            raise UsageError(f"--evaluate-angles {angle:g}: must be in 0..90")
     registry = build_registry()
     for name, table in (("scenario", registry.scenarios), ("model", registry.models)):
         wanted = scenarios if name == "scenario" else (args.model,)
@@ -412,15 +422,23 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         result = calibrate(settings, registry, progress)
     except (ValueError, OSError) as exc:
         raise UsageError(str(exc)) from None
+    except ModelFailure as exc:
+        print(f"idbench: calibration failed: {exc}", file=sys.stderr)
+        return 1
     written = result.save(args.out)
     fit = collapse(result)
     fit.to_csv(args.out / "collapse.csv", index=False)
     written.append(args.out / "collapse.csv")
     if scenarios:
-        scores = evaluate(
-            result, scenarios, seeds=args.seeds, registry=registry,
-            out=args.out / "ro-ukf",
-        )  # fmt: skip
+        paths = [*scenarios, *(result.manipulation(a) for a in args.evaluate_angles)]
+        try:
+            scores = evaluate(
+                result, paths, seeds=args.seeds, registry=registry,
+                out=args.out / "ro-ukf",
+            )  # fmt: skip
+        except ModelFailure as exc:
+            print(f"idbench: evaluation failed: {exc}", file=sys.stderr)
+            return 1
         scores.to_parquet(args.out / "evaluation.parquet", index=False)
         scores.to_csv(args.out / "evaluation.csv", index=False)
         written += [args.out / "evaluation.parquet", args.out / "evaluation.csv"]

@@ -37,6 +37,7 @@ STEPS = 10  # calibration load levels per direction
 EVAL_STEPS = 20  # held-back manipulations: the default load path
 SEEDS = 3  # RO-UKF noise seeds
 HELD_BACK = ("mixed-30", "mixed-60", "bend-z", "stretch-x")
+PULLS = (3.0, 10.0)  # ad-hoc paths off the angle grid, where E_eff changes fast
 
 QUICK = {"mesh": "6x2x2", "truth_mesh": "18x3x3", "angles": (0.0, 2.0, 15.0, 90.0),
          "steps": 3}  # fmt: skip
@@ -64,7 +65,8 @@ def compute(
     cal = calibrate(settings)
     fit = collapse(cal)
     ukf_out = Path(out) / "ro-ukf" if out is not None else None
-    scores = evaluate(cal, HELD_BACK, out=ukf_out, **eval_kw)
+    paths = [*HELD_BACK, *(cal.manipulation(a) for a in PULLS)]
+    scores = evaluate(cal, paths, out=ukf_out, **eval_kw)
     if out is not None:
         cal.save(out)
         fit.to_csv(Path(out) / "collapse.csv", index=False)

@@ -105,8 +105,19 @@ def test_cli_writes_the_map_and_rejects_bad_input(tmp_path, capsys):
         (["--evaluate", "bend-q"], "unknown scenario 'bend-q'"),
         (["--steps", "x"], "--steps 'x'"),
         (["--mesh", "nowhere.msh"], "nowhere.msh"),
+        (["--evaluate-angles", "120"], "--evaluate-angles 120"),
     ):
         capsys.readouterr()
         assert main([*argv, *bad]) == 2
         err = capsys.readouterr().err
         assert message in err and "Traceback" not in err and err.count("\n") == 1
+
+
+def test_cli_reports_a_failed_solve_in_one_line(tmp_path, capsys):
+    # E = 20 Pa inverts an element of the 4x1x1 beam at the first load level
+    argv = ["calibrate", "--mesh", "4x1x1", "--truth-mesh", "8x2x2", "--steps", "2",
+            "--angles", "0,90", "--E-true", "20", "--evaluate", "none", "-q",
+            "--out", str(tmp_path)]  # fmt: skip
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "calibration failed: step 1" in err and "Traceback" not in err
