@@ -371,7 +371,8 @@ def write_report(directory: str | Path) -> list[Path]:
             "",
             "Wall time per step: the larger of the median estimator step and the"
             " total estimator time / steps (amortised), measured on this machine;"
-            " `pareto`: no other row is both faster and more accurate;"
+            " `pareto`: no other row is at least as fast and as accurate and"
+            " strictly better in one;"
             " `best_<rate>hz`: lowest shape error within that budget.",
             "",
             _markdown(table),
