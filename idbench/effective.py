@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+from numpy.typing import NDArray
 
 from idbench.interfaces import FloatArray, ForwardModel, ModelFailure
 
@@ -41,7 +42,8 @@ class EffectivePath:
     theta
         Best constant parameters per step, shape (K, p).
     residual
-        Root-mean-square misfit per step at ``theta`` (m), shape (K,).
+        Root-mean-square misfit per step at ``theta`` (m), over the target's
+        components (not per-point distances), shape (K,).
     iterations
         Gauss-Newton iterations per step, shape (K,).
     states
@@ -50,7 +52,7 @@ class EffectivePath:
 
     theta: FloatArray
     residual: FloatArray
-    iterations: FloatArray
+    iterations: NDArray[np.int64]
     states: FloatArray
 
 
@@ -114,9 +116,9 @@ def effective_path(
     for k in range(1, n_steps + 1):
         u = _solve(model, np.exp(xi), k, base)
         for it in range(1, max_iterations + 1):
-            r = probe(u) - flat[k - 1]
-            jac = np.empty((r.size, p))
             at_u = probe(u)
+            r = at_u - flat[k - 1]
+            jac = np.empty((r.size, p))
             for j in range(p):
                 xj = xi.copy()
                 xj[j] += FD_STEP

@@ -173,6 +173,8 @@ def summarise(
                         "settle_lo": lo,
                         "settle_hi": hi,
                         "never": g["never"].mean(),
+                        # observations used by then: mean over the runs that
+                        # settle only (never-settled runs have none to count)
                         "settle_obs": ok["settling_obs"].mean(),
                         "E_err": ok["E_err"].mean(),
                         "E_ratio": (ok["E_final"] / ok["E_true"]).mean(),

@@ -1,7 +1,8 @@
 """Reproduces Figs. 3 and 4: the effective E depends on direction and strength.
 
-A 510-node model (20x4x4, 525 nodes) follows quasi-static paths in which the end
-traction grows, in five directions (stretching, bending in y and z, mixed). Two
+The study's 510-node model (here 20x4x4, 525 nodes) follows quasi-static paths
+in which the end traction grows, in five directions (stretching, bending in y
+and z, mixed). Two
 views of its effective Young's modulus per load step:
 
 - the RO-UKF's estimate from sparse noisy marker data (the study's Fig. 3), as

@@ -1,4 +1,4 @@
-"""Reproduces the real-time frontier: shape error against wall time per step.
+"""Beyond the study: the real-time frontier, shape error against wall time per step.
 
 For every (model mesh, estimator) the shape error reached at the last step
 (mean over seeds) is set against the estimator's wall time per load step,
