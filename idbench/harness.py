@@ -277,9 +277,22 @@ class Session:
         """The run's prior, the same for every parameter."""
         return Prior.broadcast(spec.prior[0], spec.prior[1], model.parameters.p)
 
+    @staticmethod
+    def reference_key(spec: RunSpec) -> tuple[Any, ...]:
+        """What E_ref depends on: runs with the same key share one fit."""
+        return (spec.data_key(), spec.mesh, spec.reference, spec.prior)
+
+    def known_reference(self, spec: RunSpec) -> FloatArray | None:
+        """E_ref of ``spec``'s data if this session has it, else None."""
+        return self._refs.get(self.reference_key(spec))
+
+    def remember_reference(self, spec: RunSpec, value: FloatArray) -> None:
+        """Seed E_ref of ``spec``'s data (computed by another worker)."""
+        self._refs[self.reference_key(spec)] = np.asarray(value, dtype=float)
+
     def reference(self, spec: RunSpec) -> FloatArray:
         """E_ref: the reference estimator fitted on the run's own data."""
-        key = (spec.data_key(), spec.mesh, spec.reference, spec.prior)
+        key = self.reference_key(spec)
         if key not in self._refs:
             model = self.model(spec, spec.mesh, role="ref")
             p = model.parameters.p

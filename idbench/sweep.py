@@ -27,6 +27,7 @@ import pandas as pd
 
 from idbench.config import CompareConfig, ConfigError, suggest
 from idbench.harness import RunSpec, Session, base_row, execute, expand
+from idbench.interfaces import FloatArray
 from idbench.plugins import Registry, build_registry
 from idbench.results import ResultStore
 
@@ -278,15 +279,55 @@ def run_in_worker(spec: RunSpec) -> RunResult:
     return execute(spec, _WORKER_SESSION)
 
 
+def run_with_hint(
+    spec: RunSpec, reference: FloatArray | None
+) -> tuple[RunResult, FloatArray | None]:
+    """:func:`run_in_worker`, seeded with E_ref another worker already fitted.
+
+    Returns the result and this run's E_ref (None if never fitted), so the
+    parent can pass it on to later runs on the same data.
+    """
+    global _WORKER_SESSION
+    if _WORKER_SESSION is None:
+        _WORKER_SESSION = Session()
+    if reference is not None:
+        _WORKER_SESSION.remember_reference(spec, reference)
+    result = execute(spec, _WORKER_SESSION)
+    return result, _WORKER_SESSION.known_reference(spec)
+
+
+def interleave(runs: list[RunSpec]) -> list[RunSpec]:
+    """Runs ordered so that consecutive ones use different data.
+
+    One run of each E_ref key first, then the second of each, ...: the first
+    runs a pool starts fit different references, and later runs on the same
+    data receive the fit (see :func:`run_with_hint`) instead of repeating it.
+    """
+    groups: dict[Any, list[RunSpec]] = {}
+    for spec in runs:
+        groups.setdefault(Session.reference_key(spec), []).append(spec)
+    order: list[RunSpec] = []
+    columns = list(groups.values())
+    for i in range(max((len(c) for c in columns), default=0)):
+        order.extend(c[i] for c in columns if i < len(c))
+    return order
+
+
 def single_thread_env() -> dict[str, str]:
     """Environment that pins BLAS/MKL/OpenMP to one thread per worker."""
     return {k: "1" for k in THREAD_ENV}
 
 
 def _execute_processes(runs: list[RunSpec], jobs: int) -> Iterator[RunResult]:
-    """Run on a local process pool; a dead worker costs only its runs in flight."""
+    """Run on a local process pool; a dead worker costs only its runs in flight.
+
+    At most ``jobs`` runs are in flight; each is submitted with the E_ref of
+    its data if an earlier run has fitted it (so every reference is fitted
+    once per sweep, not once per worker).
+    """
     attempts = {r.run_id: 0 for r in runs}
-    queue = list(runs)
+    queue = interleave(runs)
+    known: dict[Any, FloatArray] = {}
     saved = {k: os.environ.get(k) for k in THREAD_ENV}
     os.environ.update(single_thread_env())
     try:
@@ -295,29 +336,31 @@ def _execute_processes(runs: list[RunSpec], jobs: int) -> Iterator[RunResult]:
             with ProcessPoolExecutor(
                 jobs, mp_context=ctx, initializer=_worker_init
             ) as pool:
-                futures: dict[Future[RunResult], RunSpec] = {
-                    pool.submit(run_in_worker, spec): spec for spec in queue
-                }
-                queue = []
+                in_flight: dict[Future[Any], RunSpec] = {}
                 broken = False
-                pending_f = set(futures)
-                while pending_f:
-                    finished, pending_f = wait(pending_f, return_when=FIRST_COMPLETED)
+                while (queue or in_flight) and not broken:
+                    while queue and len(in_flight) < jobs:
+                        spec = queue.pop(0)
+                        hint = known.get(Session.reference_key(spec))
+                        in_flight[pool.submit(run_with_hint, spec, hint)] = spec
+                    finished, _ = wait(set(in_flight), return_when=FIRST_COMPLETED)
                     for fut in finished:
-                        spec = futures[fut]
+                        spec = in_flight.pop(fut)
                         try:
-                            yield fut.result()
+                            result, ref = fut.result()
                         except BrokenProcessPool:
                             broken = True
                             attempts[spec.run_id] += 1
                             if attempts[spec.run_id] >= MAX_ATTEMPTS:
                                 yield worker_lost(spec)
                             else:
-                                queue.append(spec)
-                    if broken:
-                        for fut in pending_f:
-                            queue.append(futures[fut])
-                        break
+                                queue.insert(0, spec)
+                            continue
+                        if ref is not None:
+                            known[Session.reference_key(spec)] = ref
+                        yield result
+                if broken:  # the pool is gone: requeue what was in flight
+                    queue[:0] = list(in_flight.values())
     finally:
         for k, v in saved.items():
             if v is None:

@@ -541,3 +541,33 @@ def test_failure_at_the_first_step(tmp_path):
     assert list(runs["status"]) == ["failed"]
     assert "boom at step 1" in runs["error"].iloc[0]
     assert traces.empty
+
+
+def test_interleave_puts_runs_on_different_data_first():
+    from idbench.harness import Session, expand
+    from idbench.sweep import interleave
+
+    cfg = CompareConfig(meshes=("4x1x1",), seeds=3, estimators=("rls", "lms", "ro-ukf"))
+    runs = expand(cfg)
+    order = interleave(runs)
+    assert sorted(r.run_id for r in order) == sorted(r.run_id for r in runs)
+    keys = [Session.reference_key(r) for r in order]
+    assert len(set(keys[:3])) == 3  # one run per data first
+    assert keys[3:6] == keys[:3]
+
+
+def test_a_worker_uses_the_reference_another_worker_fitted(tmp_path):
+    import idbench.sweep as sweep
+    from idbench.harness import expand
+
+    spec = expand(CompareConfig(truth_mesh="8x2x2", meshes=("4x1x1",), steps=4,
+                                seeds=1, estimators=("rls",)))[0]  # fmt: skip
+    try:
+        sweep._WORKER_SESSION = None
+        (row, _), fitted = sweep.run_with_hint(spec, None)
+        assert fitted is not None and fitted[0] == pytest.approx(row["E_ref"])
+        sweep._WORKER_SESSION = None  # a fresh worker, told the answer
+        (row, _), passed_on = sweep.run_with_hint(spec, np.array([1234.5]))
+        assert row["E_ref"] == 1234.5 and passed_on[0] == 1234.5  # not refitted
+    finally:
+        sweep._WORKER_SESSION = None
