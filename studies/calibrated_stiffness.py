@@ -15,10 +15,9 @@ Run ``python studies/calibrated_stiffness.py [--quick] [--out DIR]``.
 
 from __future__ import annotations
 
-import argparse
-import logging
 from pathlib import Path
 
+import _cli
 import pandas as pd
 
 from idbench.calibrate import (
@@ -117,10 +116,7 @@ def plot(cal: Calibration, scores: pd.DataFrame, path: Path) -> None:
 
 
 if __name__ == "__main__":
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out", type=Path, default=Path("results/calibrated"))
+    parser = _cli.parser(__doc__, "results/calibrated")
     args = parser.parse_args()
     cal, fit, scores = compute(args.quick, args.out)
     wide = cal.table.pivot(index="fraction", columns="angle", values="ratio")

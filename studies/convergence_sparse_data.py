@@ -31,11 +31,10 @@ Run ``python studies/convergence_sparse_data.py [--quick] [--out DIR]``.
 
 from __future__ import annotations
 
-import argparse
-import logging
 from pathlib import Path
 from typing import Any
 
+import _cli
 import numpy as np
 import pandas as pd
 
@@ -325,10 +324,7 @@ def plot(table: pd.DataFrame, path: Path, dpi: int = 110) -> None:
 
 
 if __name__ == "__main__":
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out", type=Path, default=Path("results/convergence"))
+    parser = _cli.parser(__doc__, "results/convergence")
     parser.add_argument("--jobs", type=int, default=None)
     args = parser.parse_args()
     table = compute(args.quick, args.out, args.jobs)

@@ -9,10 +9,9 @@ Run ``python studies/fig2_stiffness_vs_resolution.py [--quick] [--out DIR]``.
 
 from __future__ import annotations
 
-import argparse
-import logging
 from pathlib import Path
 
+import _cli
 import pandas as pd
 
 from idbench.config import CompareConfig
@@ -84,10 +83,7 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
 
 if __name__ == "__main__":
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out", type=Path, default=Path("results/fig2"))
+    parser = _cli.parser(__doc__, "results/fig2")
     args = parser.parse_args()
     table = compute(args.quick, args.out)
     print(table.to_string(index=False))

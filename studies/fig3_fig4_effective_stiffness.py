@@ -19,10 +19,9 @@ Run ``python studies/fig3_fig4_effective_stiffness.py [--quick] [--out DIR]``.
 
 from __future__ import annotations
 
-import argparse
-import logging
 from pathlib import Path
 
+import _cli
 import numpy as np
 import pandas as pd
 
@@ -158,10 +157,7 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
 
 if __name__ == "__main__":
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out", type=Path, default=Path("results/fig3_fig4"))
+    parser = _cli.parser(__doc__, "results/fig3_fig4")
     args = parser.parse_args()
     table = compute(args.quick, args.out)
     with pd.option_context("display.width", 160, "display.max_rows", 200):

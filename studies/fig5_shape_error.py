@@ -14,10 +14,9 @@ Run ``python studies/fig5_shape_error.py [--quick] [--out DIR]``.
 
 from __future__ import annotations
 
-import argparse
-import logging
 from pathlib import Path
 
+import _cli
 import pandas as pd
 
 from idbench.config import CompareConfig
@@ -131,10 +130,7 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
 
 if __name__ == "__main__":
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out", type=Path, default=Path("results/fig5"))
+    parser = _cli.parser(__doc__, "results/fig5")
     args = parser.parse_args()
     table = compute(args.quick, args.out)
     print(table.to_string(index=False))

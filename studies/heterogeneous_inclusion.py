@@ -38,11 +38,10 @@ Run ``python studies/heterogeneous_inclusion.py [--quick] [--out DIR]``.
 
 from __future__ import annotations
 
-import argparse
-import logging
 from pathlib import Path
 from typing import Any
 
+import _cli
 import numpy as np
 import pandas as pd
 
@@ -332,10 +331,7 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
 
 if __name__ == "__main__":
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out", type=Path, default=Path("results/inclusion"))
+    parser = _cli.parser(__doc__, "results/inclusion")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes")
     args = parser.parse_args()
     table = compute(args.quick, args.out, args.jobs)

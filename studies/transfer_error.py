@@ -14,10 +14,9 @@ Run ``python studies/transfer_error.py [--quick] [--out DIR]``.
 
 from __future__ import annotations
 
-import argparse
-import logging
 from pathlib import Path
 
+import _cli
 import numpy as np
 import pandas as pd
 
@@ -154,10 +153,7 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
 
 if __name__ == "__main__":
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out", type=Path, default=Path("results/transfer"))
+    parser = _cli.parser(__doc__, "results/transfer")
     args = parser.parse_args()
     table = compute(args.quick, args.out)
     print(table.to_string(index=False))

@@ -19,8 +19,9 @@ def _isolated_cache(tmp_path_factory, monkeypatch):
 
 
 @pytest.fixture
-def study() -> Callable[[str], ModuleType]:
+def study(monkeypatch) -> Callable[[str], ModuleType]:
     """Load ``studies/<name>.py`` (scripts, not a package) as a module."""
+    monkeypatch.syspath_prepend(str(STUDIES))  # as when run: their _cli helper
 
     def load(name: str) -> ModuleType:
         spec = importlib.util.spec_from_file_location(name, STUDIES / f"{name}.py")
