@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import faulthandler
 import json
 import logging
+import os
 import sys
+import traceback
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -68,6 +72,15 @@ def _number(name: str, kind: type = float) -> Any:
     return parse
 
 
+def _path(name: str) -> Any:
+    def parse(text: str) -> Path:
+        if not text.strip():
+            raise UsageError(f"--{name} {text!r}: need a path")
+        return Path(text)
+
+    return parse
+
+
 def _raw_option(argv: list[str], name: str) -> str | None:
     """The text given for option ``name`` (for error messages)."""
     for i, arg in enumerate(argv):
@@ -119,9 +132,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--timeout", type=_number("timeout"), help="seconds per run")
     c.add_argument(
         "--out",
-        type=Path,
-        default=Path("idbench-out"),
-        help="results directory (default ./idbench-out)",
+        type=_path("out"),
+        help="results directory (default ./idbench-out; with --quick "
+        "./idbench-out-quick)",
     )
     c.add_argument(
         "--jobs", type=_number("jobs", int), default=1, help="local worker processes"
@@ -177,7 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     k.add_argument(
         "--out",
-        type=Path,
+        type=_path("out"),
         default=Path("idbench-calibration"),
         help="output directory (default ./idbench-calibration)",
     )
@@ -192,22 +205,34 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--nu", type=_number("nu"), default=0.45, help="Poisson ratio")
     s.add_argument("--steps", type=_number("steps", int), default=20, help="load steps")
     s.add_argument("--model", default="svk-beam", help="registered model name")
-    s.add_argument("--out", type=Path, required=True, help="output .xdmf file")
+    s.add_argument(
+        "--out", type=_path("out"), required=True, help="output .xdmf file"
+    )
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``idbench`` console script."""
+    """Entry point of the ``idbench`` console script.
+
+    Bad input, an unusable output folder or a failed write end in one line on
+    stderr and exit status 2; an unexpected error in one line and status 1
+    (``--debug`` shows its traceback); Ctrl-C in status 130.
+    """
+    from idbench.interfaces import ModelFailure
+    from idbench.results import ResultsError
+
+    argv = sys.argv[1:] if argv is None else list(argv)
+    debug = "--debug" in argv
+    argv = [a for a in argv if a != "--debug"]
+    with contextlib.suppress(Exception):  # stderr may have no file descriptor
+        faulthandler.enable()  # a crash in compiled code at least says where
     try:
         args = build_parser().parse_args(argv)
-        args.prior_text = _raw_option(sys.argv[1:] if argv is None else argv, "--prior")
+        args.prior_text = _raw_option(argv, "--prior")
         if args.command is None:
             build_parser().print_help()
             return 2
-        level = logging.WARNING
-        if getattr(args, "verbose", 0):
-            level = logging.INFO if args.verbose == 1 else logging.DEBUG
-        logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+        _logging(getattr(args, "verbose", 0), debug)
         handler = {
             "report": cmd_report,
             "plugins": cmd_plugins,
@@ -216,12 +241,50 @@ def main(argv: list[str] | None = None) -> int:
             "calibrate": cmd_calibrate,
         }[args.command]
         return handler(args)
-    except (UsageError, ConfigError) as exc:
-        print(f"idbench: error: {exc}", file=sys.stderr)
-        return 2
+    except (UsageError, ConfigError, ResultsError) as exc:
+        return _fail(exc, 2, debug)
+    except ModelFailure as exc:
+        return _fail(exc, 2, debug, "the simulation failed (check the settings): ")
+    except OSError as exc:
+        if isinstance(exc, BrokenPipeError):  # e.g. `idbench plugins | head`
+            _silence_stdout()
+            return 0
+        return _fail(exc, 2, debug, "cannot read or write a file: ")
     except KeyboardInterrupt:
         print("idbench: interrupted; finished runs are kept", file=sys.stderr)
         return 130
+    except Exception as exc:
+        return _fail(
+            exc, 1, debug, f"unexpected {type(exc).__name__}: ", " (--debug shows more)"
+        )
+
+
+def _fail(
+    exc: BaseException, code: int, debug: bool, pre: str = "", post: str = ""
+) -> int:
+    """Print ``exc`` as one line (with its traceback under --debug); return code."""
+    if debug:
+        traceback.print_exception(exc)
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    print(f"idbench: error: {pre}{text}{'' if debug else post}", file=sys.stderr)
+    return code
+
+
+def _silence_stdout() -> None:
+    """After a broken pipe: send what Python still flushes at exit nowhere."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+
+
+def _logging(verbose: int, debug: bool) -> None:
+    """Log level from -v; Python warnings (e.g. numpy's) only with -v or --debug."""
+    level = logging.WARNING
+    if verbose or debug:
+        level = logging.INFO if verbose == 1 and not debug else logging.DEBUG
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    logging.captureWarnings(True)
+    if not (verbose or debug):
+        logging.getLogger("py.warnings").setLevel(logging.ERROR)
 
 
 def cmd_plugins(args: argparse.Namespace) -> int:
@@ -277,6 +340,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from idbench.report import summary_table
     from idbench.sweep import compare, plan
 
+    if args.out is None:
+        args.out = Path("idbench-out-quick" if args.quick else "idbench-out")
     toml = load_toml(args.config) if args.config else None
     prior = args.prior
     if prior is not None and len(prior) != 2:
@@ -344,7 +409,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
             args.out,
             jobs=args.jobs,
             scheduler=args.scheduler,
-            registry=registry,
             progress=progress,
         )
     if not args.quiet:
@@ -367,6 +431,11 @@ def cmd_report(args: argparse.Namespace) -> int:
         written = write_report(args.directory)
     except FileNotFoundError as exc:
         raise UsageError(str(exc)) from None
+    except (OSError, ValueError, KeyError) as exc:  # e.g. not parquet, no columns
+        raise UsageError(
+            f"{args.directory} does not hold readable idbench results "
+            f"({type(exc).__name__}: {exc})"
+        ) from None
     for path in written:
         print(f"wrote {path}")
     return 0
@@ -387,6 +456,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from idbench.interfaces import ModelFailure
     from idbench.plugins import build_registry
 
+    if args.out.exists() and not args.out.is_dir():
+        raise UsageError(f"--out {str(args.out)!r} is a file; need a directory")
     settings = CalibrationSettings(
         mesh=args.mesh,
         truth_mesh=args.truth_mesh,
@@ -463,6 +534,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from idbench.plugins import build_registry
     from idbench.truth import simulate_path
 
+    if args.out.is_dir() or args.out.suffix.lower() != ".xdmf":
+        raise UsageError(f"--out {str(args.out)!r}: need a file name ending in .xdmf")
     if args.steps < 1:
         raise UsageError(f"--steps {args.steps}: must be >= 1")
     if not 0 < args.E:

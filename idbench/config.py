@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +20,13 @@ from typing import Any
 from idbench.scenario import Sparsity
 
 ALL_ESTIMATORS = ("ro-ukf", "ukf", "rls", "lms", "batch-ls")
+
+MAX_RUNS_ENV = "IDBENCH_MAX_RUNS"
+DEFAULT_MAX_RUNS = 100_000
+"""Runs a comparison may have before it is refused (``$IDBENCH_MAX_RUNS``)."""
+
+MAX_TIMEOUT = 30 * 24 * 3600.0
+"""The longest ``timeout`` accepted: 30 days, in seconds."""
 
 
 class ConfigError(ValueError):
@@ -91,6 +99,8 @@ class CompareConfig:
         _check_names("scenarios", self.scenarios)
         if not isinstance(self.truth_mesh, str) or not self.truth_mesh:
             raise ConfigError(f"truth_mesh {self.truth_mesh!r}: need a mesh spec")
+        for axis in ("obs_every", "obs_points", "noise"):
+            _check_axis(axis, getattr(self, axis))
         for k in self.obs_every:
             _check_int("obs_every", k, 1)
         for m in self.obs_points:
@@ -104,21 +114,65 @@ class CompareConfig:
             raise ConfigError(f"E_true {self.E_true!r}: must be a number > 0 (Pa)")
         if not _finite(self.nu) or not -1.0 < self.nu < 0.5:
             raise ConfigError(f"nu {self.nu!r}: must be in (-1, 0.5)")
-        if len(self.prior) != 2 or not all(_finite(v) and v > 0 for v in self.prior):
+        if (
+            not isinstance(self.prior, tuple | list)
+            or len(self.prior) != 2
+            or not all(_finite(v) and v > 0 for v in self.prior)
+        ):
             raise ConfigError(f"prior {self.prior!r}: need MEAN,STD, both > 0 (Pa)")
-        if self.parameters not in ("E", "E_regions"):
+        for name in ("model", "reference"):
+            value = getattr(self, name)
+            if not isinstance(value, str) or not value.strip():
+                raise ConfigError(f"{name} {value!r}: need a registered name")
+        if not isinstance(self.parameters, str) or self.parameters not in (
+            "E",
+            "E_regions",
+        ):
             raise ConfigError(f"parameters {self.parameters!r}: allowed: E, E_regions")
-        if len(self.grid) != 3:
+        if not isinstance(self.grid, tuple | list) or len(self.grid) != 3:
             raise ConfigError(f"grid {self.grid!r}: need three counts NX,NY,NZ")
         for g in self.grid:
             _check_int("grid", g, 1)
         if self.timeout is not None and (
-            not _finite(self.timeout) or self.timeout <= 0
+            not _finite(self.timeout) or not 0 < self.timeout <= MAX_TIMEOUT
         ):
-            raise ConfigError(f"timeout {self.timeout!r}: must be a number > 0 (s)")
+            raise ConfigError(
+                f"timeout {self.timeout!r}: must be a number in (0, {MAX_TIMEOUT:g}] "
+                "(seconds)"
+            )
+        if not isinstance(self.model_options, dict):
+            raise ConfigError(
+                f"model_options {self.model_options!r}: need a table of name = value"
+            )
+        if not isinstance(self.estimator_settings, dict):
+            raise ConfigError(
+                f"estimator_settings {self.estimator_settings!r}: need a table of "
+                "[estimators.NAME] tables"
+            )
         for name, settings in self.estimator_settings.items():
             if not isinstance(settings, dict):
-                raise ConfigError(f"estimator settings for {name!r} must be a table")
+                raise ConfigError(
+                    f"estimator settings for {name!r}: {settings!r} is not a table "
+                    f"(write [estimators.{name}] with name = value lines)"
+                )
+        n_runs = self.n_runs()
+        if n_runs > max_runs():
+            raise ConfigError(
+                f"{n_runs:,} runs: more than the limit of {max_runs():,} "
+                f"(set {MAX_RUNS_ENV} to raise it)"
+            )
+
+    def n_runs(self) -> int:
+        """Number of runs of the grid, counted without building it."""
+        return (
+            len(self.scenarios)
+            * len(self.meshes)
+            * len(self.obs_every)
+            * len(self.obs_points)
+            * len(self.noise)
+            * len(self.estimators)
+            * self.seeds
+        )
 
     @classmethod
     def quick(cls, **overrides: Any) -> CompareConfig:
@@ -144,6 +198,15 @@ class CompareConfig:
         return dataclasses.asdict(self)
 
 
+def max_runs() -> int:
+    """The largest comparison accepted: ``$IDBENCH_MAX_RUNS`` or 100,000 runs."""
+    text = os.environ.get(MAX_RUNS_ENV, "")
+    try:
+        return int(text) if text else DEFAULT_MAX_RUNS
+    except ValueError:
+        raise ConfigError(f"{MAX_RUNS_ENV}={text!r}: need a whole number") from None
+
+
 FIELDS = {f.name for f in dataclasses.fields(CompareConfig)}
 LIST_FIELDS = {"estimators", "meshes", "scenarios", "obs_every", "obs_points", "noise"}
 
@@ -157,6 +220,15 @@ def _check_int(name: str, value: Any, low: int) -> None:
         raise ConfigError(f"{name} {value!r}: must be a whole number >= {low}")
 
 
+def _check_axis(name: str, values: Any) -> None:
+    if not isinstance(values, tuple) or not values:
+        raise ConfigError(f"{name}: need at least one value")
+    if len(set(values)) != len(values):
+        raise ConfigError(
+            f"{name} {values!r} has duplicates: each value of a sweep axis once"
+        )
+
+
 def _check_names(name: str, values: Any) -> None:
     if not isinstance(values, tuple) or not values:
         raise ConfigError(f"{name}: need at least one value")
@@ -165,6 +237,19 @@ def _check_names(name: str, values: Any) -> None:
             raise ConfigError(f"{name}: {v!r} is not a name")
     if len(set(values)) != len(values):
         raise ConfigError(f"{name}: {values!r} has duplicates")
+
+
+def public_settings(cls: type) -> list[str]:
+    """The settings a user may give an estimator (or model) class.
+
+    Its dataclass fields that are set in ``__init__`` and not private
+    (no leading underscore).
+    """
+    return [
+        f.name
+        for f in dataclasses.fields(cls)
+        if f.init and not f.name.startswith("_")
+    ]
 
 
 def suggest(key: str, allowed: Any) -> str:
@@ -183,6 +268,12 @@ def normalise(raw: dict[str, Any], origin: str) -> dict[str, Any]:
     for key, value in raw.items():
         k = key.replace("-", "_")
         if k == "estimators" and isinstance(value, dict):
+            for n, v in value.items():
+                if not isinstance(v, dict):
+                    raise ConfigError(
+                        f"{origin}: [estimators] {n} = {v!r}: need a table "
+                        f"[estimators.{n}] of settings"
+                    )
             out["estimator_settings"] = {str(n): dict(v) for n, v in value.items()}
             continue
         if k == "quick":
@@ -211,6 +302,8 @@ def load_toml(path: Path) -> dict[str, Any]:
         ) from None
     compare = raw.pop("compare", None)
     origin = f"config {path}"
+    if compare is not None and not isinstance(compare, dict):
+        raise ConfigError(f"{origin}: compare = {compare!r}: need a [compare] table")
     if isinstance(compare, dict):  # normalised apart: [estimators.X] vs a list
         return {**normalise(compare, origin), **normalise(raw, origin)}
     return normalise(raw, origin)

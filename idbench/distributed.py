@@ -20,12 +20,10 @@ from collections.abc import Iterator
 from typing import Any
 
 from idbench.config import ConfigError
+from idbench.executors import RunResult, run_in_worker, worker_lost
 from idbench.harness import RunSpec
 
 log = logging.getLogger(__name__)
-
-RunResult = tuple[dict[str, Any], list[dict[str, Any]]]
-
 
 def _client(address: str) -> Any:
     try:
@@ -37,15 +35,16 @@ def _client(address: str) -> Any:
         ) from None
     try:
         return Client(address, timeout="10s")
-    except (OSError, TimeoutError) as exc:
-        raise ConfigError(f"--scheduler {address!r}: cannot connect ({exc})") from None
+    except Exception as exc:  # bad address (ValueError), nobody there (OSError)
+        raise ConfigError(
+            f"--scheduler {address!r}: cannot connect ({type(exc).__name__}: {exc}); "
+            "expected tcp://HOST:PORT of a running Dask scheduler"
+        ) from None
 
 
 def execute_on_dask(runs: list[RunSpec], address: str) -> Iterator[RunResult]:
     """Execute ``runs`` on the Dask scheduler at ``address``; yield as they finish."""
     from distributed import as_completed
-
-    from idbench.sweep import run_in_worker, worker_lost
 
     client = _client(address)
     try:
@@ -61,9 +60,9 @@ def execute_on_dask(runs: list[RunSpec], address: str) -> Iterator[RunResult]:
                 yield fut.result()
             except Exception as exc:  # KilledWorker after retries, lost connection
                 log.warning("run %s lost on the cluster: %s", spec.run_id, exc)
-                row, traces = worker_lost(spec)
-                row["error"] = f"lost on the cluster: {type(exc).__name__}: {exc}"
-                yield row, traces
+                yield worker_lost(
+                    spec, f"lost on the cluster: {type(exc).__name__}: {exc}"
+                )
             finally:
                 fut.release()
     finally:

@@ -17,15 +17,17 @@ import signal
 import threading
 import time
 import traceback
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from idbench import metrics
-from idbench.config import CompareConfig, ConfigError
+from idbench.config import CompareConfig, ConfigError, public_settings
+from idbench.files import stable_hash
 from idbench.interfaces import (
+    Cost,
     Diverged,
     FloatArray,
     ForwardModel,
@@ -37,7 +39,7 @@ from idbench.interfaces import (
 )
 from idbench.plugins import Registry, build_registry
 from idbench.scenario import Sparsity
-from idbench.truth import Truth, simulate_path, simulate_truth, stable_hash
+from idbench.truth import Truth, simulate_path, simulate_truth
 
 log = logging.getLogger(__name__)
 
@@ -90,18 +92,84 @@ def _deadline(seconds: float | None) -> Iterator[None]:
         signal.signal(signal.SIGALRM, previous)
 
 
+_SIGINT = {"received": False}
+
+
+@contextlib.contextmanager
+def _noting_sigint() -> Iterator[None]:
+    """Note a real Ctrl-C (SIGINT) while a run executes in the main thread.
+
+    So that a ``KeyboardInterrupt`` that plugin code raises itself is told apart
+    from the user's: the first fails the run, the second stops the sweep.
+    """
+    _SIGINT["received"] = False
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGINT)
+
+    def note(signum: int, frame: Any) -> None:
+        _SIGINT["received"] = True
+        if callable(previous):
+            previous(signum, frame)
+        elif previous != signal.SIG_IGN:
+            raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, note)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 @contextlib.contextmanager
 def _blame(who: str, call: str, step: int | None = None) -> Iterator[None]:
-    """Re-raise an unexpected exception of an estimator as :class:`EstimatorError`."""
+    """Re-raise an unexpected exception of an estimator as :class:`EstimatorError`.
+
+    ``sys.exit()`` and a ``KeyboardInterrupt`` raised by the plugin itself (not
+    by a real Ctrl-C) fail the run too, instead of ending the sweep.
+    """
+    at = f" at step {step}" if step is not None else ""
     try:
         yield
     except (Diverged, ModelFailure, Skipped, ConfigError):
         raise
+    except SystemExit as exc:
+        raise EstimatorError(
+            f"{who} called sys.exit({exc.code!r}) in {call}{at}", step=step
+        ) from None
+    except KeyboardInterrupt:
+        if _SIGINT["received"]:
+            raise
+        raise EstimatorError(
+            f"{who} raised KeyboardInterrupt in {call}{at} (no Ctrl-C was pressed)",
+            step=step,
+        ) from None
     except Exception as exc:
-        at = f" at step {step}" if step is not None else ""
         raise EstimatorError(
             f"{who} raised in {call}{at}: {type(exc).__name__}: {exc}", step=step
         ) from exc
+
+
+def _checked(who: str, est: Any, p: int, k: int) -> tuple[FloatArray, FloatArray]:
+    """The mean and std (p,) of an estimator's answer, or EstimatorError."""
+    mean = np.asarray(est.mean, dtype=float)
+    std = np.asarray(est.std, dtype=float)
+    if std.ndim == 0:
+        std = np.full(p, float(std))
+    for what, value in (("mean", mean), ("std", std)):
+        if value.shape != (p,):
+            raise EstimatorError(
+                f"{who} returned a {what} of shape {value.shape} at step {k}; "
+                f"expected ({p},), one value per parameter",
+                step=k,
+            )
+    if not isinstance(est.cost, Cost):
+        raise EstimatorError(
+            f"{who} returned cost {est.cost!r} at step {k}; expected an idbench.Cost",
+            step=k,
+        )
+    return mean, std
 
 
 @dataclass(frozen=True)
@@ -246,7 +314,14 @@ class Session:
         factor = dict(spec.model_options).get("true_factors")
         theta = np.full(model.parameters.p, spec.E_true)
         if factor is not None:
-            theta = theta * np.asarray(factor, dtype=float)
+            try:
+                factors = np.asarray(factor, dtype=float)
+                theta = theta * np.broadcast_to(factors, theta.shape)
+            except (ValueError, TypeError):
+                raise ConfigError(
+                    f"model option true_factors {factor!r}: need one number per "
+                    f"parameter ({model.parameters.p})"
+                ) from None
         return theta
 
     def truth(self, spec: RunSpec, scenario: str | None = None) -> Truth:
@@ -322,12 +397,14 @@ class Session:
 
 
 def execute(
-    spec: RunSpec, session: Session
+    spec: RunSpec, session: Session, started: Callable[[], None] | None = None
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """Run one identification and score it.
 
     Never raises for a problem of the run itself: the status column says
     ``ok``, ``diverged``, ``failed`` or ``skipped`` and ``error`` says why.
+    ``started`` is called when the estimator's own work (what ``timeout``
+    limits) begins.
 
     Returns
     -------
@@ -338,7 +415,8 @@ def execute(
     traces: list[dict[str, Any]] = []
     t_start = time.perf_counter()
     try:
-        _run(spec, session, row, traces)
+        with _noting_sigint():
+            _run(spec, session, row, traces, started)
     except RunTimeout as exc:
         row.update(status="failed", error=str(exc))
     except Skipped as exc:
@@ -398,6 +476,7 @@ def _run(
     session: Session,
     row: dict[str, Any],
     traces: list[dict[str, Any]],
+    started: Callable[[], None] | None = None,
 ) -> None:
     model = session.model(spec, spec.mesh)
     metrics_model = session.model(spec, spec.mesh, role="metrics")
@@ -421,27 +500,29 @@ def _run(
         try:
             estimator = cls(**dict(spec.settings))
         except TypeError as exc:
-            allowed = ", ".join(f.name for f in dataclasses.fields(cls))
+            allowed = ", ".join(public_settings(cls))
             raise ConfigError(
                 f"estimator {spec.estimator!r}: {exc}; allowed settings: {allowed}"
             ) from None
     truth = session.truth(spec)
     stream = session.observations(spec)
     direct = session.direct(spec)
+    if started is not None:
+        started()
     with _deadline(spec.timeout):  # the estimator's own work, not shared inputs
         t_start = time.perf_counter()
         with _blame(who, "start()"):
             estimator.start(model, session.prior(model, spec))
-        est, means = _estimate(
+        est, means, stds = _estimate(
             spec, estimator, who, stream, truth, direct, traces,
             (model, metrics_model), t_start,
         )  # fmt: skip
 
-    final_mean, final_std = means[-1], np.asarray(est.std, dtype=float)
+    final_mean, final_std = means[-1], stds[-1]
     ref = session.reference(spec)
     for j, n in enumerate(names):
         row[f"{n}_final"] = float(final_mean[j])
-        row[f"{n}_std_final"] = float(final_std[j]) if final_std.size > j else np.nan
+        row[f"{n}_std_final"] = float(final_std[j])
         row[f"{n}_ref"] = float(ref[j])
     settle = metrics.settling_step(means, ref)
     row["settling_step"] = settle if settle is not None else np.nan
@@ -469,27 +550,28 @@ def _estimate(
     traces: list[dict[str, Any]],
     models: tuple[ForwardModel, ForwardModel],
     t_start: float,
-) -> tuple[Any, FloatArray]:
+) -> tuple[Any, FloatArray, FloatArray]:
     """Feed the stream to the estimator; score and trace every step.
 
-    Returns the last :class:`~idbench.interfaces.Estimate` and the means (K, p).
+    Returns the last :class:`~idbench.interfaces.Estimate`, the means and the
+    stds (K, p).
     """
     model, metrics_model = models
     names = model.parameters.names
     shadow = metrics_model.reset()
     means = np.full((spec.steps, len(names)), np.nan)
+    stds = np.full((spec.steps, len(names)), np.nan)
     solves_before = 0
     newton_before = 0
     for k, obs in enumerate(stream, start=1):
         t0 = time.perf_counter()
         with _blame(who, "update()", k):
             est = estimator.update(k, obs)
-            mean = np.asarray(est.mean, dtype=float)
-            std = np.asarray(est.std, dtype=float)
+            mean, std = _checked(who, est, len(names), k)
         dt = time.perf_counter() - t0
         if not model.parameters.contains(mean):
             raise Diverged(f"estimate {mean} non-finite or outside bounds", step=k)
-        means[k - 1] = mean
+        means[k - 1], stds[k - 1] = mean, std
         if est.state is not None:
             state = est.state
         else:
@@ -506,7 +588,7 @@ def _estimate(
         }
         for j, n in enumerate(names):
             trace[n] = mean[j]
-            trace[f"{n}_std"] = std[j] if std.size > j else np.nan
+            trace[f"{n}_std"] = std[j]
         trace.update(
             shape_error=se_sum,
             shape_error_mean=se_mean,
@@ -524,7 +606,7 @@ def _estimate(
         if spec.timeout is not None and time.perf_counter() - t_start > spec.timeout:
             raise RunTimeout(f"run exceeded --timeout {spec.timeout:g} s at step {k}")
 
-    return est, means
+    return est, means, stds
 
 
 def _transfer(spec: RunSpec, session: Session, theta: FloatArray) -> dict[str, Any]:

@@ -129,6 +129,13 @@ class Registry:
         """The scenario registered as ``name``."""
         return _lookup(self.scenarios, name, "scenario").obj  # type: ignore[no-any-return]
 
+    def broken(self) -> str:
+        """A note naming the plugins that failed (empty if none), for messages."""
+        if not self.errors:
+            return ""
+        names = ", ".join(sorted(self.errors))
+        return f" (disabled plugins: {names}; see 'idbench plugins')"
+
 
 def _lookup(table: dict[str, Entry], name: str, kind: str) -> Entry:
     try:
@@ -154,8 +161,11 @@ def _add(table: dict[str, Entry], kind: str, name: Any, obj: Any, plugin: str) -
 def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
     """Call every plugin's ``register_*`` hooks and collect the results.
 
-    A plugin whose hook raises is recorded in :attr:`Registry.errors` and the
-    others go on; a duplicate name raises :class:`PluginError`.
+    A plugin whose hook raises, or that registers something invalid or a name
+    another plugin already owns, is recorded in :attr:`Registry.errors` (the
+    message names both plugins for a duplicate), everything it registered is
+    withdrawn, and the others go on. Built-in plugins register first, so a
+    third-party plugin can never take a built-in name.
     """
     pm = pm or get_plugin_manager()
     reg = Registry(errors=dict(_load_errors(pm)))
@@ -198,15 +208,20 @@ def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
                 continue
             try:
                 impl.function(register=make_cb(plugin))
-            except PluginError:
-                raise
+            except PluginError as exc:
+                _withdraw(reg, plugin, str(exc))
             except Exception as exc:
-                log.warning("plugin %r failed while registering: %s", plugin, exc)
-                reg.errors[plugin] = f"failed while registering: {exc!r}"
-                for table in (reg.models, reg.estimators, reg.scenarios):
-                    for key in [k for k, e in table.items() if e.plugin == plugin]:
-                        del table[key]
+                _withdraw(reg, plugin, f"failed while registering: {exc!r}")
     return reg
+
+
+def _withdraw(reg: Registry, plugin: str, message: str) -> None:
+    """Record ``plugin`` as broken and remove all it registered."""
+    log.warning("plugin %r disabled: %s", plugin, message)
+    reg.errors[plugin] = message
+    for table in (reg.models, reg.estimators, reg.scenarios):
+        for key in [k for k, e in table.items() if e.plugin == plugin]:
+            del table[key]
 
 
 def plugin_version(pm: pluggy.PluginManager, name: str) -> str:

@@ -10,45 +10,28 @@ versions; reopening a DIR made with other settings is refused.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
+import logging
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
+import pyarrow.parquet as pq
+
+from idbench.files import (
+    atomic_write_bytes,
+    atomic_write_parquet,
+    remove_stale_temporaries,
+)
+
+log = logging.getLogger(__name__)
+
+RESUMABLE = ("timeout",)
+"""Settings that do not change results: a resume may change them."""
 
 
 class ResultsError(RuntimeError):
     """A results directory cannot be used as asked."""
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file and a rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def atomic_write_parquet(df: pd.DataFrame, path: Path) -> None:
-    """Write ``df`` as parquet to ``path`` atomically."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".parquet")
-    os.close(fd)
-    try:
-        df.to_parquet(tmp, index=False)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 class ResultStore:
@@ -69,30 +52,73 @@ class ResultStore:
     ) -> None:
         self.root = Path(root)
         self.parts = self.root / "parts"
+        self.quarantine = self.root / "quarantine"
         mpath = self.root / "manifest.json"
+        if str(root) == "" or (self.root.exists() and not self.root.is_dir()):
+            raise ResultsError(f"--out {str(root)!r}: need a directory path")
         if mpath.exists():
-            try:
-                old = json.loads(mpath.read_text())
-            except (OSError, ValueError) as exc:
-                raise ResultsError(f"{mpath} is unreadable: {exc}") from exc
-            if old.get("settings") != _roundtrip(settings):
+            old = _read_manifest(mpath)
+            if _results_settings(old["settings"]) != _results_settings(settings):
                 raise ResultsError(
                     f"{self.root} holds results of a comparison with other settings; "
                     "use another --out DIR or delete it"
                 )
         else:
             body = {**manifest, "settings": settings}
-            atomic_write_bytes(mpath, json.dumps(body, indent=2, default=str).encode())
-        self.parts.mkdir(parents=True, exist_ok=True)
+            text = json.dumps(body, indent=2, default=str).encode()
+            try:
+                atomic_write_bytes(mpath, text)
+            except OSError as exc:
+                raise ResultsError(f"cannot write to {self.root}: {exc}") from None
+        try:
+            self.parts.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ResultsError(f"cannot write to {self.root}: {exc}") from None
+        removed = remove_stale_temporaries(self.parts)
+        if removed:
+            log.info("removed %d temporary file(s) of an interrupted write", removed)
+
+    def discard_if_unused(self) -> None:
+        """Remove this folder's manifest if no run was ever stored in it."""
+        if not any(self.parts.iterdir()) and not self.quarantine.exists():
+            self.parts.rmdir()
+            (self.root / "manifest.json").unlink(missing_ok=True)
 
     def finished(self) -> set[str]:
-        """Run ids whose both parts are on disk and readable."""
+        """Run ids whose both parts are on disk and readable.
+
+        A part that is not readable parquet (damaged by a crash or by hand) is
+        moved to ``DIR/quarantine/`` with its sibling, with a warning, and its
+        run counts as not finished, so it is done again.
+        """
         done = set()
         for p in self.parts.glob("*.runs.parquet"):
             run_id = p.name.removesuffix(".runs.parquet")
-            if (self.parts / f"{run_id}.traces.parquet").exists():
-                done.add(run_id)
+            traces = self.parts / f"{run_id}.traces.parquet"
+            if not traces.exists():
+                continue
+            try:
+                pq.read_metadata(p)
+                pq.read_metadata(traces)
+            except Exception as exc:
+                self._quarantine(run_id, exc)
+                continue
+            done.add(run_id)
         return done
+
+    def _quarantine(self, run_id: str, exc: Exception) -> None:
+        self.quarantine.mkdir(exist_ok=True)
+        for kind in ("runs", "traces"):
+            part = self.parts / f"{run_id}.{kind}.parquet"
+            if part.exists():
+                part.replace(self.quarantine / part.name)
+        log.warning(
+            "run %s: its stored result is unreadable (%s); moved to %s, "
+            "running it again",
+            run_id,
+            exc,
+            self.quarantine,
+        )
 
     def failed(self) -> set[str]:
         """Run ids stored with status ``failed``.
@@ -142,3 +168,26 @@ class ResultStore:
 
 def _roundtrip(obj: Any) -> Any:
     return json.loads(json.dumps(obj, default=str))
+
+
+def _results_settings(settings: Any) -> Any:
+    """The settings that decide the results (``RESUMABLE`` ones left out)."""
+    plain = _roundtrip(settings)
+    if isinstance(plain, dict):
+        for key in RESUMABLE:
+            plain.pop(key, None)
+    return plain
+
+
+def _read_manifest(path: Path) -> dict[str, Any]:
+    try:
+        body = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ResultsError(
+            f"{path} is unreadable ({exc}); use another --out DIR or delete it"
+        ) from None
+    if not isinstance(body, dict) or not isinstance(body.get("settings"), dict):
+        raise ResultsError(
+            f"{path} is not an idbench manifest; use another --out DIR or delete it"
+        )
+    return body

@@ -8,34 +8,28 @@ every finished run and a rerun with the same directory skips them.
 
 from __future__ import annotations
 
-import dataclasses
 import importlib.metadata
 import logging
-import multiprocessing as mp
 import os
 import platform
 import sys
 import tempfile
-from collections.abc import Callable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from idbench.config import CompareConfig, ConfigError, suggest
-from idbench.harness import RunSpec, Session, base_row, execute, expand
-from idbench.interfaces import FloatArray
+from idbench.config import CompareConfig, ConfigError, public_settings, suggest
+from idbench.executors import THREAD_ENV, execute_all
+from idbench.harness import RunSpec, Session, expand
+from idbench.interfaces import ModelFailure
 from idbench.plugins import Registry, build_registry
 from idbench.results import ResultStore
 
 log = logging.getLogger(__name__)
 
-RunResult = tuple[dict[str, Any], list[dict[str, Any]]]
-THREAD_ENV = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
-MAX_ATTEMPTS = 2
 
 
 @dataclass(frozen=True)
@@ -57,14 +51,14 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         Naming the first bad value and what is allowed.
     """
     reg = session.registry
-    _known("model", [config.model], reg.models)
-    _known("estimator", config.estimators, reg.estimators)
-    _known("scenario", config.scenarios, reg.scenarios)
-    _known("reference estimator", [config.reference], reg.estimators)
+    _known("model", [config.model], reg.models, reg)
+    _known("estimator", config.estimators, reg.estimators, reg)
+    _known("scenario", config.scenarios, reg.scenarios, reg)
+    _known("reference estimator", [config.reference], reg.estimators, reg)
     for name, settings in config.estimator_settings.items():
-        _known("estimator (in settings)", [name], reg.estimators)
+        _known("estimator (in settings)", [name], reg.estimators, reg)
         cls = reg.estimator(name)
-        fields = {f.name for f in dataclasses.fields(cls)}
+        fields = set(public_settings(cls))
         for key in settings:
             if key not in fields:
                 raise ConfigError(
@@ -100,6 +94,7 @@ def plan(config: CompareConfig, session: Session) -> Plan:
                 f"raised {type(exc).__name__} building mesh {mesh!r}: {exc}"
             ) from None
         nodes[mesh] = int(getattr(model, "n_nodes", 0))
+    session.theta_true(session.model(runs[0], config.meshes[0]), runs[0])
     for spec in runs:
         try:
             est = reg.estimator(spec.estimator)(**dict(spec.settings))
@@ -114,12 +109,13 @@ def plan(config: CompareConfig, session: Session) -> Plan:
     return Plan(config, runs, nodes, solves)
 
 
-def _known(kind: str, names: Any, table: dict[str, Any]) -> None:
+def _known(kind: str, names: Any, table: dict[str, Any], reg: Registry) -> None:
     for name in names:
         if name not in table:
             allowed = ", ".join(sorted(table)) or "none registered"
             raise ConfigError(
                 f"unknown {kind} {name!r}{suggest(name, table)}; allowed: {allowed}"
+                f"{reg.broken()}"
             )
 
 
@@ -174,8 +170,10 @@ def compare(
     scheduler
         Address of a Dask scheduler (``tcp://host:port``); needs ``distributed``.
     registry
-        The plugin registry (default: built from the installed plugins). Only
-        the serial executor can use a registry built by hand.
+        The plugin registry (default: built from the installed plugins). A
+        registry built by hand works only in this process: with it, runs
+        execute here whatever ``timeout`` says (the timeout then interrupts
+        Python code only, not a hang in compiled code).
     progress
         Called as ``progress(done, total, run_row)`` after each run.
 
@@ -187,12 +185,14 @@ def compare(
     config = config or CompareConfig()
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise ConfigError(f"jobs {jobs!r}: must be a whole number >= 1")
+    isolate = registry is None  # workers can rebuild only an installed registry
     session = Session(registry or build_registry())
     the_plan = plan(config, session)
+    args = (session, jobs, scheduler, progress, isolate)
     if out is None:
         with tempfile.TemporaryDirectory(prefix="idbench-") as tmp:
-            return _compare(the_plan, Path(tmp), session, jobs, scheduler, progress)
-    return _compare(the_plan, Path(out), session, jobs, scheduler, progress)
+            return _compare(the_plan, Path(tmp), *args)
+    return _compare(the_plan, Path(out), *args)
 
 
 def _compare(
@@ -202,6 +202,7 @@ def _compare(
     jobs: int,
     scheduler: str | None,
     progress: Callable[[int, int, dict[str, Any]], None] | None,
+    isolate: bool,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     config = the_plan.config
     store = ResultStore(out, config.to_dict(), manifest(config))
@@ -214,19 +215,38 @@ def _compare(
     total = len(the_plan.runs)
     count = total - len(pending)
     if pending:
-        prepare(pending, session)
-    for row, traces in _execute_all(pending, session, jobs, scheduler):
-        store.write(row, traces)
-        count += 1
-        if progress:
-            progress(count, total, row)
-        else:
-            log.info(
-                "run %d/%d: %s on %s, %s: %s",
-                count, total, row["estimator"], row["mesh"], row["scenario"],
-                row["status"],
-            )  # fmt: skip
-    return store.consolidate([r.run_id for r in the_plan.runs])
+        try:
+            prepare(pending, session)
+        except ConfigError:
+            store.discard_if_unused()  # so fixed settings can use the folder
+            raise
+    results = execute_all(
+        pending,
+        session,
+        jobs=jobs,
+        scheduler=scheduler,
+        timeout=config.timeout if isolate else None,
+        order=interleave,
+        key=Session.reference_key,
+    )
+    order = [r.run_id for r in the_plan.runs]
+    try:
+        for row, traces in results:
+            store.write(row, traces)
+            count += 1
+            if progress:
+                progress(count, total, row)
+            else:
+                log.info(
+                    "run %d/%d: %s on %s, %s: %s",
+                    count, total, row["estimator"], row["mesh"], row["scenario"],
+                    row["status"],
+                )  # fmt: skip
+    except KeyboardInterrupt:  # keep the tables of what finished, then stop
+        results.close()
+        store.consolidate(order)
+        raise
+    return store.consolidate(order)
 
 
 def prepare(runs: list[RunSpec], session: Session) -> None:
@@ -246,54 +266,13 @@ def prepare(runs: list[RunSpec], session: Session) -> None:
             )
             if name and name in session.registry.scenarios and key not in seen:
                 seen.add(key)
-                session.truth(spec, name)
-
-
-def _execute_all(
-    runs: list[RunSpec], session: Session, jobs: int, scheduler: str | None
-) -> Iterator[RunResult]:
-    if scheduler:
-        from idbench.distributed import execute_on_dask
-
-        yield from execute_on_dask(runs, scheduler)
-    elif jobs == 1:
-        for spec in runs:
-            yield execute(spec, session)
-    else:
-        yield from _execute_processes(runs, jobs)
-
-
-_WORKER_SESSION: Session | None = None
-
-
-def _worker_init() -> None:
-    global _WORKER_SESSION
-    _WORKER_SESSION = Session()
-
-
-def run_in_worker(spec: RunSpec) -> RunResult:
-    """Execute ``spec`` with this process's session (built on first use)."""
-    global _WORKER_SESSION
-    if _WORKER_SESSION is None:
-        _WORKER_SESSION = Session()
-    return execute(spec, _WORKER_SESSION)
-
-
-def run_with_hint(
-    spec: RunSpec, reference: FloatArray | None
-) -> tuple[RunResult, FloatArray | None]:
-    """:func:`run_in_worker`, seeded with E_ref another worker already fitted.
-
-    Returns the result and this run's E_ref (None if never fitted), so the
-    parent can pass it on to later runs on the same data.
-    """
-    global _WORKER_SESSION
-    if _WORKER_SESSION is None:
-        _WORKER_SESSION = Session()
-    if reference is not None:
-        _WORKER_SESSION.remember_reference(spec, reference)
-    result = execute(spec, _WORKER_SESSION)
-    return result, _WORKER_SESSION.known_reference(spec)
+                try:
+                    session.truth(spec, name)
+                except ModelFailure as exc:
+                    raise ConfigError(
+                        f"the truth ({spec.truth_mesh}, {name}) cannot be simulated "
+                        f"with these settings: {exc}"
+                    ) from None
 
 
 def interleave(runs: list[RunSpec]) -> list[RunSpec]:
@@ -301,7 +280,7 @@ def interleave(runs: list[RunSpec]) -> list[RunSpec]:
 
     One run of each E_ref key first, then the second of each, ...: the first
     runs a pool starts fit different references, and later runs on the same
-    data receive the fit (see :func:`run_with_hint`) instead of repeating it.
+    data receive the fit instead of repeating it.
     """
     groups: dict[Any, list[RunSpec]] = {}
     for spec in runs:
@@ -311,66 +290,3 @@ def interleave(runs: list[RunSpec]) -> list[RunSpec]:
     for i in range(max((len(c) for c in columns), default=0)):
         order.extend(c[i] for c in columns if i < len(c))
     return order
-
-
-def single_thread_env() -> dict[str, str]:
-    """Environment that pins BLAS/MKL/OpenMP to one thread per worker."""
-    return {k: "1" for k in THREAD_ENV}
-
-
-def _execute_processes(runs: list[RunSpec], jobs: int) -> Iterator[RunResult]:
-    """Run on a local process pool; a dead worker costs only its runs in flight.
-
-    At most ``jobs`` runs are in flight; each is submitted with the E_ref of
-    its data if an earlier run has fitted it (so every reference is fitted
-    once per sweep, not once per worker).
-    """
-    attempts = {r.run_id: 0 for r in runs}
-    queue = interleave(runs)
-    known: dict[Any, FloatArray] = {}
-    saved = {k: os.environ.get(k) for k in THREAD_ENV}
-    os.environ.update(single_thread_env())
-    try:
-        while queue:
-            ctx = mp.get_context("spawn")
-            with ProcessPoolExecutor(
-                jobs, mp_context=ctx, initializer=_worker_init
-            ) as pool:
-                in_flight: dict[Future[Any], RunSpec] = {}
-                broken = False
-                while (queue or in_flight) and not broken:
-                    while queue and len(in_flight) < jobs:
-                        spec = queue.pop(0)
-                        hint = known.get(Session.reference_key(spec))
-                        in_flight[pool.submit(run_with_hint, spec, hint)] = spec
-                    finished, _ = wait(set(in_flight), return_when=FIRST_COMPLETED)
-                    for fut in finished:
-                        spec = in_flight.pop(fut)
-                        try:
-                            result, ref = fut.result()
-                        except BrokenProcessPool:
-                            broken = True
-                            attempts[spec.run_id] += 1
-                            if attempts[spec.run_id] >= MAX_ATTEMPTS:
-                                yield worker_lost(spec)
-                            else:
-                                queue.insert(0, spec)
-                            continue
-                        if ref is not None:
-                            known[Session.reference_key(spec)] = ref
-                        yield result
-                if broken:  # the pool is gone: requeue what was in flight
-                    queue[:0] = list(in_flight.values())
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
-def worker_lost(spec: RunSpec) -> RunResult:
-    """The row of a run whose worker died twice."""
-    row = base_row(spec)
-    row.update(status="failed", error="worker process died while running it (twice)")
-    return row, []

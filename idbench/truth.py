@@ -9,18 +9,15 @@ temporary file renamed into place) and an unreadable entry is recomputed.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import logging
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import platformdirs
 
+from idbench.files import atomic_write, digest, stable_hash
 from idbench.interfaces import FloatArray, ForwardModel
 
 log = logging.getLogger(__name__)
@@ -55,22 +52,6 @@ class Truth:
     observations: FloatArray
     grid: FloatArray
     tip: FloatArray
-
-
-def stable_hash(obj: Any, length: int = 16) -> str:
-    """Hex digest of the canonical JSON form of ``obj``."""
-    text = json.dumps(obj, sort_keys=True, default=_jsonable, separators=(",", ":"))
-    return hashlib.sha256(text.encode()).hexdigest()[:length]
-
-
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, (tuple, set, frozenset)):
-        return list(obj)
-    raise TypeError(f"not JSON-serialisable: {type(obj).__name__}")
 
 
 def truth_key(model: ForwardModel, theta: FloatArray) -> str:
@@ -129,7 +110,8 @@ def simulate_truth(
     """
     key = truth_key(model, theta)
     path = cache_dir() / f"truth-{key}.npz"
-    states = _load(path, key) if cache else None
+    shape = (model.n_steps, model.reset().size)
+    states = _load(path, key, shape) if cache else None
     if states is None:
         log.info("simulating truth %s", key)
         states = simulate_path(model, theta)
@@ -138,7 +120,13 @@ def simulate_truth(
     return probe(model, states)
 
 
-def _load(path: Path, key: str) -> FloatArray | None:
+def _load(path: Path, key: str, shape: tuple[int, int]) -> FloatArray | None:
+    """The cached states at ``path``, or None if missing or not to be trusted.
+
+    An entry is trusted only if its key, its shape and the SHA-256 digest of its
+    content (stored with it) all match: a truncated, foreign or altered file is
+    recomputed.
+    """
     if not path.exists():
         return None
     try:
@@ -146,21 +134,31 @@ def _load(path: Path, key: str) -> FloatArray | None:
             if str(data["key"]) != key:
                 raise ValueError("key mismatch")
             states = np.array(data["states"], dtype=float)
+            stored = str(data["digest"]) if "digest" in data else ""
+        if states.shape != shape:
+            raise ValueError(f"states of shape {states.shape}, expected {shape}")
+        if stored != digest(states):
+            raise ValueError("content digest mismatch (altered or damaged)")
         if not np.all(np.isfinite(states)):
             raise ValueError("non-finite states")
         return states
-    except Exception as exc:  # truncated or foreign file: recompute
-        log.warning("truth cache entry %s unreadable (%s); recomputing", path, exc)
+    except Exception as exc:  # truncated, foreign or altered file: recompute
+        log.warning("truth cache entry %s unusable (%s); recomputing", path, exc)
         return None
 
 
 def _save(path: Path, key: str, states: FloatArray) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npz")
+    """Store ``states`` with its key and digest; warn (not fail) if impossible."""
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, key=np.array(key), states=states, digest=digest(states))
+
     try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, key=np.array(key), states=states)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        atomic_write(path, write)
+    except OSError as exc:
+        log.warning(
+            "truth cache %s is not writable (%s); going on without caching",
+            path.parent,
+            exc,
+        )

@@ -198,15 +198,17 @@ class Stop:
 
 @pytest.fixture
 def counted(monkeypatch):
-    """Record the run ids :func:`idbench.sweep.execute` is called with."""
+    """Record the run ids :func:`idbench.executors.execute` is called with."""
+    import idbench.executors
+
     executed: list[str] = []
-    real = idbench.sweep.execute
+    real = idbench.executors.execute
 
-    def wrapper(spec, session):
+    def wrapper(spec, session, started=None):
         executed.append(spec.run_id)
-        return real(spec, session)
+        return real(spec, session, started)
 
-    monkeypatch.setattr(idbench.sweep, "execute", wrapper)
+    monkeypatch.setattr(idbench.executors, "execute", wrapper)
     return executed
 
 
@@ -557,17 +559,16 @@ def test_interleave_puts_runs_on_different_data_first():
 
 
 def test_a_worker_uses_the_reference_another_worker_fitted(tmp_path):
-    import idbench.sweep as sweep
-    from idbench.harness import expand
+    from idbench.harness import Session, execute, expand
 
     spec = expand(CompareConfig(truth_mesh="8x2x2", meshes=("4x1x1",), steps=4,
                                 seeds=1, estimators=("rls",)))[0]  # fmt: skip
-    try:
-        sweep._WORKER_SESSION = None
-        (row, _), fitted = sweep.run_with_hint(spec, None)
-        assert fitted is not None and fitted[0] == pytest.approx(row["E_ref"])
-        sweep._WORKER_SESSION = None  # a fresh worker, told the answer
-        (row, _), passed_on = sweep.run_with_hint(spec, np.array([1234.5]))
-        assert row["E_ref"] == 1234.5 and passed_on[0] == 1234.5  # not refitted
-    finally:
-        sweep._WORKER_SESSION = None
+    first = Session()
+    row, _ = execute(spec, first)
+    fitted = first.known_reference(spec)
+    assert fitted is not None and fitted[0] == pytest.approx(row["E_ref"])
+    fresh = Session()  # another worker, told the answer
+    fresh.remember_reference(spec, np.array([1234.5]))
+    row, _ = execute(spec, fresh)
+    assert row["E_ref"] == 1234.5  # not refitted
+    assert fresh.known_reference(spec)[0] == 1234.5

@@ -18,6 +18,7 @@ import contextlib
 import hashlib
 import io
 import math
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +36,21 @@ HEIGHT = 0.03
 """Default beam height along z (m)."""
 
 _DIVISIONS = re.compile(r"^\s*(\d+)\s*[xX]\s*(\d+)\s*[xX]\s*(\d+)\s*$")
-_MAX_NODES = 2_000_000
+MAX_NODES_ENV = "IDBENCH_MAX_NODES"
+DEFAULT_MAX_NODES = 300_000
+"""Largest structured mesh built unless ``$IDBENCH_MAX_NODES`` says otherwise."""
+_BYTES_PER_NODE = 5_000
+"""Rough peak memory of a model per node (6 tets a node, 12x12 tangents each)."""
+
+
+def max_nodes() -> int:
+    """The largest structured mesh accepted: ``$IDBENCH_MAX_NODES`` or 300,000."""
+    text = os.environ.get(MAX_NODES_ENV, "")
+    try:
+        return int(text) if text else DEFAULT_MAX_NODES
+    except ValueError:
+        raise ValueError(f"{MAX_NODES_ENV}={text!r}: need a whole number") from None
+
 _OTHER_SOLIDS = {
     "hexahedron", "hexahedron20", "hexahedron24", "hexahedron27", "wedge",
     "wedge15", "pyramid", "pyramid13", "pyramid14", "tetra10", "tetra20",
@@ -135,8 +150,13 @@ def structured(
     for name, n in (("nx", nx), ("ny", ny), ("nz", nz)):
         if n < 1:
             raise ValueError(f"mesh divisions: {name} = {n}, must be >= 1")
-    if (nx + 1) * (ny + 1) * (nz + 1) > _MAX_NODES:
-        raise ValueError(f"mesh {nx}x{ny}x{nz}: more than {_MAX_NODES} nodes")
+    nodes = (nx + 1) * (ny + 1) * (nz + 1)
+    if nodes > max_nodes():
+        raise ValueError(
+            f"mesh {nx}x{ny}x{nz}: {nodes:,} nodes, more than the limit of "
+            f"{max_nodes():,} (about {nodes * _BYTES_PER_NODE / 2**30:.1f} GiB to "
+            f"assemble; set {MAX_NODES_ENV} to raise it)"
+        )
     m = MeshTet.init_tensor(
         np.linspace(0.0, size[0], nx + 1),
         np.linspace(0.0, size[1], ny + 1),
@@ -298,9 +318,10 @@ def parse(spec: str) -> BeamMesh:
         return structured(nx, ny, nz, spec=s)
     if s.isdigit():
         n = int(s)
-        if not 8 <= n <= _MAX_NODES:
+        if not 8 <= n <= max_nodes():
             raise ValueError(
-                f"mesh spec {spec!r}: a node count must be between 8 and {_MAX_NODES}"
+                f"mesh spec {spec!r}: a node count must be between 8 and "
+                f"{max_nodes():,} (set {MAX_NODES_ENV} to raise the limit)"
             )
         return structured(*divisions_for_nodes(n), spec=s)
     path = Path(s).expanduser()

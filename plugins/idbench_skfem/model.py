@@ -349,8 +349,26 @@ class SvkBeam:
         raise AssertionError("unreachable")  # pragma: no cover
 
 
+OPTIONS = (
+    "regions",
+    "inclusion",
+    "rtol",
+    "atol",
+    "max_iterations",
+    "sensitivity_refine",
+    "solver",
+    "true_factors",
+)
+"""The model options :class:`SvkBeam` understands (``true_factors``: the core's)."""
+
+
 def make_model(spec: ModelSpec) -> SvkBeam:
     """Build the model described by ``spec`` (registered as ``"svk-beam"``)."""
+    for key in dict(spec.options):
+        if key not in OPTIONS:
+            raise ValueError(
+                f"svk-beam has no model option {key!r}; allowed: {', '.join(OPTIONS)}"
+            )
     return SvkBeam(
         meshes.parse(spec.mesh),
         spec.scenario,

@@ -1,0 +1,314 @@
+"""Where runs execute: in this process, or in worker processes we can kill.
+
+:func:`execute_all` picks the executor. In-process runs are the fastest and
+accept a registry built by hand; worker processes isolate the sweep from what
+a run can do to its process (``os._exit``, a segfault, a hang in compiled code
+that no signal interrupts). Each worker runs one run at a time, so a worker
+that dies is charged to exactly the run it was running, never to a sibling;
+a worker whose run overruns ``timeout`` is killed and replaced. Workers die
+with the parent process (Linux: ``PR_SET_PDEATHSIG``; elsewhere a watchdog
+thread notices the parent has gone).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import multiprocessing as mp
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Generator, Iterator
+from multiprocessing.connection import Connection, wait
+from typing import Any
+
+from idbench.harness import RunSpec, Session, base_row, execute
+from idbench.interfaces import FloatArray
+
+log = logging.getLogger(__name__)
+
+RunResult = tuple[dict[str, Any], list[dict[str, Any]]]
+THREAD_ENV = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+MAX_ATTEMPTS = 2
+"""A run whose worker dies is tried this many times in all."""
+
+GRACE_S = 2.0
+"""Seconds past ``timeout`` before a run's worker is killed (the run's own
+check, a signal inside the worker, gets the first chance)."""
+
+_LOCAL = threading.local()
+
+
+def worker_session() -> Session:
+    """The session of the calling thread (built on first use).
+
+    One per thread, never shared: a session holds models with cached
+    factorizations, which two threads must not use at once (a Dask worker
+    runs several tasks in threads).
+    """
+    session: Session | None = getattr(_LOCAL, "session", None)
+    if session is None:
+        session = _LOCAL.session = Session()
+    return session
+
+
+def run_in_worker(spec: RunSpec) -> RunResult:
+    """Execute ``spec`` with this thread's session (a Dask task)."""
+    return execute(spec, worker_session())
+
+
+def worker_lost(spec: RunSpec, why: str) -> RunResult:
+    """The row of a run whose worker was lost."""
+    row = base_row(spec)
+    row.update(status="failed", error=why)
+    return row, []
+
+
+def single_thread_env() -> dict[str, str]:
+    """Environment that pins BLAS/MKL/OpenMP to one thread per worker."""
+    return {k: "1" for k in THREAD_ENV}
+
+
+def execute_all(
+    runs: list[RunSpec],
+    session: Session,
+    *,
+    jobs: int = 1,
+    scheduler: str | None = None,
+    timeout: float | None = None,
+    order: Callable[[list[RunSpec]], list[RunSpec]] | None = None,
+    key: Callable[[RunSpec], Any] | None = None,
+) -> Generator[RunResult, None, None]:
+    """Execute ``runs`` and yield each result as it finishes.
+
+    Parameters
+    ----------
+    runs
+        What to run.
+    session
+        This process's session (used by in-process runs).
+    jobs
+        Worker processes; 1 without a timeout runs in this process.
+    scheduler
+        A Dask scheduler address: run there instead.
+    timeout
+        With a timeout, runs always go to worker processes (even ``jobs=1``)
+        so that a run hung in compiled code can be killed.
+    order, key
+        Dispatch order and the key under which runs share a reference fit
+        (passed on from worker to worker); defaults: as given, none shared.
+    """
+    if scheduler:
+        from idbench.distributed import execute_on_dask
+
+        yield from execute_on_dask(runs, scheduler)
+    elif jobs == 1 and timeout is None:
+        for spec in runs:
+            yield execute(spec, session)
+    else:
+        yield from _execute_processes(
+            (order or list)(runs), jobs, timeout, key or (lambda spec: None)
+        )
+
+
+# --- worker processes ----------------------------------------------------------
+
+
+def _die_with_parent(parent: int) -> None:
+    """Make this process end when ``parent`` ends, however it ends."""
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(Exception):
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    if os.getppid() != parent:  # it ended before we asked
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
+def _worker_main(conn: Connection, parent: int) -> None:
+    """A worker's loop: receive (spec, E_ref hint), send back events and results."""
+    _die_with_parent(parent)
+    session = worker_session()
+    while True:
+        try:
+            message = conn.recv()
+        except (EOFError, OSError, KeyboardInterrupt):
+            return
+        if message is None:
+            return
+        spec, hint = message
+        if hint is not None:
+            session.remember_reference(spec, hint)
+        result = execute(spec, session, started=lambda: conn.send(("started",)))
+        conn.send(("done", result, session.known_reference(spec)))
+
+
+class _Worker:
+    """One worker process and the run it is busy with (``spec``, or None)."""
+
+    def __init__(self, ctx: Any) -> None:
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(
+            target=_worker_main, args=(child, os.getpid()), daemon=True
+        )
+        self.proc.start()
+        child.close()
+        self.spec: RunSpec | None = None
+        self.deadline: float | None = None
+
+    def give(self, spec: RunSpec, hint: FloatArray | None) -> None:
+        """Start ``spec`` on this worker."""
+        self.spec, self.deadline = spec, None
+        self.conn.send((spec, hint))
+
+    def kill(self) -> None:
+        """End the process now."""
+        with contextlib.suppress(Exception):
+            self.proc.kill()
+            self.proc.join(5)
+        with contextlib.suppress(Exception):
+            self.conn.close()
+
+
+class _Pool:
+    """``jobs`` workers, each replaced when it dies or overruns its deadline."""
+
+    def __init__(self, jobs: int, timeout: float | None) -> None:
+        self.ctx = mp.get_context("spawn")
+        self.timeout = timeout
+        self.workers = [_Worker(self.ctx) for _ in range(jobs)]
+        self.attempts: dict[str, int] = {}
+
+    def idle(self) -> list[_Worker]:
+        """Live workers with nothing to do (dead idle ones are replaced)."""
+        for i, w in enumerate(self.workers):
+            if w.spec is None and not w.proc.is_alive():
+                w.kill()
+                self.workers[i] = _Worker(self.ctx)
+        return [w for w in self.workers if w.spec is None]
+
+    def busy(self) -> list[_Worker]:
+        """Workers running a run."""
+        return [w for w in self.workers if w.spec is not None]
+
+    def wait(self) -> None:
+        """Block until a busy worker has news or the nearest deadline passes."""
+        busy = self.busy()
+        deadlines = [w.deadline for w in busy if w.deadline is not None]
+        left = max(0.0, min(deadlines) - time.monotonic()) if deadlines else None
+        wait([w.conn for w in busy] + [w.proc.sentinel for w in busy], left)
+
+    def attend(
+        self, w: _Worker, queue: list[RunSpec]
+    ) -> tuple[RunSpec, RunResult | None, FloatArray | None] | None:
+        """Handle what ``w`` has to say: None, or (spec, result, E_ref).
+
+        A result of None means the run went back to ``queue`` (its worker died
+        and it has attempts left).
+        """
+        spec = w.spec
+        assert spec is not None
+        if w.conn.poll():
+            try:
+                message = w.conn.recv()
+            except (EOFError, OSError):
+                return self._died(w, queue)
+            if message[0] == "started":
+                if self.timeout is not None:
+                    w.deadline = time.monotonic() + self.timeout + GRACE_S
+                return None
+            w.spec = None
+            return spec, message[1], message[2]
+        if not w.proc.is_alive():
+            return self._died(w, queue)
+        if w.deadline is not None and time.monotonic() >= w.deadline:
+            self._replace(w)
+            why = (
+                f"run exceeded --timeout {self.timeout:g} s and did not stop by "
+                "itself (hung in compiled code?): its worker process was killed"
+            )
+            return spec, worker_lost(spec, why), None
+        return None
+
+    def _died(
+        self, w: _Worker, queue: list[RunSpec]
+    ) -> tuple[RunSpec, RunResult | None, None]:
+        spec = w.spec
+        assert spec is not None
+        w.proc.join(5)
+        code = w.proc.exitcode
+        self._replace(w)
+        n = self.attempts[spec.run_id] = self.attempts.get(spec.run_id, 0) + 1
+        log.warning("worker died (exit code %s) running run %s", code, spec.run_id)
+        if n < MAX_ATTEMPTS:
+            queue.insert(0, spec)
+            return spec, None, None
+        why = f"its worker process died (exit code {code}) while running it, {n} times"
+        return spec, worker_lost(spec, why), None
+
+    def _replace(self, w: _Worker) -> None:
+        w.kill()
+        self.workers[self.workers.index(w)] = _Worker(self.ctx)
+
+    def close(self) -> None:
+        """Ask every worker to stop, then make sure it has."""
+        for w in self.workers:
+            with contextlib.suppress(Exception):
+                w.conn.send(None)
+        for w in self.workers:
+            w.proc.join(1)
+            w.kill()
+
+
+def _execute_processes(
+    queue: list[RunSpec], jobs: int, timeout: float | None, key: Callable[..., Any]
+) -> Iterator[RunResult]:
+    """Run on ``jobs`` worker processes; see the module docstring.
+
+    A reference fit (E_ref) that a worker made is passed with later runs that
+    share its ``key``, so each is fitted once per sweep, not once per worker.
+    """
+    queue = list(queue)
+    known: dict[Any, FloatArray] = {}
+    saved = {k: os.environ.get(k) for k in THREAD_ENV}
+    os.environ.update(single_thread_env())
+    pool = None
+    try:
+        pool = _Pool(min(jobs, len(queue)) or 1, timeout)
+        while queue or pool.busy():
+            for w in pool.idle():
+                if queue:
+                    spec = queue.pop(0)
+                    try:
+                        w.give(spec, known.get(key(spec)))
+                    except OSError:  # it died between the check and now
+                        w.spec = None
+                        queue.insert(0, spec)
+            pool.wait()
+            for w in pool.busy():
+                news = pool.attend(w, queue)
+                if news is None:
+                    continue
+                spec, result, reference = news
+                if reference is not None:
+                    known[key(spec)] = reference
+                if result is not None:
+                    yield result
+    finally:
+        if pool is not None:
+            pool.close()
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
