@@ -155,7 +155,7 @@ NOT_A_DATACLASS = TAKES_A_NAME.replace('register("ro-ukf", Fake)',
 
 @pytest.fixture
 def install(tmp_path, monkeypatch):
-    """Install a plugin module under an entry point, for this process and its children."""
+    """Install a plugin module under an entry point, here and in child processes."""
     site = tmp_path / "site"
     site.mkdir()
     monkeypatch.syspath_prepend(str(site))
@@ -192,7 +192,9 @@ def test_dask_worker_with_two_threads_gives_the_serial_results(tmp_path):
     a = runs.set_index("run_id").sort_index()
     b = serial.set_index("run_id").sort_index()
     np.testing.assert_allclose(a["E_final"], b["E_final"], rtol=1e-9)
-    np.testing.assert_allclose(a["shape_error_final"], b["shape_error_final"], rtol=1e-9)
+    np.testing.assert_allclose(
+        a["shape_error_final"], b["shape_error_final"], rtol=1e-9
+    )
 
 
 # --- 2, 3, 14: estimators that return nonsense, exit or interrupt ------------
@@ -203,7 +205,7 @@ def test_misbehaving_estimators_fail_their_run_only(install, tmp_path, jobs):
     install("bad-ests", BAD_ESTIMATORS)
     cfg = tiny(estimators=("rls", "matrix", "exits", "interrupts"))
     out = tmp_path / "out"
-    runs, traces = compare(cfg, out, jobs=jobs)
+    runs, _ = compare(cfg, out, jobs=jobs)
     by = runs.set_index("estimator")
     assert by.loc["rls", "status"] == "ok"
     assert by.loc["matrix", "status"] == "failed"
@@ -370,15 +372,12 @@ def test_unusable_output_folders_are_one_line(tmp_path, capsys):
 
 
 def test_readme_order_compare_then_quick_uses_two_folders(tmp_path, monkeypatch):
-    from idbench.cli import build_parser
-
     monkeypatch.chdir(tmp_path)
-    args = build_parser().parse_args(["compare", "--quick"])
-    assert args.out is None  # resolved in cmd_compare: idbench-out-quick
-    assert "idbench-out-quick" in build_parser().format_help() + " ".join(
-        a.help or "" for a in build_parser()._subparsers._group_actions[0]  # type: ignore[union-attr]
-        .choices["compare"]._actions
-    )
+    assert main(["compare", *TINY, "--estimators", "rls", "-q"]) == 0
+    small = [a for a in TINY if a not in ("--seeds", "1")]  # --quick: one seed
+    assert main(["compare", "--quick", *small, "--estimators", "rls", "-q"]) == 0
+    assert (tmp_path / "idbench-out" / "runs.parquet").exists()
+    assert (tmp_path / "idbench-out-quick" / "runs.parquet").exists()
 
 
 @pytest.mark.parametrize(
@@ -419,10 +418,11 @@ def test_other_commands_bad_paths_and_garbage_are_one_line(tmp_path, capsys):
                                              str(afile)])  # fmt: skip
     (tmp_path / "g").mkdir()
     (tmp_path / "g" / "runs.parquet").write_text("garbage")
-    assert "readable idbench results" in _one_line(capsys, ["report", str(tmp_path / "g")])
-    assert "scheduler 'garbage'" in _one_line(
-        capsys, ["compare", *TINY, "--scheduler", "garbage", "--out", str(tmp_path / "s")]
-    )
+    err = _one_line(capsys, ["report", str(tmp_path / "g")])
+    assert "readable idbench results" in err
+    out = str(tmp_path / "s")
+    err = _one_line(capsys, ["compare", *TINY, "--scheduler", "garbage", "--out", out])
+    assert "scheduler 'garbage'" in err
 
 
 def test_a_failed_write_is_one_line(tmp_path, capsys, monkeypatch):
@@ -488,7 +488,9 @@ def _alive(pid: int) -> bool:
 # --- 13: the truth cache checks its content --------------------------------------
 
 
-def test_truth_cache_rejects_altered_or_misshapen_entries(tmp_path, monkeypatch, caplog):
+def test_truth_cache_rejects_altered_or_misshapen_entries(
+    tmp_path, monkeypatch, caplog
+):
     from idbench import ModelSpec, build_registry
     from idbench.truth import cache_dir, simulate_truth
 
