@@ -277,6 +277,8 @@ def test_bad_descriptions_give_one_line(over, words):
         ({"parameters": {"regions": ["left", "clamp"]}}, "regions",
          ["'clamp' is not a volume region", "left, right"]),
         ({"shape_error": {"margin": 0.5}}, "grid", ["[shape_error]", "0.5 m inside"]),
+        ({"material": {"E": 3e3, "E_regions": {"tumour": 2e4}}}, "moduli",
+         ["[material] E_regions 'tumour' is not in mesh", "clamp, left, right"]),
     ],
 )  # fmt: skip
 def test_bad_regions_give_one_line(beam, over, call, words):
@@ -287,6 +289,7 @@ def test_bad_regions_give_one_line(beam, over, call, words):
         "markers": lambda: bodies.marker_points(b, beam),
         "regions": lambda: bodies.element_regions(b, beam),
         "grid": lambda: bodies.shape_error_points(b, beam),
+        "moduli": lambda: bodies.element_moduli(b, beam),
     }[call]
     with pytest.raises(ValueError) as exc:
         fn()
@@ -365,3 +368,41 @@ def test_body_file_with_a_gmsh_liver(tmp_path):
     f = nodal_forces(b.manipulation("sag-90"), coarse, 1060.0)
     assert f.sum(0)[1] == pytest.approx(-9.81 * 1060.0 * coarse.volumes.sum())
     assert b.material.make(E=1.0).linear_in_modulus
+
+
+EXAMPLES = __import__("pathlib").Path(__file__).resolve().parent.parent / "examples"
+
+
+@pytest.mark.parametrize(("geometry", "size"), [("liver", 150), ("kidney", 250)])
+def test_example_bodies_resolve_on_small_meshes(tmp_path, geometry, size):
+    pytest.importorskip("gmsh")
+    from idbench_skfem.geometry import make_meshes
+
+    b = bodies.load_body(EXAMPLES / geometry / "body.toml")
+    assert b.material.law == "neo-hookean"
+    assert 0.45 <= b.material.nu <= 0.49
+    assert 1000 <= b.material.density <= 1100
+    assert 1000 <= b.material.E <= 10000
+    assert b.mesh.truth.name == f"{geometry}-n16000.msh"
+    assert b.mesh.truth.parent == EXAMPLES / geometry / "meshes"
+    (path,) = make_meshes(geometry, [size], tmp_path)
+    mesh = solidmesh.read_mesh(path)
+    bodies.check(b, [mesh])  # every name and selector resolves
+    for m in b.manipulations:
+        total = nodal_forces(m, mesh, b.material.density).sum(0)
+        if m.kind == "grasp":
+            np.testing.assert_allclose(total, m.vector, rtol=1e-12)
+        if m.kind == "gravity":
+            expect = b.material.density * mesh.volumes.sum() * np.array(m.vector)
+            np.testing.assert_allclose(total, expect, rtol=1e-12)
+    E = bodies.element_moduli(b, mesh)
+    if geometry == "kidney":
+        inc = mesh.cell_sets["inclusion"]
+        assert b.parameter_names == ("E_parenchyma", "E_inclusion")
+        np.testing.assert_array_equal(bodies.element_regions(b, mesh)[inc], 1)
+        assert np.all(E[inc] == 24000.0)
+        assert np.sum(E == 6000.0) == len(mesh.tets) - len(inc)
+    else:
+        assert b.parameter_names == ("E",)
+        assert np.all(E == 4000.0)
+        assert len(bodies.marker_points(b, mesh)) == 8

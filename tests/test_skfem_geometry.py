@@ -159,10 +159,13 @@ def test_kidney_inclusion_and_hilum(kidney):
     np.testing.assert_allclose(level, 1.0, atol=1e-4)  # OCC surface tolerance
 
 
-def test_deterministic(tmp_path):
+def test_deterministic(tmp_path, liver):
     a = geometry.make_meshes("kidney", [0.015], tmp_path / "a")
     b = geometry.make_meshes("kidney", [0.015], tmp_path / "b")
     assert a[0].read_bytes() == b[0].read_bytes()
+    # a node-count target gives the same mesh whatever else is in the list
+    (c,) = geometry.make_meshes("liver", [150], tmp_path / "c")
+    assert c.read_bytes() == liver[0].path.read_bytes()
 
 
 @pytest.mark.parametrize(

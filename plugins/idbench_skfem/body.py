@@ -13,6 +13,7 @@ manipulated, what is observed and what is identified::
     E = 4000.0             # Pa
     nu = 0.47
     density = 1060.0       # kg/m3
+    # E_regions = { inclusion = 20000.0 }  # optional: E of named volume regions
 
     [fixed]                # exactly one of: name, box, sphere, half_space, patch
     name = "ligament"
@@ -98,12 +99,17 @@ _REFUSED = ("displacement", "prescribed-displacement", "prescribed_displacement"
 
 @dataclass(frozen=True)
 class Material:
-    """Law name, Young's modulus (Pa), Poisson's ratio and density (kg/m3)."""
+    """Law name, Young's modulus (Pa), Poisson's ratio and density (kg/m3).
+
+    ``E_regions`` = ((volume region, E), ...) overrides E in those regions (the
+    truth's stiff inclusion, say); see :func:`element_moduli`.
+    """
 
     law: str = "svk"
     E: float = 5000.0
     nu: float = 0.45
     density: float = 1000.0
+    E_regions: tuple[tuple[str, float], ...] = ()
 
     def make(self, E: float | None = None):  # type: ignore[no-untyped-def]
         """The law object of :mod:`idbench_skfem.materials` (at ``E`` if given)."""
@@ -328,7 +334,7 @@ def parse_body(
 
     mat = _table(raw, "material", source)
     c = _Ctx(source, "[material]")
-    c.keys(mat, ("law", "E", "nu", "density"))
+    c.keys(mat, ("law", "E", "nu", "density", "E_regions"))
     law = mat.get("law", "svk")
     if law not in LAWS:
         raise c.error(f"law = {law!r}: allowed are {', '.join(LAWS)}")
@@ -341,7 +347,13 @@ def parse_body(
     density = c.number("density", mat.get("density", 1000.0))
     if density < 0:
         raise c.error(f"density = {density:g}: a mass density must be >= 0 (kg/m3)")
-    material = Material(law, E, nu, density)
+    er = mat.get("E_regions", {})
+    if not isinstance(er, dict):
+        raise c.error(f"E_regions = {er!r}: need a table {{ region = E, ... }}")
+    E_regions = tuple(
+        (k, c.number(f"E_regions.{k}", v, positive=True)) for k, v in er.items()
+    )
+    material = Material(law, E, nu, density, E_regions)
 
     if "fixed" not in raw:
         raise ValueError(
@@ -607,6 +619,21 @@ def element_regions(body: Body, mesh: SolidMesh) -> IntArray:
     return region
 
 
+def element_moduli(body: Body, mesh: SolidMesh) -> FloatArray:
+    """Young's modulus of every tet (T,): E, overridden by ``E_regions``.
+
+    Raises
+    ------
+    ValueError
+        If a region of ``E_regions`` is not a volume region of ``mesh``.
+    """
+    E = np.full(len(mesh.tets), body.material.E)
+    for name, value in body.material.E_regions:
+        what = f"{body.source}: [material] E_regions"
+        E[region_cells(mesh, Region(name=name), what=what)] = value
+    return E
+
+
 def mesh_paths(body: Body) -> list[Path]:
     """Model meshes then the truth; generate them first if missing and possible."""
     paths = [*body.mesh.models, body.mesh.truth]
@@ -637,6 +664,7 @@ def check(body: Body, meshes: list[SolidMesh] | None = None) -> None:
         fixed_nodes(body, mesh)
         marker_points(body, mesh)
         element_regions(body, mesh)
+        element_moduli(body, mesh)
         for m in body.manipulations:
             nodal_forces(m, mesh, body.material.density)
     shape_error_points(body, meshes[-1])

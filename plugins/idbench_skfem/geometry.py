@@ -61,6 +61,9 @@ KIDNEY_INCLUSION: tuple[tuple[float, float, float], float] = ((0.02, 0.003, 0.0)
 TRUTH_NODES = 16_000
 """Default node-count target of the truth mesh."""
 
+_REFERENCE_SIZE = {"liver": 0.012, "kidney": 0.008}
+"""Element size (m) giving about 600 nodes."""
+
 _NODE_TOLERANCE = 0.05  # relative, for node-count targets
 _ATTEMPTS = 8
 
@@ -287,22 +290,27 @@ def mesh_series(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     infos = []
-    h_guess = 0.012  # about 600 nodes for the liver
-    n_guess = 600
     for size in sizes:
         t0 = time.perf_counter()
         if isinstance(size, int):
-            h0 = h_guess * (n_guess / size) ** (1.0 / 3.0)
+            # a start that depends on (geometry, size) only, so that a size
+            # gives the same mesh whatever else is in the list
+            h0 = _REFERENCE_SIZE[geometry] * (600 / size) ** (1.0 / 3.0)
             h, _, _ = _length_for(geometry, size, h0)
             name = f"{geometry}-n{size}.msh"
         else:
             h, name = float(size), f"{geometry}-h{size:g}.msh"
         path = out / name
         nodes, tets = _mesh(geometry, h, path)
-        h_guess, n_guess = h, nodes
         info = MeshInfo(path, float(size), h, nodes, tets, time.perf_counter() - t0)
-        log.info("%s: %d nodes, %d tets, h = %.4g m, %.1f s", name, nodes, tets,
-                 h, info.seconds)  # fmt: skip
+        log.info(
+            "%s: %d nodes, %d tets, h = %.4g m, %.1f s",
+            name,
+            nodes,
+            tets,
+            h,
+            info.seconds,
+        )
         infos.append(info)
     return sorted(infos, key=lambda i: i.nodes)
 
@@ -320,8 +328,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = parser.parse_args(argv)
     sizes = [float(s) if "." in s else int(s) for s in args.sizes.split(",")]
     for info in mesh_series(args.geometry, sizes, args.out):
-        print(f"{info.path}\t{info.nodes} nodes\t{info.tets} tets\t"
-              f"h = {info.h:.4g} m\t{info.seconds:.1f} s")  # fmt: skip
+        print(
+            f"{info.path}\t{info.nodes} nodes\t{info.tets} tets\t"
+            f"h = {info.h:.4g} m\t{info.seconds:.1f} s"
+        )
 
 
 if __name__ == "__main__":

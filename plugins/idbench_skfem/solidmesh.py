@@ -401,9 +401,9 @@ def inside(mesh: SolidMesh, points: FloatArray) -> NDArray[np.bool_]:
 # -- regions -> nodes / facets / cells -------------------------------------------
 
 
-def _unknown(mesh: SolidMesh, name: str) -> ValueError:
+def _unknown(mesh: SolidMesh, name: str, what: str) -> ValueError:
     return ValueError(
-        f"region {name!r} is not in mesh {mesh.path!r}; its regions are "
+        f"{what} {name!r} is not in mesh {mesh.path!r}; its regions are "
         f"{', '.join(mesh.names) or '(none)'}"
     )
 
@@ -457,7 +457,7 @@ def region_facets(mesh: SolidMesh, region: Region, what: str = "region") -> IntA
     """
     if region.name is not None:
         if region.name not in mesh.facet_sets:
-            raise _unknown(mesh, region.name)
+            raise _unknown(mesh, region.name, what)
         out = mesh.facet_sets[region.name]
     elif region.patch is not None:
         out = patch_facets(mesh, *region.patch, what=what)
@@ -481,7 +481,7 @@ def region_nodes(mesh: SolidMesh, region: Region, what: str = "region") -> IntAr
     """
     if region.name is not None:
         if region.name not in mesh.node_sets:
-            raise _unknown(mesh, region.name)
+            raise _unknown(mesh, region.name, what)
         out = mesh.node_sets[region.name]
     elif region.patch is not None:
         out = np.unique(mesh.facets[patch_facets(mesh, *region.patch, what=what)])
@@ -512,7 +512,7 @@ def region_cells(mesh: SolidMesh, region: Region, what: str = "region") -> IntAr
                     f"{mesh.path!r}; volume regions: "
                     f"{', '.join(sorted(mesh.cell_sets))}"
                 )
-            raise _unknown(mesh, region.name)
+            raise _unknown(mesh, region.name, what)
         out = mesh.cell_sets[region.name]
     else:
         out = np.flatnonzero(_selected(mesh.points[mesh.tets].mean(axis=1), region))
