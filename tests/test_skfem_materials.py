@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq, minimize_scalar
 
-from idbench_skfem import _reference
+from idbench_skfem import _generic, _reference
 from idbench_skfem.materials import (
     LAWS,
     NeoHookean,
@@ -15,7 +15,6 @@ from idbench_skfem.materials import (
     green_lagrange,
     make_material,
     mandel,
-    strain_variation,
 )
 
 LAW_CLASSES = [Svk, NeoHookean]
@@ -140,28 +139,10 @@ def _cube(n=2):
     return p, t
 
 
-def _gradients(p, t):
-    x = p[t]
-    jac = np.stack([x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], x[:, 3] - x[:, 0]], axis=2)
-    inv = np.linalg.inv(jac)
-    G = np.empty((len(t), 4, 3))
-    G[:, 1:] = inv
-    G[:, 0] = -inv.sum(axis=1)
-    return G, np.linalg.det(jac) / 6
-
-
 def _generic_kernel(law, p, t, u, modulus):
-    """Full internal force (3N,) and tangent (3N, 3N) with f = V B^T s etc."""
-    G, V = _gradients(p, t)
-    F = np.eye(3) + np.einsum("tai,taJ->tiJ", u[t], G)
-    unit = law.with_modulus(1.0)
-    S = unit.stress(F) * modulus[:, None, None]
-    D = unit.mandel_tangent(F) * modulus[:, None, None]
-    B = strain_variation(F, G)
-    fe = V[:, None] * np.einsum("tab,ta->tb", B, mandel(S))
-    Ke = V[:, None, None] * np.einsum("tab,tac,tcd->tbd", B, D, B)
-    GSG = np.einsum("taI,tIJ,tbJ->tab", G, S, G) * V[:, None, None]
-    Ke.reshape(-1, 4, 3, 4, 3)[:, :, np.arange(3), :, np.arange(3)] += GSG[None]
+    """Full internal force (3N,) and dense tangent (3N, 3N) of the reference kernel."""
+    G, V = _generic.shape_gradients(p, t)
+    fe, Ke = _generic.element_kernel(law, u, t, G, V, modulus)
     dofs = (3 * t[:, :, None] + np.arange(3)).reshape(-1, 12)
     n = 3 * len(p)
     f = np.zeros(n)
