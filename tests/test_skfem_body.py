@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from idbench_skfem import body as bodies
-from idbench_skfem import solidmesh
+from idbench_skfem import resolve, solidmesh
 from idbench_skfem.loads import (
     gravity_forces,
     nodal_forces,
@@ -84,16 +84,16 @@ def test_parse_and_resolve(beam):
         patch=((L - 0.03, W / 2, H + 0.001), 0.012)
     )
     assert b.parameter_names == ("E",)
-    bodies.check(b, [beam])
-    fixed = bodies.fixed_nodes(b, beam)
+    resolve.check(b, [beam])
+    fixed = resolve.fixed_nodes(b, beam)
     np.testing.assert_array_equal(fixed, np.flatnonzero(beam.points[:, 0] == 0))
-    markers = bodies.marker_points(b, beam)
+    markers = resolve.marker_points(b, beam)
     np.testing.assert_allclose(markers, [[L, 0, H], [L, W, H]], atol=1e-15)
-    grid = bodies.shape_error_points(b, beam)
+    grid = resolve.shape_error_points(b, beam)
     assert len(grid) == 8 * 2 * 2  # all cell centres are >= 2 mm inside
     b2 = _body(parameters={"regions": ["left", "right"]})
     assert b2.parameter_names == ("E_left", "E_right")
-    regions = bodies.element_regions(b2, beam)
+    regions = resolve.element_regions(b2, beam)
     np.testing.assert_array_equal(
         regions, beam.points[beam.tets].mean(1)[:, 0] >= L / 2
     )
@@ -284,12 +284,12 @@ def test_bad_descriptions_give_one_line(over, words):
 def test_bad_regions_give_one_line(beam, over, call, words):
     b = _body(**over)
     fn = {
-        "fixed": lambda: bodies.fixed_nodes(b, beam),
+        "fixed": lambda: resolve.fixed_nodes(b, beam),
         "loads": lambda: [nodal_forces(m, beam, 1000.0) for m in b.manipulations],
-        "markers": lambda: bodies.marker_points(b, beam),
-        "regions": lambda: bodies.element_regions(b, beam),
-        "grid": lambda: bodies.shape_error_points(b, beam),
-        "moduli": lambda: bodies.element_moduli(b, beam),
+        "markers": lambda: resolve.marker_points(b, beam),
+        "regions": lambda: resolve.element_regions(b, beam),
+        "grid": lambda: resolve.shape_error_points(b, beam),
+        "moduli": lambda: resolve.element_moduli(b, beam),
     }[call]
     with pytest.raises(ValueError) as exc:
         fn()
@@ -352,17 +352,17 @@ def test_body_file_with_a_gmsh_liver(tmp_path):
     )
     (tmp_path / "body.toml").write_text(text)
     b = bodies.load_body(tmp_path / "body.toml")
-    paths = bodies.mesh_paths(b)  # generates the two meshes
+    paths = resolve.mesh_paths(b)  # generates the two meshes
     assert [p.name for p in paths] == ["liver-n120.msh", "liver-n250.msh"]
     meshes = [solidmesh.read_mesh(p) for p in paths]
-    bodies.check(b, meshes)
+    resolve.check(b, meshes)
     coarse, truth = meshes
     # the same fixed patch on both: its area is resolution-independent up to facets
     areas = [m.facet_areas(m.facet_sets["ligament"]).sum() for m in meshes]
     assert areas[0] == pytest.approx(areas[1], rel=0.1)
-    markers = bodies.marker_points(b, truth)
+    markers = resolve.marker_points(b, truth)
     assert np.all(markers[:, 1] >= -1e-9)  # anterior: y >= 0
-    grid = bodies.shape_error_points(b, truth)
+    grid = resolve.shape_error_points(b, truth)
     assert len(grid) > 10
     assert solidmesh.inside(coarse, grid).all()  # the margin keeps them locatable
     f = nodal_forces(b.manipulation("sag-90"), coarse, 1060.0)
@@ -387,7 +387,7 @@ def test_example_bodies_resolve_on_small_meshes(tmp_path, geometry, size):
     assert b.mesh.truth.parent == EXAMPLES / geometry / "meshes"
     (path,) = make_meshes(geometry, [size], tmp_path)
     mesh = solidmesh.read_mesh(path)
-    bodies.check(b, [mesh])  # every name and selector resolves
+    resolve.check(b, [mesh])  # every name and selector resolves
     for m in b.manipulations:
         total = nodal_forces(m, mesh, b.material.density).sum(0)
         if m.kind == "grasp":
@@ -395,14 +395,14 @@ def test_example_bodies_resolve_on_small_meshes(tmp_path, geometry, size):
         if m.kind == "gravity":
             expect = b.material.density * mesh.volumes.sum() * np.array(m.vector)
             np.testing.assert_allclose(total, expect, rtol=1e-12)
-    E = bodies.element_moduli(b, mesh)
+    E = resolve.element_moduli(b, mesh)
     if geometry == "kidney":
         inc = mesh.cell_sets["inclusion"]
         assert b.parameter_names == ("E_parenchyma", "E_inclusion")
-        np.testing.assert_array_equal(bodies.element_regions(b, mesh)[inc], 1)
+        np.testing.assert_array_equal(resolve.element_regions(b, mesh)[inc], 1)
         assert np.all(E[inc] == 24000.0)
         assert np.sum(E == 6000.0) == len(mesh.tets) - len(inc)
     else:
         assert b.parameter_names == ("E",)
         assert np.all(E == 4000.0)
-        assert len(bodies.marker_points(b, mesh)) == 8
+        assert len(resolve.marker_points(b, mesh)) == 8

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from idbench_skfem import _generic, solidmesh
+from idbench_skfem import _generic, resolve, solidmesh
 from idbench_skfem import body as bodies
 from idbench_skfem.loads import nodal_forces
 from idbench_skfem.materials import NeoHookean, Svk
@@ -32,8 +32,8 @@ def body():
 @pytest.mark.parametrize("name", ["grasp-lift", "lateral-push", "sag-90"])
 def test_equilibrium_and_convergence(liver, body, name):
     m = body.manipulation(name)
-    fixed = bodies.fixed_nodes(body, liver)
-    E = bodies.element_moduli(body, liver)
+    fixed = resolve.fixed_nodes(body, liver)
+    E = resolve.element_moduli(body, liver)
     rho = body.material.density
     sol = _generic.solve(
         body.material.make(), liver.points, liver.tets, E, fixed,
@@ -58,7 +58,7 @@ def test_equilibrium_and_convergence(liver, body, name):
 
 def test_neo_hookean_and_svk_agree_at_small_load(liver, body):
     m = body.manipulation("grasp-lift")
-    fixed = bodies.fixed_nodes(body, liver)
+    fixed = resolve.fixed_nodes(body, liver)
     E = np.full(len(liver.tets), 4000.0)
     diffs = []
     for scale in (0.02, 0.01):
