@@ -26,7 +26,13 @@ meshes are conforming across them. Files are gmsh MSH 4.1: meshio reads it
 with the physical groups as ``cell_sets`` (names as in gmsh).
 
 Reproducibility: one thread, fixed algorithms and options, no randomness; the
-same input gives byte-identical files (tested).
+same input gives byte-identical files, and a node-count target gives the same
+mesh whatever other sizes are asked for (tested).
+
+Cost (2 shared cores, load ~7): the ~16,000-node truth (about 85,000 tets)
+takes 4 s to mesh at a given element length and 13 s with a node-count target
+(a few trial meshes find the length), about 130 MB peak memory, for either
+geometry; meshes of 200-2,000 nodes take 1-3 s each.
 """
 
 from __future__ import annotations
