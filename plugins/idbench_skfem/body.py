@@ -1,0 +1,494 @@
+"""The body description of a general solid (TOML), parsed into frozen dataclasses.
+
+A body names, by mesh regions or geometric selectors, what is fixed, how it is
+manipulated, what is observed and what is identified::
+
+    [mesh]
+    truth = "meshes/liver-n16000.msh"       # paths relative to this file
+    models = ["meshes/liver-n200.msh", "meshes/liver-n1000.msh"]
+    generate = { geometry = "liver", sizes = [200, 1000, 16000] }  # if missing
+
+    [material]
+    law = "neo-hookean"    # or "svk"
+    E = 4000.0             # Pa
+    nu = 0.47
+    density = 1060.0       # kg/m3
+    # E_regions = { inclusion = 20000.0 }  # optional: E of named volume regions
+
+    [fixed]                # exactly one of: name, box, sphere, half_space, patch
+    name = "ligament"
+
+    [[manipulation]]
+    name = "grasp-lift"
+    kind = "grasp"         # total force over a surface patch around a point
+    point = [0.04, 0.045, -0.03]
+    radius = 0.01
+    force = [0.0, 0.0, 0.5]            # N at the end of the ramp
+
+    [[manipulation]]
+    name = "lateral-push"
+    kind = "traction"      # or "pressure" (dead, Pa, positive into the body)
+    region = "anterior"    # a name or a selector table
+    traction = [-50.0, 0.0, 0.0]       # Pa
+
+    [[manipulation]]
+    name = "sag-90"
+    kind = "gravity"
+    acceleration = [0.0, -9.81, 0.0]   # m/s2
+
+    [markers]              # points = [[x, y, z], ...] (snapped to the surface)
+    region = "anterior"    # or all surface nodes of a region
+    snap_distance = 0.005  # m, how far a marker may be from the surface
+
+    [shape_error]
+    grid = [10, 7, 6]      # regular grid clipped to the body, or nodes = true
+    margin = 0.003         # m, keep grid points this far inside the surface
+
+    [parameters]           # absent: one E; else one E per region
+    regions = ["parenchyma", "inclusion"]
+
+Selectors (wherever a region is expected): ``"name"`` or ``{ name = ... }``,
+``{ box = { lower = [...], upper = [...] } }``,
+``{ sphere = { centre = [...], radius = r } }``,
+``{ half_space = { point = [...], normal = [...] } }`` (the side the normal
+points to), ``{ patch = { point = [...], radius = r } }`` (the surface around
+the surface point nearest to ``point``).
+
+A prescribed displacement is refused: with displacements imposed and only
+displacements observed, the solution of a body with one homogeneous E does
+not depend on E at all (f_int = E g(u) = 0 away from the loads), so E is not
+identifiable unless a force is also observed.
+
+Errors are one-line ``ValueError``s naming the file, the bad value and what is
+allowed. Mesh-dependent checks (names, empty regions, markers off the body)
+happen when a region is resolved on a mesh (:mod:`idbench_skfem.resolve`;
+:func:`~idbench_skfem.resolve.check` does all of them).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from idbench_skfem.materials import LAWS, lame, make_material
+from idbench_skfem.solidmesh import (
+    SELECTORS,
+    Region,
+)
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+Vec = tuple[float, float, float]
+
+KINDS = ("traction", "pressure", "gravity", "grasp")
+"""Manipulation kinds."""
+
+_REFUSED = ("displacement", "prescribed-displacement", "prescribed_displacement")
+
+
+@dataclass(frozen=True)
+class Material:
+    """Law name, Young's modulus (Pa), Poisson's ratio and density (kg/m3).
+
+    ``E_regions`` = ((volume region, E), ...) overrides E in those regions (the
+    truth's stiff inclusion, say); see :func:`element_moduli`.
+    """
+
+    law: str = "svk"
+    E: float = 5000.0
+    nu: float = 0.45
+    density: float = 1000.0
+    E_regions: tuple[tuple[str, float], ...] = ()
+
+    def make(self, E: float | None = None):  # type: ignore[no-untyped-def]
+        """The law object of :mod:`idbench_skfem.materials` (at ``E`` if given)."""
+        return make_material(self.law, self.E if E is None else E, self.nu)
+
+
+@dataclass(frozen=True)
+class Manipulation:
+    """One load path, ramped linearly over the K steps of a scenario.
+
+    Attributes
+    ----------
+    name
+        Scenario name.
+    kind
+        ``traction``, ``pressure``, ``gravity`` or ``grasp``.
+    region
+        Loaded surface (traction, pressure) or the grasp patch.
+    vector
+        Traction (Pa), gravity acceleration (m/s2) or grasp force (N) at t = 1.
+    pressure
+        Dead pressure (Pa) at t = 1, positive into the body.
+    """
+
+    name: str
+    kind: str
+    region: Region | None = None
+    vector: Vec | None = None
+    pressure: float | None = None
+
+
+@dataclass(frozen=True)
+class Markers:
+    """Observed points: coordinates snapped to the surface, or a region's nodes."""
+
+    points: tuple[Vec, ...] = ()
+    region: Region | None = None
+    snap_distance: float = 0.005
+
+
+@dataclass(frozen=True)
+class ShapeError:
+    """Shape-error points: a grid clipped to the body, or the truth mesh's nodes."""
+
+    grid: tuple[int, int, int] = (10, 8, 6)
+    nodes: bool = False
+    margin: float = 0.0
+
+
+@dataclass(frozen=True)
+class MeshFiles:
+    """Truth and model meshes, and how to generate them if missing."""
+
+    truth: Path
+    models: tuple[Path, ...] = ()
+    geometry: str | None = None
+    sizes: tuple[float, ...] = ()
+
+
+@dataclass(frozen=True)
+class Body:
+    """A parsed body description (see the module docstring)."""
+
+    source: str
+    mesh: MeshFiles
+    material: Material
+    fixed: Region
+    manipulations: tuple[Manipulation, ...]
+    markers: Markers
+    shape_error: ShapeError
+    parameter_regions: tuple[Region, ...] = ()
+
+    def manipulation(self, name: str) -> Manipulation:
+        """The manipulation called ``name``."""
+        for m in self.manipulations:
+            if m.name == name:
+                return m
+        names = ", ".join(m.name for m in self.manipulations)
+        raise ValueError(f"{self.source}: no manipulation {name!r}; it has {names}")
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """``("E",)``, or ``E_<region>`` per parameter region."""
+        if not self.parameter_regions:
+            return ("E",)
+        return tuple(
+            f"E_{r.name}" if r.name is not None else f"E_region{i}"
+            for i, r in enumerate(self.parameter_regions)
+        )
+
+
+# -- parsing ---------------------------------------------------------------------
+
+
+class _Ctx:
+    """Error messages prefixed by the file and the table being read."""
+
+    def __init__(self, source: str, where: str) -> None:
+        self.source, self.where = source, where
+
+    def error(self, text: str) -> ValueError:
+        return ValueError(f"{self.source}: {self.where} {text}")
+
+    def number(self, key: str, value: Any, positive: bool = False) -> float:
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        if not ok or not math.isfinite(value) or (positive and value <= 0):
+            need = "a number > 0" if positive else "a finite number"
+            raise self.error(f"{key} = {value!r}: need {need}")
+        return float(value)
+
+    def vector(self, key: str, value: Any) -> Vec:
+        if not isinstance(value, list | tuple) or len(value) != 3:
+            raise self.error(f"{key} = {value!r}: need three numbers [x, y, z]")
+        x, y, z = (self.number(key, v) for v in value)
+        return (x, y, z)
+
+    def keys(self, table: dict[str, Any], allowed: tuple[str, ...]) -> None:
+        extra = sorted(set(table) - set(allowed))
+        if extra:
+            raise self.error(
+                f"has unknown key {extra[0]!r}; allowed: {', '.join(allowed)}"
+            )
+
+    def region(self, key: str, value: Any) -> Region:
+        if isinstance(value, str):
+            if not value:
+                raise self.error(f"{key} = '': need a region name")
+            return Region(name=value)
+        if (
+            not isinstance(value, dict)
+            or len(value) != 1
+            or (next(iter(value)) not in SELECTORS)
+        ):
+            raise self.error(
+                f"{key} = {value!r}: need a region name or a table with exactly "
+                f"one of {', '.join(SELECTORS)}"
+            )
+        ((kind, spec),) = value.items()
+        return self._selector(f"{key}.{kind}", kind, spec)
+
+    def _selector(self, key: str, kind: str, spec: Any) -> Region:
+        if kind == "name":
+            return self.region(key, spec)
+        fields = {
+            "box": ("lower", "upper"),
+            "sphere": ("centre", "radius"),
+            "half_space": ("point", "normal"),
+            "patch": ("point", "radius"),
+        }[kind]
+        if not isinstance(spec, dict) or set(spec) != set(fields):
+            raise self.error(
+                f"{key} = {spec!r}: need a table with {' and '.join(fields)}"
+            )
+        a = self.vector(f"{key}.{fields[0]}", spec[fields[0]])
+        if fields[1] == "radius":
+            return Region(
+                **{kind: (a, self.number(f"{key}.radius", spec["radius"], True))}
+            )
+        b = self.vector(f"{key}.{fields[1]}", spec[fields[1]])
+        if kind == "box" and not all(lo < hi for lo, hi in zip(a, b, strict=True)):
+            raise self.error(f"{key} = {spec!r}: need lower < upper in x, y and z")
+        if kind == "half_space" and not any(b):
+            raise self.error(f"{key}.normal = {list(b)}: need a non-zero normal")
+        return Region(**{kind: (a, b)})
+
+
+def _table(raw: dict[str, Any], key: str, source: str) -> dict[str, Any]:
+    value = raw.get(key, {})
+    if not isinstance(value, dict):
+        raise ValueError(f"{source}: [{key}] must be a table, got {value!r}")
+    return value
+
+
+def parse_body(
+    raw: dict[str, Any], source: str = "<body>", base: Path | None = None
+) -> Body:
+    """Parse a body description (the TOML as a dict); see the module docstring.
+
+    Parameters
+    ----------
+    raw
+        The parsed TOML.
+    source
+        Name for messages (the file).
+    base
+        Directory that relative mesh paths are relative to.
+
+    Raises
+    ------
+    ValueError
+        One line naming the bad value and what is allowed.
+    """
+    base = Path(".") if base is None else Path(base)
+    top = (
+        "mesh",
+        "material",
+        "fixed",
+        "manipulation",
+        "markers",
+        "shape_error",
+        "parameters",
+    )
+    _Ctx(source, "body").keys(raw, top)
+
+    mt = _table(raw, "mesh", source)
+    c = _Ctx(source, "[mesh]")
+    c.keys(mt, ("truth", "models", "generate"))
+    if not isinstance(mt.get("truth"), str):
+        raise c.error(f"truth = {mt.get('truth')!r}: need the truth mesh file's path")
+    models = mt.get("models", [])
+    if not isinstance(models, list) or not all(isinstance(m, str) for m in models):
+        raise c.error(f"models = {models!r}: need a list of mesh file paths")
+    gen = mt.get("generate", {})
+    if not isinstance(gen, dict) or (gen and set(gen) != {"geometry", "sizes"}):
+        raise c.error(f"generate = {gen!r}: need {{ geometry = ..., sizes = [...] }}")
+    meshes = MeshFiles(
+        base / mt["truth"],
+        tuple(base / m for m in models),
+        gen.get("geometry"),
+        tuple(gen.get("sizes", ())),
+    )
+
+    mat = _table(raw, "material", source)
+    c = _Ctx(source, "[material]")
+    c.keys(mat, ("law", "E", "nu", "density", "E_regions"))
+    law = mat.get("law", "svk")
+    if law not in LAWS:
+        raise c.error(f"law = {law!r}: allowed are {', '.join(LAWS)}")
+    E = c.number("E", mat.get("E", 5000.0), positive=True)
+    nu = c.number("nu", mat.get("nu", 0.45))
+    try:
+        lame(E, nu)
+    except ValueError as exc:
+        raise c.error(str(exc)) from None
+    density = c.number("density", mat.get("density", 1000.0))
+    if density < 0:
+        raise c.error(f"density = {density:g}: a mass density must be >= 0 (kg/m3)")
+    er = mat.get("E_regions", {})
+    if not isinstance(er, dict):
+        raise c.error(f"E_regions = {er!r}: need a table {{ region = E, ... }}")
+    E_regions = tuple(
+        (k, c.number(f"E_regions.{k}", v, positive=True)) for k, v in er.items()
+    )
+    material = Material(law, E, nu, density, E_regions)
+
+    if "fixed" not in raw:
+        raise ValueError(
+            f"{source}: no [fixed] region: the body could move rigidly; name a "
+            f"region or give one of {', '.join(SELECTORS[1:])}"
+        )
+    fx = _table(raw, "fixed", source)
+    fixed = _Ctx(source, "[fixed]").region("fixed", fx)
+
+    manip = raw.get("manipulation", [])
+    if not isinstance(manip, list) or not manip:
+        raise ValueError(f"{source}: no [[manipulation]]: give at least one load path")
+    manipulations = tuple(_manipulation(m, i, source) for i, m in enumerate(manip))
+    names = [m.name for m in manipulations]
+    if len(set(names)) != len(names):
+        dup = next(n for n in names if names.count(n) > 1)
+        raise ValueError(f"{source}: two manipulations are called {dup!r}")
+    if density == 0 and any(m.kind == "gravity" for m in manipulations):
+        raise ValueError(
+            f"{source}: [material] density = 0 but a manipulation is gravity"
+        )
+
+    mk = _table(raw, "markers", source)
+    c = _Ctx(source, "[markers]")
+    c.keys(mk, ("points", "region", "snap_distance"))
+    if ("points" in mk) == ("region" in mk):
+        raise c.error("needs exactly one of points = [[x, y, z], ...] or region = ...")
+    pts = mk.get("points", [])
+    if not isinstance(pts, list):
+        raise c.error(f"points = {pts!r}: need a list of [x, y, z]")
+    markers = Markers(
+        tuple(c.vector(f"points[{i}]", p) for i, p in enumerate(pts)),
+        c.region("region", mk["region"]) if "region" in mk else None,
+        c.number("snap_distance", mk.get("snap_distance", 0.005), positive=True),
+    )
+    if "points" in mk and not markers.points:
+        raise c.error("points = []: need at least one marker")
+
+    se = _table(raw, "shape_error", source)
+    c = _Ctx(source, "[shape_error]")
+    c.keys(se, ("grid", "nodes", "margin"))
+    grid = se.get("grid", [10, 8, 6])
+    if (
+        not isinstance(grid, list)
+        or len(grid) != 3
+        or not all(
+            isinstance(g, int) and not isinstance(g, bool) and g >= 1 for g in grid
+        )
+    ):
+        raise c.error(f"grid = {grid!r}: need three point counts >= 1")
+    nodes = se.get("nodes", False)
+    if not isinstance(nodes, bool):
+        raise c.error(f"nodes = {nodes!r}: need true or false")
+    margin = c.number("margin", se.get("margin", 0.0))
+    if margin < 0:
+        raise c.error(f"margin = {margin:g}: need >= 0 (m)")
+    shape_error = ShapeError((grid[0], grid[1], grid[2]), nodes, margin)
+
+    pa = _table(raw, "parameters", source)
+    c = _Ctx(source, "[parameters]")
+    c.keys(pa, ("regions",))
+    regions = pa.get("regions", [])
+    if not isinstance(regions, list) or len(regions) == 1:
+        raise c.error(
+            f"regions = {regions!r}: need a list of two or more regions (omit it "
+            "for one E)"
+        )
+    parameter_regions = tuple(
+        c.region(f"regions[{i}]", r) for i, r in enumerate(regions)
+    )
+    return Body(
+        source,
+        meshes,
+        material,
+        fixed,
+        manipulations,
+        markers,
+        shape_error,
+        parameter_regions,
+    )
+
+
+def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
+    if not isinstance(raw, dict):
+        raise ValueError(f"{source}: [[manipulation]] {i} must be a table")
+    name = raw.get("name")
+    c = _Ctx(source, f"[[manipulation]] {name!r}" if name else f"[[manipulation]] {i}")
+    if not isinstance(name, str) or not name:
+        raise c.error(f"name = {name!r}: every manipulation needs a name")
+    kind = raw.get("kind")
+    if kind in _REFUSED:
+        raise c.error(
+            "kind = 'displacement': refused: with displacements prescribed and only "
+            "displacements observed, a homogeneous E cannot be identified (the "
+            "solution does not depend on E); load it by a force (grasp, traction, "
+            "pressure, gravity) instead"
+        )
+    if kind not in KINDS:
+        raise c.error(f"kind = {kind!r}: allowed are {', '.join(KINDS)}")
+    needs = {
+        "traction": ("region", "traction"),
+        "pressure": ("region", "pressure"),
+        "gravity": ("acceleration",),
+        "grasp": ("point", "radius", "force"),
+    }[kind]
+    c.keys(raw, ("name", "kind", *needs))
+    for key in needs:
+        if key not in raw:
+            raise c.error(f"needs {key} (a {kind} has {', '.join(needs)})")
+    if kind == "traction":
+        return Manipulation(
+            name,
+            kind,
+            c.region("region", raw["region"]),
+            c.vector("traction", raw["traction"]),
+        )
+    if kind == "pressure":
+        return Manipulation(
+            name,
+            kind,
+            c.region("region", raw["region"]),
+            pressure=c.number("pressure", raw["pressure"]),
+        )
+    if kind == "gravity":
+        return Manipulation(
+            name, kind, vector=c.vector("acceleration", raw["acceleration"])
+        )
+    patch = (c.vector("point", raw["point"]), c.number("radius", raw["radius"], True))
+    return Manipulation(
+        name, kind, Region(patch=patch), c.vector("force", raw["force"])
+    )
+
+
+def load_body(path: str | Path) -> Body:
+    """Read and parse a body TOML file (mesh paths relative to its folder)."""
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise ValueError(f"body file {str(path)!r}: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"body file {str(path)!r} is not valid TOML: {exc}") from None
+    return parse_body(raw, str(path), path.parent)

@@ -1,0 +1,523 @@
+"""A general tetrahedral body: named regions, its surface, geometric selectors.
+
+:func:`read_mesh` reads any tetrahedral mesh meshio reads (gmsh .msh with
+physical groups, .vtu, .xdmf, ...) into a :class:`SolidMesh`: positively
+oriented tets, the outward-oriented boundary triangles, and the named sets of
+the file (meshio ``cell_sets`` from gmsh physical groups or cell sets, and
+``point_sets``). Regions are then turned into nodes or boundary facets by
+name or by a geometric selector (:class:`Region`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+Vec = tuple[float, float, float]
+
+_LOCAL_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
+"""Faces of a positively oriented tet, outward normals by the right-hand rule."""
+
+
+@dataclass(frozen=True)
+class Region:
+    """A named mesh region or a geometric selector; exactly one field is set.
+
+    Attributes
+    ----------
+    name
+        A gmsh physical group, meshio cell set or point set.
+    box
+        (lower, upper) corners: nodes with lower <= x <= upper.
+    sphere
+        (centre, radius): nodes within radius of centre.
+    half_space
+        (point, normal): nodes with (x - point) . normal >= 0.
+    patch
+        (point, radius): the surface around the surface point nearest to
+        ``point``: boundary facets whose centroid lies within radius of it,
+        and always the facet containing it.
+    """
+
+    name: str | None = None
+    box: tuple[Vec, Vec] | None = None
+    sphere: tuple[Vec, float] | None = None
+    half_space: tuple[Vec, Vec] | None = None
+    patch: tuple[Vec, float] | None = None
+
+    def __post_init__(self) -> None:
+        given = [k for k in SELECTORS if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError(
+                f"region: give exactly one of {', '.join(SELECTORS)} (got {given})"
+            )
+
+    @property
+    def kind(self) -> str:
+        """Which selector this is."""
+        return next(k for k in SELECTORS if getattr(self, k) is not None)
+
+    def describe(self) -> str:
+        """Short text for messages, e.g. ``'ligament'`` or ``sphere (...)``."""
+        if self.name is not None:
+            return repr(self.name)
+        return f"{self.kind} {getattr(self, self.kind)!r}"
+
+
+SELECTORS = ("name", "box", "sphere", "half_space", "patch")
+
+
+@dataclass(frozen=True, eq=False)
+class SolidMesh:
+    """Linear tetrahedra with named regions and an oriented boundary.
+
+    Attributes
+    ----------
+    path
+        Where it was read from (for messages).
+    points
+        Node coordinates (N, 3).
+    tets
+        Connectivity (T, 4), positively oriented.
+    facets
+        Boundary triangles (F, 3), outward normals by the right-hand rule.
+    facet_tets
+        The tet each boundary facet belongs to, (F,).
+    cell_sets
+        Name -> tet indices, from the file's volume groups.
+    facet_sets
+        Name -> boundary facet indices, from the file's surface groups (and
+        the boundary facets of volume groups).
+    node_sets
+        Name -> node indices, for every named set (its cells' nodes) and the
+        file's point sets.
+    """
+
+    path: str
+    points: FloatArray
+    tets: IntArray
+    facets: IntArray
+    facet_tets: IntArray
+    cell_sets: dict[str, IntArray] = field(default_factory=dict)
+    facet_sets: dict[str, IntArray] = field(default_factory=dict)
+    node_sets: dict[str, IntArray] = field(default_factory=dict)
+
+    @property
+    def names(self) -> list[str]:
+        """All region names, sorted."""
+        return sorted(set(self.cell_sets) | set(self.facet_sets) | set(self.node_sets))
+
+    @property
+    def volumes(self) -> FloatArray:
+        """Tet volumes (T,)."""
+        x = self.points[self.tets]
+        return _det(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], x[:, 3] - x[:, 0]) / 6.0
+
+    def facet_areas(self, facets: IntArray | None = None) -> FloatArray:
+        """Areas of boundary facets (all, or those indexed), (F,)."""
+        return 0.5 * np.linalg.norm(self.facet_normals(facets), axis=1)
+
+    def facet_normals(self, facets: IntArray | None = None) -> FloatArray:
+        """Outward normals scaled by twice the area, (F, 3)."""
+        tri = self.facets if facets is None else self.facets[facets]
+        p = self.points[tri]
+        return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+
+    @property
+    def surface_nodes(self) -> IntArray:
+        """Nodes on the boundary, increasing."""
+        return np.unique(self.facets)
+
+
+def _det(a: FloatArray, b: FloatArray, c: FloatArray) -> FloatArray:
+    return np.einsum("ti,ti->t", a, np.cross(b, c))
+
+
+def from_arrays(
+    points: FloatArray,
+    tets: IntArray,
+    path: str = "<arrays>",
+    cell_sets: dict[str, IntArray] | None = None,
+    triangle_sets: dict[str, IntArray] | None = None,
+    point_sets: dict[str, IntArray] | None = None,
+) -> SolidMesh:
+    """Build a :class:`SolidMesh`: orient tets, find the boundary, map the sets.
+
+    Parameters
+    ----------
+    points, tets
+        (N, 3) and (T, 4); nodes no tet uses are dropped (and renumbered).
+    cell_sets
+        Name -> tet indices.
+    triangle_sets
+        Name -> triangles as node triples (K, 3); only boundary ones are kept.
+    point_sets
+        Name -> node indices.
+
+    Raises
+    ------
+    ValueError
+        No tets, degenerate or inverted tets, bad indices.
+    """
+    from idbench_skfem.mesh import _check_not_folded
+
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    tets = np.array(tets, dtype=np.int64)
+    if tets.ndim != 2 or tets.shape[1] != 4 or len(tets) == 0:
+        raise ValueError(
+            f"mesh {path!r} has no tetrahedra; a solid needs 'tetra' cells"
+        )
+    if points.ndim != 2 or points.shape[1] != 3 or not np.isfinite(points).all():
+        raise ValueError(f"mesh {path!r}: points must be finite, shape (N, 3)")
+    if tets.min() < 0 or tets.max() >= len(points):
+        raise ValueError(f"mesh {path!r}: a tetrahedron refers to a missing node")
+    used = np.unique(tets)
+    remap = np.full(len(points), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    points, tets = points[used], remap[tets]
+    x = points[tets]
+    det = _det(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], x[:, 3] - x[:, 0])
+    scale = float(np.max(np.ptp(points, axis=0)))
+    flat = np.abs(det) <= 1e-12 * scale**3
+    if flat.any():
+        raise ValueError(
+            f"mesh {path!r} has {int(flat.sum())} degenerate (zero-volume) "
+            f"tetrahedra, e.g. tetrahedron {int(np.argmax(flat))}"
+        )
+    flip = det < 0
+    tets[flip, 2], tets[flip, 3] = tets[flip, 3].copy(), tets[flip, 2].copy()
+    _check_not_folded(points, tets, path)
+
+    faces = tets[:, _LOCAL_FACES].reshape(-1, 3)
+    key = np.sort(faces, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    on_boundary = np.flatnonzero(counts[inverse.reshape(-1)] == 1)
+    facets = faces[on_boundary]
+    facet_tets = on_boundary // 4
+
+    n_nodes = len(points)
+    cells = {
+        k: np.unique(np.asarray(v, dtype=np.int64))
+        for k, v in (cell_sets or {}).items()
+    }
+    facet_sets: dict[str, IntArray] = {}
+    node_sets: dict[str, IntArray] = {}
+    lookup = {tuple(k): i for i, k in enumerate(np.sort(facets, axis=1).tolist())}
+    for name, tri in (triangle_sets or {}).items():
+        tri = remap[np.asarray(tri, dtype=np.int64).reshape(-1, 3)]
+        found = [lookup.get(tuple(k)) for k in np.sort(tri, axis=1).tolist()]
+        facet_sets[name] = np.array(
+            sorted({f for f in found if f is not None}), dtype=np.int64
+        )
+        node_sets[name] = np.unique(tri[tri >= 0])
+    for name, idx in cells.items():
+        in_set = np.zeros(len(tets), dtype=bool)
+        in_set[idx] = True
+        facet_sets.setdefault(name, np.flatnonzero(in_set[facet_tets]))
+        node_sets[name] = np.unique(tets[idx])
+    for name, idx in (point_sets or {}).items():
+        nodes = remap[np.asarray(idx, dtype=np.int64)]
+        node_sets[name] = np.unique(nodes[nodes >= 0])
+        if name not in facet_sets:
+            inside = np.zeros(n_nodes, dtype=bool)
+            inside[node_sets[name]] = True
+            facet_sets[name] = np.flatnonzero(inside[facets].all(axis=1))
+    return SolidMesh(
+        path, points, tets, facets, facet_tets, cells, facet_sets, node_sets
+    )
+
+
+def read_mesh(path: str | Path) -> SolidMesh:
+    """Read a tetrahedral mesh file with meshio, keeping its named sets.
+
+    Raises
+    ------
+    ValueError
+        Unreadable file, no tets, degenerate or inverted tets.
+    """
+    import meshio
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"mesh file {str(path)!r} does not exist")
+    chatter = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
+            m = meshio.read(path)
+    except (Exception, SystemExit) as exc:
+        why = " ".join(chatter.getvalue().split()) or f"{type(exc).__name__}: {exc}"
+        raise ValueError(
+            f"mesh file {str(path)!r}: meshio cannot read it ({why})"
+        ) from None
+    offsets: dict[int, int] = {}
+    tets = []
+    n = 0
+    for i, block in enumerate(m.cells):
+        if block.type == "tetra":
+            offsets[i] = n
+            n += len(block.data)
+            tets.append(block.data)
+    if not tets:
+        kinds = sorted({c.type for c in m.cells})
+        raise ValueError(
+            f"mesh file {str(path)!r} has no 'tetra' cells (found {kinds}); "
+            "a solid needs linear tetrahedra"
+        )
+    cell_sets: dict[str, IntArray] = {}
+    triangle_sets: dict[str, IntArray] = {}
+    for name, per_block in m.cell_sets.items():
+        if name.startswith("gmsh:"):
+            continue
+        cells = [
+            offsets[i] + np.asarray(idx, dtype=np.int64)
+            for i, idx in enumerate(per_block)
+            if i in offsets and len(idx)
+        ]
+        tris = [
+            m.cells[i].data[np.asarray(idx, dtype=np.int64)]
+            for i, idx in enumerate(per_block)
+            if m.cells[i].type == "triangle" and len(idx)
+        ]
+        if cells:
+            cell_sets[name] = np.concatenate(cells)
+        if tris:
+            triangle_sets[name] = np.concatenate(tris)
+        if not cells and not tris:
+            cell_sets[name] = np.empty(0, dtype=np.int64)
+    point_sets = {k: np.asarray(v) for k, v in m.point_sets.items()}
+    return from_arrays(
+        np.asarray(m.points, dtype=float),
+        np.concatenate(tets),
+        str(path),
+        cell_sets,
+        triangle_sets,
+        point_sets,
+    )
+
+
+# -- closest points on the surface ---------------------------------------------
+
+
+def closest_on_triangles(
+    points: FloatArray, tri: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Closest point of each triangle to each point (Ericson, Real-Time CD 5.1.5).
+
+    Parameters
+    ----------
+    points
+        (P, 3).
+    tri
+        Triangle corners (F, 3, 3).
+
+    Returns
+    -------
+    closest, bary
+        (P, F, 3) points and (P, F, 3) barycentric coordinates.
+    """
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    ab, ac = b - a, c - a
+    ap = points[:, None, :] - a
+    d1, d2 = np.einsum("fi,pfi->pf", ab, ap), np.einsum("fi,pfi->pf", ac, ap)
+    bp = points[:, None, :] - b
+    d3, d4 = np.einsum("fi,pfi->pf", ab, bp), np.einsum("fi,pfi->pf", ac, bp)
+    cp = points[:, None, :] - c
+    d5, d6 = np.einsum("fi,pfi->pf", ab, cp), np.einsum("fi,pfi->pf", ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        v, w = vb / denom, vc / denom  # interior
+        cases = [  # (condition, v, w), later ones win
+            ((vb <= 0) & (d2 >= 0) & (d6 <= 0), 0.0, d2 / (d2 - d6)),  # edge ac
+            ((vc <= 0) & (d1 >= 0) & (d3 <= 0), d1 / (d1 - d3), 0.0),  # edge ab
+            (
+                (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0),
+                1 - (d4 - d3) / ((d4 - d3) + (d5 - d6)),
+                (d4 - d3) / ((d4 - d3) + (d5 - d6)),
+            ),  # edge bc
+            ((d6 >= 0) & (d5 <= d6), 0.0, 1.0),  # vertex c
+            ((d3 >= 0) & (d4 <= d3), 1.0, 0.0),  # vertex b
+            ((d1 <= 0) & (d2 <= 0), 0.0, 0.0),  # vertex a
+        ]
+        for cond, cv, cw in cases:
+            v = np.where(cond, cv, v)
+            w = np.where(cond, cw, w)
+    bary = np.stack([1.0 - v - w, v, w], axis=-1)
+    return np.einsum("pfk,fki->pfi", bary, tri), bary
+
+
+def project_to_surface(
+    mesh: SolidMesh, points: FloatArray, chunk: int = 64
+) -> tuple[FloatArray, IntArray, FloatArray, FloatArray]:
+    """Nearest surface point of each point.
+
+    Returns
+    -------
+    closest, facet, bary, distance
+        (P, 3) points, (P,) boundary facet indices, (P, 3) barycentric
+        coordinates on that facet, (P,) distances.
+    """
+    points = np.atleast_2d(np.asarray(points, dtype=float))
+    tri = mesh.points[mesh.facets]
+    out = np.empty_like(points)
+    facet = np.empty(len(points), dtype=np.int64)
+    bary = np.empty((len(points), 3))
+    for s in range(0, len(points), chunk):
+        q, b = closest_on_triangles(points[s : s + chunk], tri)
+        d = np.linalg.norm(q - points[s : s + chunk, None, :], axis=2)
+        j = d.argmin(axis=1)
+        rows = np.arange(len(j))
+        out[s : s + chunk], facet[s : s + chunk] = q[rows, j], j
+        bary[s : s + chunk] = b[rows, j]
+    return out, facet, bary, np.linalg.norm(out - points, axis=1)
+
+
+def inside(mesh: SolidMesh, points: FloatArray) -> NDArray[np.bool_]:
+    """Whether each point lies in the body (in some tet, to round-off)."""
+    from scipy.spatial import cKDTree
+
+    from idbench_skfem.probes import _barycentric
+
+    points = np.atleast_2d(np.asarray(points, dtype=float))
+    x = mesh.points[mesh.tets]
+    centroids = x.mean(axis=1)
+    radius = np.linalg.norm(x - centroids[:, None], axis=2).max()
+    result = np.zeros(len(points), dtype=bool)
+    tree = cKDTree(centroids)
+    for i, cand in enumerate(tree.query_ball_point(points, radius)):
+        if cand:
+            lam = _barycentric(np.broadcast_to(points[i], (len(cand), 3)), x[cand])
+            result[i] = bool((lam.min(axis=1) >= -1e-9).any())
+    return result
+
+
+# -- regions -> nodes / facets / cells -------------------------------------------
+
+
+def _unknown(mesh: SolidMesh, name: str, what: str) -> ValueError:
+    return ValueError(
+        f"{what} {name!r} is not in mesh {mesh.path!r}; its regions are "
+        f"{', '.join(mesh.names) or '(none)'}"
+    )
+
+
+def _selected(x: FloatArray, region: Region) -> NDArray[np.bool_]:
+    """Which of the points ``x`` (n, 3) a box, sphere or half-space selects."""
+    if region.box is not None:
+        lo, hi = (np.asarray(v, dtype=float) for v in region.box)
+        return np.all((x >= lo) & (x <= hi), axis=1)
+    if region.sphere is not None:
+        centre, radius = region.sphere
+        return np.linalg.norm(x - np.asarray(centre), axis=1) <= radius
+    assert region.half_space is not None
+    point, normal = (np.asarray(v, dtype=float) for v in region.half_space)
+    return (x - point) @ normal >= 0.0
+
+
+def patch_facets(
+    mesh: SolidMesh, point: Vec, radius: float, what: str = "patch"
+) -> IntArray:
+    """Boundary facets around the surface point nearest to ``point``.
+
+    Facets whose centroid lies within ``radius`` of that surface point, and
+    the facet containing it (so the patch is never empty on a coarse mesh).
+
+    Raises
+    ------
+    ValueError
+        If ``point`` is farther than ``radius`` from the surface.
+    """
+    q, facet, _, dist = project_to_surface(mesh, np.asarray(point, dtype=float))
+    if dist[0] > radius:
+        raise ValueError(
+            f"{what} at {list(point)} is {dist[0]:.3g} m from the surface of "
+            f"{mesh.path!r}, more than its radius {radius:g} m: move it onto the "
+            "surface"
+        )
+    centroids = mesh.points[mesh.facets].mean(axis=1)
+    near = np.linalg.norm(centroids - q[0], axis=1) <= radius
+    near[facet[0]] = True
+    return np.flatnonzero(near)
+
+
+def region_facets(mesh: SolidMesh, region: Region, what: str = "region") -> IntArray:
+    """Boundary facets of a region (selectors: facets whose 3 nodes it selects).
+
+    Raises
+    ------
+    ValueError
+        Unknown name, or no boundary facet in the region.
+    """
+    if region.name is not None:
+        if region.name not in mesh.facet_sets:
+            raise _unknown(mesh, region.name, what)
+        out = mesh.facet_sets[region.name]
+    elif region.patch is not None:
+        out = patch_facets(mesh, *region.patch, what=what)
+    else:
+        out = np.flatnonzero(_selected(mesh.points, region)[mesh.facets].all(axis=1))
+    if len(out) == 0:
+        raise ValueError(
+            f"{what} {region.describe()} contains no boundary facet of "
+            f"mesh {mesh.path!r}"
+        )
+    return out
+
+
+def region_nodes(mesh: SolidMesh, region: Region, what: str = "region") -> IntArray:
+    """Nodes of a region (a patch gives the nodes of its facets).
+
+    Raises
+    ------
+    ValueError
+        Unknown name, or no node in the region.
+    """
+    if region.name is not None:
+        if region.name not in mesh.node_sets:
+            raise _unknown(mesh, region.name, what)
+        out = mesh.node_sets[region.name]
+    elif region.patch is not None:
+        out = np.unique(mesh.facets[patch_facets(mesh, *region.patch, what=what)])
+    else:
+        out = np.flatnonzero(_selected(mesh.points, region))
+    if len(out) == 0:
+        raise ValueError(
+            f"{what} {region.describe()} contains no node of mesh {mesh.path!r}"
+        )
+    return out
+
+
+def region_cells(mesh: SolidMesh, region: Region, what: str = "region") -> IntArray:
+    """Tets of a region: a volume set by name, or tets whose centroid it selects.
+
+    Raises
+    ------
+    ValueError
+        Unknown or non-volume name, patch selectors, or no tet in the region.
+    """
+    if region.patch is not None:
+        raise ValueError(f"{what}: a patch selects surface, not cells")
+    if region.name is not None:
+        if region.name not in mesh.cell_sets:
+            if region.name in mesh.node_sets:
+                raise ValueError(
+                    f"{what} {region.name!r} is not a volume region of mesh "
+                    f"{mesh.path!r}; volume regions: "
+                    f"{', '.join(sorted(mesh.cell_sets))}"
+                )
+            raise _unknown(mesh, region.name, what)
+        out = mesh.cell_sets[region.name]
+    else:
+        out = np.flatnonzero(_selected(mesh.points[mesh.tets].mean(axis=1), region))
+    if len(out) == 0:
+        raise ValueError(
+            f"{what} {region.describe()} contains no tetrahedron of mesh {mesh.path!r}"
+        )
+    return out
