@@ -5,12 +5,14 @@ The public API is what this module exports; plugins import only from here.
 
 from __future__ import annotations
 
+from idbench.config import ConfigError
 from idbench.interfaces import (
     Cost,
     Diverged,
     Estimate,
     Estimator,
     ForwardModel,
+    ModelDefaults,
     ModelFailure,
     ModelSpec,
     Observation,
@@ -20,6 +22,7 @@ from idbench.interfaces import (
     Skipped,
 )
 from idbench.plugins import (
+    Command,
     PluginError,
     Registry,
     build_registry,
@@ -31,11 +34,14 @@ from idbench.scenario import Scenario, Sparsity
 __version__ = "0.1.0"
 
 __all__ = [
+    "Command",
+    "ConfigError",
     "Cost",
     "Diverged",
     "Estimate",
     "Estimator",
     "ForwardModel",
+    "ModelDefaults",
     "ModelFailure",
     "ModelSpec",
     "Observation",

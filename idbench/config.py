@@ -19,8 +19,6 @@ from typing import Any
 
 from idbench.scenario import Sparsity
 
-ALL_ESTIMATORS = ("ro-ukf", "ukf", "rls", "lms", "batch-ls")
-
 MAX_RUNS_ENV = "IDBENCH_MAX_RUNS"
 DEFAULT_MAX_RUNS = 100_000
 """Runs a comparison may have before it is refused (``$IDBENCH_MAX_RUNS``)."""
@@ -37,67 +35,71 @@ class ConfigError(ValueError):
 class CompareConfig:
     """A grid of runs: scenarios x meshes x estimators x sparsity x seeds.
 
+    Fields left at None are filled by :meth:`resolve` from what the plugins
+    registered: the model's :class:`~idbench.interfaces.ModelDefaults`, every
+    registered estimator, the registered reference estimator.
+
     Attributes
     ----------
     estimators
-        Registered estimator names.
+        Registered estimator names (None: all registered).
     meshes
-        Model mesh specs (``NXxNYxNZ``, a node-count target, or a mesh file).
+        Model discretisations, as the model reads them (None: its defaults).
     truth_mesh
-        Mesh spec of the truth (fine mesh).
+        The truth's discretisation (None: the model's default).
     scenarios
-        Registered scenario names.
+        Registered scenario names (None: the model's defaults).
     obs_every, obs_points, noise
-        Sparsity sweep axes: observe every k-th step, M markers, noise sigma (m).
+        Sparsity sweep axes: observe every k-th step, M markers, noise sigma
+        (model units, e.g. metres).
     seeds
         Number of noise seeds (0..seeds-1).
     steps
         Load steps K.
-    E_true, nu
-        True Young's modulus (Pa) and Poisson ratio.
+    true
+        True parameter values by parameter name (others: the model's defaults).
     prior
-        Prior mean and std of each parameter (Pa).
+        Prior mean and std of each parameter, natural units (None: the model's).
     model
-        Registered model name.
-    parameters
-        What is identified: ``"E"`` or ``"E_regions"``.
-    model_options
-        Model-specific options, e.g. ``{"regions": 2}``.
+        Registered model name (None: the default model).
+    model_settings
+        The models' own settings by model name, e.g. ``{"svk-beam": {"nu": 0.3}}``.
     estimator_settings
         Per-estimator settings, e.g. ``{"ro-ukf": {"sigma_points": "star"}}``.
-    grid
-        Shape-error grid points per axis (nx, ny, nz).
     reference
-        Estimator whose fit on the run's data gives E_ref.
+        Estimator whose fit on the run's data gives the reference value
+        (None: the registered reference estimator).
     timeout
         Seconds per run before it is stopped and recorded as failed.
+    quick
+        Use the model's ``--quick`` defaults for what is not given.
     """
 
-    estimators: tuple[str, ...] = ALL_ESTIMATORS
-    meshes: tuple[str, ...] = ("9x2x2", "14x3x3", "20x4x4")
-    truth_mesh: str = "80x11x11"
-    scenarios: tuple[str, ...] = ("bend-y",)
+    estimators: tuple[str, ...] | None = None
+    meshes: tuple[str, ...] | None = None
+    truth_mesh: str | None = None
+    scenarios: tuple[str, ...] | None = None
     obs_every: tuple[int, ...] = (2,)
     obs_points: tuple[int, ...] = (2,)
     noise: tuple[float, ...] = (1e-4,)
     seeds: int = 3
     steps: int = 20
-    E_true: float = 5000.0
-    nu: float = 0.45
-    prior: tuple[float, float] = (2500.0, 2500.0)
-    model: str = "svk-beam"
-    parameters: str = "E"
-    model_options: dict[str, Any] = field(default_factory=dict)
+    true: dict[str, float] = field(default_factory=dict)
+    prior: tuple[float, float] | None = None
+    model: str | None = None
+    model_settings: dict[str, dict[str, Any]] = field(default_factory=dict)
     estimator_settings: dict[str, dict[str, Any]] = field(default_factory=dict)
-    grid: tuple[int, int, int] = (20, 4, 4)
-    reference: str = "batch-ls"
+    reference: str | None = None
     timeout: float | None = None
+    quick: bool = False
 
     def __post_init__(self) -> None:
-        _check_names("estimators", self.estimators)
-        _check_names("meshes", self.meshes)
-        _check_names("scenarios", self.scenarios)
-        if not isinstance(self.truth_mesh, str) or not self.truth_mesh:
+        for name in ("estimators", "meshes", "scenarios"):
+            if getattr(self, name) is not None:
+                _check_names(name, getattr(self, name))
+        if self.truth_mesh is not None and (
+            not isinstance(self.truth_mesh, str) or not self.truth_mesh
+        ):
             raise ConfigError(f"truth_mesh {self.truth_mesh!r}: need a mesh spec")
         for axis in ("obs_every", "obs_points", "noise"):
             _check_axis(axis, getattr(self, axis))
@@ -107,32 +109,27 @@ class CompareConfig:
             _check_int("obs_points", m, 1)
         for s in self.noise:
             if not _finite(s) or s < 0:
-                raise ConfigError(f"noise {s!r}: must be a number >= 0 (metres)")
+                raise ConfigError(f"noise {s!r}: must be a number >= 0")
         _check_int("seeds", self.seeds, 1)
         _check_int("steps", self.steps, 1)
-        if not _finite(self.E_true) or self.E_true <= 0:
-            raise ConfigError(f"E_true {self.E_true!r}: must be a number > 0 (Pa)")
-        if not _finite(self.nu) or not -1.0 < self.nu < 0.5:
-            raise ConfigError(f"nu {self.nu!r}: must be in (-1, 0.5)")
-        if (
+        if not isinstance(self.true, dict):
+            raise ConfigError(f"true {self.true!r}: need a table of NAME = value")
+        for name, value in self.true.items():
+            if not _finite(value):
+                raise ConfigError(f"true value {name} = {value!r}: need a number")
+        if self.prior is not None and (
             not isinstance(self.prior, tuple | list)
             or len(self.prior) != 2
-            or not all(_finite(v) and v > 0 for v in self.prior)
+            or not all(_finite(v) for v in self.prior)
+            or not self.prior[1] > 0
         ):
-            raise ConfigError(f"prior {self.prior!r}: need MEAN,STD, both > 0 (Pa)")
+            raise ConfigError(
+                f"prior {self.prior!r}: need MEAN,STD, numbers, STD > 0"
+            )
         for name in ("model", "reference"):
             value = getattr(self, name)
-            if not isinstance(value, str) or not value.strip():
+            if value is not None and (not isinstance(value, str) or not value.strip()):
                 raise ConfigError(f"{name} {value!r}: need a registered name")
-        if not isinstance(self.parameters, str) or self.parameters not in (
-            "E",
-            "E_regions",
-        ):
-            raise ConfigError(f"parameters {self.parameters!r}: allowed: E, E_regions")
-        if not isinstance(self.grid, tuple | list) or len(self.grid) != 3:
-            raise ConfigError(f"grid {self.grid!r}: need three counts NX,NY,NZ")
-        for g in self.grid:
-            _check_int("grid", g, 1)
         if self.timeout is not None and (
             not _finite(self.timeout) or not 0 < self.timeout <= MAX_TIMEOUT
         ):
@@ -140,21 +137,30 @@ class CompareConfig:
                 f"timeout {self.timeout!r}: must be a number in (0, {MAX_TIMEOUT:g}] "
                 "(seconds)"
             )
-        if not isinstance(self.model_options, dict):
-            raise ConfigError(
-                f"model_options {self.model_options!r}: need a table of name = value"
-            )
-        if not isinstance(self.estimator_settings, dict):
-            raise ConfigError(
-                f"estimator_settings {self.estimator_settings!r}: need a table of "
-                "[estimators.NAME] tables"
-            )
-        for name, settings in self.estimator_settings.items():
-            if not isinstance(settings, dict):
+        for what in ("model_settings", "estimator_settings"):
+            tables = getattr(self, what)
+            if not isinstance(tables, dict):
                 raise ConfigError(
-                    f"estimator settings for {name!r}: {settings!r} is not a table "
-                    f"(write [estimators.{name}] with name = value lines)"
+                    f"{what} {tables!r}: need a table of [NAME] tables of settings"
                 )
+            for name, settings in tables.items():
+                if not isinstance(settings, dict):
+                    raise ConfigError(
+                        f"{what.split('_')[0]} settings for {name!r}: {settings!r} "
+                        "is not a table of name = value"
+                    )
+        if self.is_resolved():
+            self.check_size()
+
+    def is_resolved(self) -> bool:
+        """Whether every default has been filled in (see :meth:`resolve`)."""
+        return None not in (
+            self.estimators, self.meshes, self.truth_mesh, self.scenarios,
+            self.prior, self.model, self.reference,
+        )  # fmt: skip
+
+    def check_size(self) -> None:
+        """Refuse a grid of more than :func:`max_runs` runs before building it."""
         n_runs = self.n_runs()
         if n_runs > max_runs():
             raise ConfigError(
@@ -163,26 +169,70 @@ class CompareConfig:
             )
 
     def n_runs(self) -> int:
-        """Number of runs of the grid, counted without building it."""
+        """Number of runs of the grid (resolved config), counted without building it."""
         return (
-            len(self.scenarios)
-            * len(self.meshes)
+            len(self.scenarios or ())
+            * len(self.meshes or ())
             * len(self.obs_every)
             * len(self.obs_points)
             * len(self.noise)
-            * len(self.estimators)
+            * len(self.estimators or ())
             * self.seeds
         )
 
     @classmethod
-    def quick(cls, **overrides: Any) -> CompareConfig:
+    def quick_config(cls, **overrides: Any) -> CompareConfig:
         """The small comparison of ``--quick``: coarse truth, one seed."""
-        base: dict[str, Any] = {
-            "truth_mesh": "40x5x5",
-            "meshes": ("14x3x3", "20x4x4"),
-            "seeds": 1,
-        }
-        return cls(**{**base, **overrides})
+        return cls(**{"quick": True, "seeds": 1, **overrides})
+
+    def resolve(self, registry: Any) -> CompareConfig:
+        """A copy with every None filled from ``registry``.
+
+        Raises
+        ------
+        ConfigError
+            If no model can be chosen or the model has no defaults for a value
+            the config leaves open.
+        """
+        try:
+            model = self.model or registry.default_model()
+        except KeyError as exc:
+            raise ConfigError(str(exc.args[0])) from None
+        if model not in registry.models:
+            allowed = ", ".join(sorted(registry.models)) or "none registered"
+            raise ConfigError(
+                f"unknown model {model!r}{suggest(model, registry.models)}; "
+                f"allowed: {allowed}{registry.broken()}"
+            )
+        defaults = registry.models[model].defaults
+        fill: dict[str, Any] = {"model": model}
+        if defaults is not None:
+            quick = dict(defaults.quick) if self.quick else {}
+            fill["truth_mesh"] = quick.get("truth_mesh", defaults.truth_mesh)
+            fill["meshes"] = tuple(quick.get("meshes", defaults.meshes))
+            fill["scenarios"] = tuple(quick.get("scenarios", defaults.scenarios))
+            fill["prior"] = tuple(defaults.prior)
+        fill["estimators"] = tuple(registry.estimators)
+        if self.reference is None:
+            try:
+                fill["reference"] = registry.reference_estimator()
+            except KeyError as exc:
+                raise ConfigError(str(exc.args[0])) from None
+        given = {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
+        missing = [k for k in fill if k not in given and fill[k] is None]
+        merged = {**fill, **given}
+        for name in ("truth_mesh", "meshes", "scenarios", "prior"):
+            if merged.get(name) is None:
+                missing.append(name)
+        if missing:
+            raise ConfigError(
+                f"model {model!r} registers no default for {', '.join(missing)}: "
+                "give them (see idbench compare --help)"
+            )
+        merged["model_settings"] = self.model_settings
+        merged["estimator_settings"] = self.estimator_settings
+        merged["true"] = self.true
+        return CompareConfig(**merged)
 
     def sparsities(self) -> list[Sparsity]:
         """Every combination of the sparsity axes."""
@@ -207,7 +257,10 @@ def max_runs() -> int:
         raise ConfigError(f"{MAX_RUNS_ENV}={text!r}: need a whole number") from None
 
 
-FIELDS = {f.name for f in dataclasses.fields(CompareConfig)}
+FIELDS = {f.name for f in dataclasses.fields(CompareConfig)} - {
+    "model_settings",
+    "estimator_settings",
+}
 LIST_FIELDS = {"estimators", "meshes", "scenarios", "obs_every", "obs_points", "noise"}
 
 
@@ -258,38 +311,47 @@ def suggest(key: str, allowed: Any) -> str:
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
-def normalise(raw: dict[str, Any], origin: str) -> dict[str, Any]:
+def normalise(
+    raw: dict[str, Any], origin: str, shorthands: dict[str, str] | None = None
+) -> dict[str, Any]:
     """Turn TOML or CLI keys and values into :class:`CompareConfig` fields.
 
     Dashes in keys become underscores; list axes accept a list or a scalar;
-    ``[estimators.NAME]`` tables become ``estimator_settings``.
+    ``[estimators.NAME]`` tables become ``estimator_settings``, ``[model.NAME]``
+    tables ``model_settings``; a key in ``shorthands`` (a model's shorthand
+    option -> its setting) goes to ``shorthand_settings``, which
+    :func:`build_config` hands to the chosen model.
     """
+    shorthands = {k.replace("-", "_"): v for k, v in (shorthands or {}).items()}
     out: dict[str, Any] = {}
     for key, value in raw.items():
         k = key.replace("-", "_")
-        if k == "estimators" and isinstance(value, dict):
+        if k in ("estimators", "model") and isinstance(value, dict):
+            target = "estimator_settings" if k == "estimators" else "model_settings"
             for n, v in value.items():
                 if not isinstance(v, dict):
                     raise ConfigError(
-                        f"{origin}: [estimators] {n} = {v!r}: need a table "
-                        f"[estimators.{n}] of settings"
+                        f"{origin}: [{k}] {n} = {v!r}: need a table [{k}.{n}] of "
+                        "settings"
                     )
-            out["estimator_settings"] = {str(n): dict(v) for n, v in value.items()}
+            out[target] = {str(n): dict(v) for n, v in value.items()}
             continue
-        if k == "quick":
+        if k in shorthands:
+            out.setdefault("shorthand_settings", {})[shorthands[k]] = value
             continue
         if k not in FIELDS:
-            raise ConfigError(f"{origin}: unknown key {key!r}{suggest(k, FIELDS)}")
+            allowed = FIELDS | set(shorthands)
+            raise ConfigError(f"{origin}: unknown key {key!r}{suggest(k, allowed)}")
         if k in LIST_FIELDS:
             value = tuple(value) if isinstance(value, list | tuple) else (value,)
-        elif k in ("prior", "grid") and isinstance(value, list):
+        elif k == "prior" and isinstance(value, list):
             value = tuple(value)
         out[k] = value
     return out
 
 
-def load_toml(path: Path) -> dict[str, Any]:
-    """Read a TOML config file into normalised fields."""
+def load_toml(path: Path, shorthands: dict[str, str] | None = None) -> dict[str, Any]:
+    """Read a TOML config file into normalised fields (see :func:`normalise`)."""
     try:
         raw = tomllib.loads(Path(path).read_text())
     except FileNotFoundError:
@@ -305,21 +367,49 @@ def load_toml(path: Path) -> dict[str, Any]:
     if compare is not None and not isinstance(compare, dict):
         raise ConfigError(f"{origin}: compare = {compare!r}: need a [compare] table")
     if isinstance(compare, dict):  # normalised apart: [estimators.X] vs a list
-        return {**normalise(compare, origin), **normalise(raw, origin)}
-    return normalise(raw, origin)
+        return {
+            **normalise(compare, origin, shorthands),
+            **normalise(raw, origin, shorthands),
+        }
+    return normalise(raw, origin, shorthands)
 
 
 def build_config(
-    *, quick: bool = False, toml: dict[str, Any] | None = None, **cli: Any
+    *,
+    quick: bool = False,
+    toml: dict[str, Any] | None = None,
+    registry: Any = None,
+    **cli: Any,
 ) -> CompareConfig:
-    """Merge TOML fields and CLI fields (CLI wins) into a validated config."""
-    fields = {**(toml or {}), **{k: v for k, v in cli.items() if v is not None}}
-    if "estimator_settings" in (toml or {}) and "estimator_settings" in cli:
-        fields["estimator_settings"] = {
-            **toml["estimator_settings"],  # type: ignore[index]
-            **cli["estimator_settings"],
-        }
+    """Merge TOML fields and CLI fields (CLI wins) into a validated config.
+
+    ``shorthand_settings`` (from a model's shorthand options) and a single
+    ``[model.NAME]`` table apply to the chosen model: ``model`` if given, else
+    the one ``[model.NAME]`` table, else ``registry``'s default model.
+    """
+    toml = dict(toml or {})
+    given = {k: v for k, v in cli.items() if v is not None}
+    fields = {**toml, **given}
+    for table in ("estimator_settings", "model_settings", "shorthand_settings"):
+        if table in toml and table in given:
+            fields[table] = {**toml[table], **given[table]}
+    short = fields.pop("shorthand_settings", {})
+    models = dict(fields.get("model_settings", {}))
+    if "model" not in fields and len(models) == 1:
+        fields["model"] = next(iter(models))
+    if short:
+        name = fields.get("model")
+        if name is None and registry is not None:
+            try:
+                name = registry.default_model()
+            except KeyError as exc:
+                raise ConfigError(str(exc.args[0])) from None
+        if name is None:
+            raise ConfigError("model options given but no model named (--model)")
+        fields["model"] = name
+        models[name] = {**models.get(name, {}), **short}  # shorthands win
+        fields["model_settings"] = models
     try:
-        return CompareConfig.quick(**fields) if quick else CompareConfig(**fields)
+        return CompareConfig(**{**fields, "quick": quick or fields.get("quick", False)})
     except TypeError as exc:
         raise ConfigError(str(exc)) from None

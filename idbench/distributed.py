@@ -1,6 +1,6 @@
 """Run a sweep on a Dask cluster (``pip install 'idbench[dask]'``).
 
-Each run is shipped as its small, picklable :class:`~idbench.harness.RunSpec`;
+Each run is shipped as its small, picklable :class:`~idbench.runspec.RunSpec`;
 a worker builds (once per process) its own registry and models, loads the truth
 from the shared cache (computed once by the client before dispatch, see
 :func:`idbench.sweep.prepare`) and sends back the run's rows. Results stream
@@ -21,7 +21,7 @@ from typing import Any
 
 from idbench.config import ConfigError
 from idbench.executors import RunResult, run_in_worker, worker_lost
-from idbench.harness import RunSpec
+from idbench.runspec import RunSpec
 
 log = logging.getLogger(__name__)
 

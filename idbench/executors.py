@@ -24,8 +24,11 @@ from collections.abc import Callable, Generator, Iterator
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
-from idbench.harness import RunSpec, Session, base_row, execute
+from idbench.harness import execute
 from idbench.interfaces import FloatArray
+from idbench.runspec import RunSpec
+from idbench.scoring import base_row
+from idbench.session import Session
 
 log = logging.getLogger(__name__)
 

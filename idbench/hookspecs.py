@@ -16,12 +16,17 @@ hookspec = pluggy.HookspecMarker("idbench")
 
 
 @hookspec
-def register_models(register: Callable[[str, Callable[..., Any]], None]) -> None:
+def register_models(register: Callable[..., None]) -> None:
     """Register forward-model factories.
 
-    Call ``register(name, factory)`` once per model, where ``factory(spec)``
-    takes an :class:`idbench.ModelSpec` and returns an object implementing
-    :class:`idbench.ForwardModel` (and optionally ``sensitivity``).
+    Call ``register(name, factory, settings=Settings, defaults=ModelDefaults(...))``
+    once per model, where ``factory(spec)`` takes an :class:`idbench.ModelSpec`
+    and returns an object implementing :class:`idbench.ForwardModel` (and
+    optionally ``sensitivity``, ``probes``, ``n_nodes``). ``settings`` is the
+    dataclass of the model's own settings (all fields with defaults; set with
+    ``--model-option NAME=VALUE`` or ``[model.NAME]`` in TOML), ``defaults``
+    what a comparison uses when the user does not say
+    (:class:`idbench.ModelDefaults`); both optional.
     """
 
 
@@ -41,4 +46,15 @@ def register_scenarios(register: Callable[[Any], None]) -> None:
 
     Call ``register(scenario)`` once per :class:`idbench.Scenario`; its
     ``name`` is the registry key.
+    """
+
+
+@hookspec
+def register_commands(register: Callable[[str, Any], None]) -> None:
+    """Register ``idbench`` subcommands.
+
+    Call ``register(name, idbench.Command(help, configure, run))`` once per
+    command: ``configure(parser)`` adds its arguments, ``run(args)`` executes
+    it and returns the exit status. Tools that only make sense for one model
+    (the beam's ``calibrate``) live in its plugin this way.
     """

@@ -55,20 +55,29 @@ class ParameterSpec:
     Attributes
     ----------
     names
-        One name per parameter, e.g. ``("E",)`` or ``("E_region0", "E_region1")``.
+        One name per parameter, e.g. ``("E",)`` or ``("E_region0", "E_region1")``;
+        the tables' columns are named after them (``E_final``, ``k_final``).
     lower, upper
         Bounds per parameter; an estimate outside them is a divergence.
+    default
+        True values a comparison uses when it is not given them (``--true``),
+        or None: then they must be given.
     """
 
     names: tuple[str, ...]
     lower: tuple[float, ...]
     upper: tuple[float, ...]
+    default: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         if not self.names:
             raise ValueError("a model needs at least one parameter")
         if not len(self.names) == len(self.lower) == len(self.upper):
             raise ValueError("names, lower and upper must have the same length")
+        if len(set(self.names)) != len(self.names):
+            raise ValueError(f"parameter names {self.names} repeat a name")
+        if self.default is not None and len(self.default) != len(self.names):
+            raise ValueError("default must have one value per parameter")
         for n, lo, hi in zip(self.names, self.lower, self.upper, strict=True):
             if not lo < hi:
                 raise ValueError(f"parameter {n!r}: lower {lo} must be < upper {hi}")
@@ -195,8 +204,14 @@ class ForwardModel(Protocol):
     """A quasi-static load path on a discretised body, parameterised by theta.
 
     The model is stateless between calls: every state is passed in and returned
-    (a flat float array of the free displacements), so several sigma points can
-    advance from the same step.
+    (a flat float array, e.g. the free displacements), so several sigma points
+    can advance from the same step.
+
+    Optional members the core uses when present: ``n_nodes`` (int, the mesh
+    size reported in the tables), ``probes(state) -> dict[str, float]`` (named
+    scalar outputs, recorded per step for the truth in the traces table, e.g.
+    a tip displacement), ``sensitivity`` (see :class:`SensitiveModel`).
+    :func:`idbench.testing.check_model` checks them.
     """
 
     parameters: ParameterSpec
@@ -220,7 +235,7 @@ class ForwardModel(Protocol):
         ...
 
     def grid(self, state: FloatArray) -> FloatArray:
-        """Displacements of the shape-error grid points, shape (g, 3)."""
+        """Displacements of the shape-error points, shape (g, d)."""
         ...
 
     def cost(self) -> Cost:
@@ -271,35 +286,57 @@ class ModelSpec:
     Attributes
     ----------
     mesh
-        Mesh spec: ``"NXxNYxNZ"`` divisions, a bare node-count target, or a path.
+        The model's discretisation, a string the model interprets (a mesh
+        spec or a path).
     scenario
-        The load path.
+        The load path; the model interprets ``scenario.load``.
     n_steps
         Number of load steps K.
-    nu
-        Poisson ratio (fixed, unless a parameter).
     markers
-        Number of marker points M; the model places them on its geometry
-        (for the beam: the two top end-face corners first).
-    grid
-        Points per axis (nx, ny, nz) of the regular shape-error grid inside the
-        body; the default (20, 4, 4) is the study's 4 x 4 x 20 grid, 20 along
-        the beam axis x.
-    parameters
-        What theta is: ``"E"`` (one modulus) or ``"E_regions"``.
-    options
-        Model-specific settings (e.g. ``{"regions": 2}``), JSON-serialisable.
+        Number of observation points M (the sparsity axis ``obs_points``).
+    settings
+        The model's own settings: an instance of the settings dataclass it
+        registered (None: its defaults). A factory may also accept a plain
+        mapping of them, for scripts and tests.
     """
 
     mesh: str
     scenario: Scenario
     n_steps: int = 20
-    nu: float = 0.45
     markers: int = 2
-    grid: tuple[int, int, int] = (20, 4, 4)
-    parameters: str = "E"
-    options: tuple[tuple[str, Any], ...] = field(default_factory=tuple)
+    settings: Any = None
 
-    def option(self, name: str, default: Any = None) -> Any:
-        """Look up a model-specific option."""
-        return dict(self.options).get(name, default)
+
+@dataclass(frozen=True)
+class ModelDefaults:
+    """What a model plugin proposes for a comparison nobody configured.
+
+    Registered with the model (``register(name, factory, defaults=...)``); the
+    command line and :class:`idbench.config.CompareConfig` fill every value the
+    user does not give from the chosen model's defaults.
+
+    Attributes
+    ----------
+    truth_mesh, meshes, scenarios
+        The truth discretisation, the model discretisations and the scenario
+        names of the default comparison.
+    prior
+        Prior (mean, std) of every parameter, natural units.
+    quick
+        Overrides for ``--quick`` (e.g. ``{"truth_mesh": ..., "meshes": [...]}``).
+    shorthands
+        Extra ``idbench compare`` options that set one of the model's settings:
+        option name (without ``--``) -> (setting name, help text), e.g.
+        ``{"nu": ("nu", "Poisson ratio")}``.
+    primary
+        Whether this is the model ``idbench compare`` uses when none is named
+        and several are registered.
+    """
+
+    truth_mesh: str
+    meshes: tuple[str, ...]
+    scenarios: tuple[str, ...]
+    prior: tuple[float, float]
+    quick: dict[str, Any] = field(default_factory=dict, hash=False)
+    shorthands: dict[str, tuple[str, str]] = field(default_factory=dict, hash=False)
+    primary: bool = False

@@ -20,6 +20,7 @@ from typing import Any
 import pluggy
 
 from idbench import hookspecs
+from idbench.interfaces import ModelDefaults
 from idbench.scenario import Scenario
 
 log = logging.getLogger(__name__)
@@ -93,11 +94,45 @@ def _versions(pm: pluggy.PluginManager) -> dict[str, str]:
 
 @dataclass
 class Entry:
-    """One registered thing and the plugin it came from."""
+    """One registered thing and the plugin it came from.
+
+    Attributes
+    ----------
+    name, obj, plugin
+        The registry name, what was registered, and by which plugin.
+    settings
+        Models: the settings dataclass (None: the model has no settings).
+    defaults
+        Models: their :class:`~idbench.interfaces.ModelDefaults`, or None.
+    """
 
     name: str
     obj: Any
     plugin: str
+    settings: type | None = None
+    defaults: ModelDefaults | None = None
+
+
+@dataclass(frozen=True)
+class Command:
+    """A subcommand of ``idbench`` contributed by a plugin.
+
+    Attributes
+    ----------
+    help
+        One line for ``idbench --help``.
+    configure
+        ``configure(parser)`` adds the command's arguments to an
+        :class:`argparse.ArgumentParser`.
+    run
+        ``run(args) -> int`` executes it (its exit status). Raising
+        :class:`idbench.ConfigError` (or ``ValueError``) prints one line and
+        exits with status 2.
+    """
+
+    help: str
+    configure: Callable[[Any], None]
+    run: Callable[[Any], int]
 
 
 @dataclass
@@ -115,7 +150,44 @@ class Registry:
     models: dict[str, Entry] = field(default_factory=dict)
     estimators: dict[str, Entry] = field(default_factory=dict)
     scenarios: dict[str, Entry] = field(default_factory=dict)
+    commands: dict[str, Entry] = field(default_factory=dict)
     errors: dict[str, str] = field(default_factory=dict)
+
+    def default_model(self) -> str:
+        """The model a comparison uses when none is named.
+
+        The only model with defaults, else the one registered as primary.
+
+        Raises
+        ------
+        KeyError
+            If that does not single one out; the message lists the choices.
+        """
+        usable = [n for n, e in self.models.items() if e.defaults is not None]
+        primary = [n for n in usable if self.models[n].defaults.primary]  # type: ignore[union-attr]
+        if len(usable) == 1:
+            return usable[0]
+        if len(primary) == 1:
+            return primary[0]
+        allowed = ", ".join(sorted(self.models)) or "none registered"
+        raise KeyError(f"no default model: name one with --model ({allowed})")
+
+    def reference_estimator(self) -> str:
+        """The estimator whose fit gives E_ref: the one flagged ``reference``.
+
+        An estimator class marks itself with a class attribute
+        ``reference = True`` (the best constant fit over the whole path).
+        """
+        flagged = [
+            n for n, e in self.estimators.items() if getattr(e.obj, "reference", False)
+        ]
+        if len(flagged) != 1:
+            allowed = ", ".join(sorted(self.estimators)) or "none registered"
+            raise KeyError(
+                f"no single reference estimator registered ({len(flagged)} flagged): "
+                f"name one with reference = NAME ({allowed})"
+            )
+        return flagged[0]
 
     def model(self, name: str) -> Callable[..., Any]:
         """The model factory registered as ``name``."""
@@ -170,11 +242,41 @@ def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
     pm = pm or get_plugin_manager()
     reg = Registry(errors=dict(_load_errors(pm)))
 
-    def model_cb(plugin: str) -> Callable[[str, Callable[..., Any]], None]:
-        def register(name: str, factory: Callable[..., Any]) -> None:
+    def model_cb(plugin: str) -> Callable[..., None]:
+        def register(
+            name: str,
+            factory: Callable[..., Any],
+            *,
+            settings: type | None = None,
+            defaults: ModelDefaults | None = None,
+        ) -> None:
             if not callable(factory):
                 raise PluginError(f"plugin {plugin!r}: model {name!r} is not callable")
+            if settings is not None and not (
+                isinstance(settings, type) and dataclasses.is_dataclass(settings)
+            ):
+                raise PluginError(
+                    f"plugin {plugin!r}: settings of model {name!r} must be a "
+                    "dataclass type"
+                )
+            if defaults is not None and not isinstance(defaults, ModelDefaults):
+                raise PluginError(
+                    f"plugin {plugin!r}: defaults of model {name!r} must be an "
+                    "idbench.ModelDefaults"
+                )
             _add(reg.models, "model", name, factory, plugin)
+            reg.models[name].settings = settings
+            reg.models[name].defaults = defaults
+
+        return register
+
+    def command_cb(plugin: str) -> Callable[[str, Command], None]:
+        def register(name: str, command: Command) -> None:
+            if not isinstance(command, Command):
+                raise PluginError(
+                    f"plugin {plugin!r}: command {name!r} must be an idbench.Command"
+                )
+            _add(reg.commands, "command", name, command, plugin)
 
         return register
 
@@ -200,6 +302,7 @@ def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
         (pm.hook.register_scenarios, scenario_cb),
         (pm.hook.register_models, model_cb),
         (pm.hook.register_estimators, estimator_cb),
+        (pm.hook.register_commands, command_cb),
     ]
     for hook, make_cb in hooks:
         for impl in hook.get_hookimpls():
@@ -219,7 +322,7 @@ def _withdraw(reg: Registry, plugin: str, message: str) -> None:
     """Record ``plugin`` as broken and remove all it registered."""
     log.warning("plugin %r disabled: %s", plugin, message)
     reg.errors[plugin] = message
-    for table in (reg.models, reg.estimators, reg.scenarios):
+    for table in (reg.models, reg.estimators, reg.scenarios, reg.commands):
         for key in [k for k, e in table.items() if e.plugin == plugin]:
             del table[key]
 

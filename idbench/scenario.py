@@ -2,50 +2,57 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import json
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 
 @dataclass(frozen=True)
 class Scenario:
-    """A quasi-static load path: dead end traction ramped over K steps.
+    """A named quasi-static load path, ramped over K steps by the model.
 
-    At step k of K the traction is ``(k / K) * magnitude * direction``.
+    The core treats the load as opaque: the model plugin that registers a
+    scenario also interprets its ``load`` (a beam reads an end traction, an
+    organ a grasp force or gravity). Everything the core needs is the name,
+    the transfer target and a description.
 
     Attributes
     ----------
     name
-        Registry name, e.g. ``"bend-y"``.
-    direction
-        Unit vector (3,).
-    magnitude
-        End traction in Pa.
+        Registry name.
+    load
+        The load description, JSON-serialisable (plain dicts, lists, strings,
+        numbers); its meaning belongs to the model.
     transfer
-        Name of the scenario used for the transfer error.
+        Name of another registered scenario, used for the transfer error
+        (empty: none).
     description
         One line for listings.
     """
 
     name: str
-    direction: tuple[float, float, float]
-    magnitude: float
+    load: dict[str, Any] = field(default_factory=dict, hash=False)
     transfer: str = ""
     description: str = ""
 
     def __post_init__(self) -> None:
-        d = np.asarray(self.direction, dtype=float)
-        if d.shape != (3,) or not np.isclose(np.linalg.norm(d), 1.0):
+        if not isinstance(self.name, str) or not self.name.strip():
+            raise ValueError(f"scenario name {self.name!r}: need a non-empty string")
+        if not isinstance(self.load, dict):
+            raise ValueError(f"scenario {self.name!r}: load must be a dict")
+        try:
+            json.dumps(self.load, allow_nan=False)
+        except (TypeError, ValueError) as exc:
             raise ValueError(
-                f"scenario {self.name!r}: direction must be a unit 3-vector"
+                f"scenario {self.name!r}: load is not JSON-serialisable ({exc})"
+            ) from None
+        if not isinstance(self.transfer, str) or self.transfer == self.name:
+            raise ValueError(
+                f"scenario {self.name!r}: transfer {self.transfer!r} must be the "
+                "name of another scenario"
             )
-        if not self.magnitude > 0:
-            raise ValueError(f"scenario {self.name!r}: magnitude must be > 0")
-
-    def traction(self, k: int, n_steps: int) -> NDArray[np.float64]:
-        """Traction vector (3,) at step ``k`` of ``n_steps``."""
-        return (k / n_steps) * self.magnitude * np.asarray(self.direction, dtype=float)
 
 
 @dataclass(frozen=True)

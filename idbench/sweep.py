@@ -8,6 +8,7 @@ every finished run and a rerun with the same directory skips them.
 
 from __future__ import annotations
 
+import functools
 import importlib.metadata
 import logging
 import os
@@ -19,14 +20,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from idbench.config import CompareConfig, ConfigError, public_settings, suggest
 from idbench.executors import THREAD_ENV, execute_all
-from idbench.harness import RunSpec, Session, expand
-from idbench.interfaces import ModelFailure
+from idbench.interfaces import ForwardModel, ModelFailure, ModelSpec, ParameterSpec
 from idbench.plugins import Registry, build_registry
 from idbench.results import ResultStore
+from idbench.runspec import RunSpec, Setup, expand
+from idbench.session import Session, model_settings, settings_identity, settings_items
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +46,11 @@ class Plan:
 
 
 def plan(config: CompareConfig, session: Session) -> Plan:
-    """Validate ``config`` against the registry and build its runs.
+    """Validate ``config`` against the registry, resolve it and build its runs.
+
+    Every default the config leaves open is filled from what the plugins
+    registered (:meth:`CompareConfig.resolve`); the true values from the
+    model's parameter defaults and ``config.true``.
 
     Raises
     ------
@@ -51,50 +58,46 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         Naming the first bad value and what is allowed.
     """
     reg = session.registry
+    config = config.resolve(reg)
+    assert config.model and config.scenarios and config.meshes and config.truth_mesh
     _known("model", [config.model], reg.models, reg)
     _known("estimator", config.estimators, reg.estimators, reg)
     _known("scenario", config.scenarios, reg.scenarios, reg)
     _known("reference estimator", [config.reference], reg.estimators, reg)
-    for name, settings in config.estimator_settings.items():
-        _known("estimator (in settings)", [name], reg.estimators, reg)
-        cls = reg.estimator(name)
-        fields = set(public_settings(cls))
-        for key in settings:
-            if key not in fields:
-                raise ConfigError(
-                    f"estimator {name!r} has no setting {key!r}{suggest(key, fields)}; "
-                    f"allowed: {', '.join(sorted(fields))}"
-                )
-        try:
-            cls(**settings)
-        except (TypeError, ValueError) as exc:
-            raise ConfigError(f"estimator {name!r}: {exc}") from None
-        except Exception as exc:  # a plugin's own bug, still one clean line
+    for name in config.scenarios:
+        target = reg.scenario(name).transfer
+        if target and target not in reg.scenarios:
             raise ConfigError(
-                f"estimator {name!r} (plugin {reg.estimators[name].plugin!r}) "
-                f"raised {type(exc).__name__}: {exc}"
-            ) from None
-    runs = expand(config)
-    nodes: dict[str, int] = {}
-    solves = 0
-    for mesh in (*config.meshes, config.truth_mesh):
-        try:
-            model = session.model(
-                runs[0], mesh, role="truth" if mesh == config.truth_mesh else "est"
+                f"scenario {name!r} names transfer scenario {target!r}, which is not "
+                f"registered; allowed: {', '.join(sorted(reg.scenarios))}"
             )
-        except ConfigError:
-            raise
-        except (ValueError, OSError, RuntimeError) as exc:
-            text = str(exc)  # readers often name the mesh already
-            message = text if repr(mesh) in text else f"mesh {mesh!r}: {text}"
-            raise ConfigError(message) from None
-        except Exception as exc:  # a model plugin's own bug, still one clean line
-            raise ConfigError(
-                f"model {config.model!r} (plugin {reg.models[config.model].plugin!r}) "
-                f"raised {type(exc).__name__} building mesh {mesh!r}: {exc}"
-            ) from None
+    for name in config.model_settings:
+        _known("model (in model settings)", [name], reg.models, reg)
+        model_settings(reg, name, config.model_settings[name])
+    for name, settings in config.estimator_settings.items():
+        _check_estimator_settings(reg, name, settings)
+    settings = model_settings(
+        reg, config.model, config.model_settings.get(config.model, {})
+    )
+    probe = _build(reg, config, config.meshes[0], settings)
+    setup = Setup(
+        model=config.model,
+        model_settings=settings_items(settings),
+        identity=settings_identity(settings),
+        truth_mesh=config.truth_mesh,
+        steps=config.steps,
+        true=_true_values(probe.parameters, config.true, config.model),
+        prior=(float(config.prior[0]), float(config.prior[1])),  # type: ignore[index]
+        reference=config.reference,  # type: ignore[arg-type]
+    )
+    runs = expand(config, setup)
+    nodes: dict[str, int] = {}
+    for mesh in (*config.meshes, config.truth_mesh):
+        role = "truth" if mesh == config.truth_mesh else "est"
+        build = functools.partial(session.model, runs[0], mesh, role=role)
+        model = _build(reg, config, mesh, settings, build)
         nodes[mesh] = int(getattr(model, "n_nodes", 0))
-    session.theta_true(session.model(runs[0], config.meshes[0]), runs[0])
+    solves = 0
     for spec in runs:
         try:
             est = reg.estimator(spec.estimator)(**dict(spec.settings))
@@ -103,10 +106,99 @@ def plan(config: CompareConfig, session: Session) -> Plan:
             est = None
         model = session.model(spec, spec.mesh)
         guess = getattr(est, "estimate_solves", None)
-        n_state = int(getattr(model, "n_state", 0))
+        n_state = model.reset().size
         p = model.parameters.p
-        solves += int(guess(n_state, p, spec.steps)) if guess else 2 * spec.steps
+        steps = config.steps
+        solves += int(guess(n_state, p, steps)) if guess else 2 * steps
     return Plan(config, runs, nodes, solves)
+
+
+def _build(
+    reg: Registry,
+    config: CompareConfig,
+    mesh: str,
+    settings: Any,
+    build: Callable[[], ForwardModel] | None = None,
+) -> ForwardModel:
+    """Build a model of ``mesh``; a failure is one :class:`ConfigError` line."""
+    assert config.model and config.scenarios
+    if build is None:
+
+        def build() -> ForwardModel:
+            spec = ModelSpec(
+                mesh=mesh,
+                scenario=reg.scenario(config.scenarios[0]),  # type: ignore[index]
+                n_steps=config.steps,
+                markers=config.obs_points[0],
+                settings=settings,
+            )
+            return reg.model(config.model)(spec)  # type: ignore[no-any-return,arg-type]
+
+    try:
+        return build()
+    except ConfigError:
+        raise
+    except (ValueError, OSError, RuntimeError) as exc:
+        text = str(exc)  # readers often name the mesh already
+        message = text if repr(mesh) in text else f"mesh {mesh!r}: {text}"
+        raise ConfigError(message) from None
+    except Exception as exc:  # a model plugin's own bug, still one clean line
+        raise ConfigError(
+            f"model {config.model!r} (plugin {reg.models[config.model].plugin!r}) "
+            f"raised {type(exc).__name__} building mesh {mesh!r}: {exc}"
+        ) from None
+
+
+def _true_values(
+    parameters: ParameterSpec, given: dict[str, float], model: str
+) -> tuple[tuple[str, float], ...]:
+    """The true value of every parameter: ``given``, else the model's default."""
+    names = parameters.names
+    for name in given:
+        if name not in names:
+            raise ConfigError(
+                f"true value for {name!r}: model {model!r} has no such parameter; "
+                f"its parameters: {', '.join(names)}"
+            )
+    defaults = parameters.default or (None,) * len(names)
+    values = []
+    for name, default in zip(names, defaults, strict=True):
+        value = given.get(name, default)
+        if value is None:
+            raise ConfigError(
+                f"no true value for parameter {name!r} of model {model!r}: "
+                f"give one with --true {name}=VALUE"
+            )
+        values.append((name, float(value)))
+    if not parameters.contains(np.array([v for _, v in values])):
+        raise ConfigError(
+            f"true values {dict(values)} lie outside the parameter bounds "
+            f"{parameters.lower}..{parameters.upper}"
+        )
+    return tuple(values)
+
+
+def _check_estimator_settings(
+    reg: Registry, name: str, settings: dict[str, Any]
+) -> None:
+    _known("estimator (in settings)", [name], reg.estimators, reg)
+    cls = reg.estimator(name)
+    fields = set(public_settings(cls))
+    for key in settings:
+        if key not in fields:
+            raise ConfigError(
+                f"estimator {name!r} has no setting {key!r}{suggest(key, fields)}; "
+                f"allowed: {', '.join(sorted(fields))}"
+            )
+    try:
+        cls(**settings)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"estimator {name!r}: {exc}") from None
+    except Exception as exc:  # a plugin's own bug, still one clean line
+        raise ConfigError(
+            f"estimator {name!r} (plugin {reg.estimators[name].plugin!r}) "
+            f"raised {type(exc).__name__}: {exc}"
+        ) from None
 
 
 def _known(kind: str, names: Any, table: dict[str, Any], reg: Registry) -> None:
@@ -227,7 +319,7 @@ def _compare(
         scheduler=scheduler,
         timeout=config.timeout if isolate else None,
         order=interleave,
-        key=Session.reference_key,
+        key=RunSpec.reference_key,
     )
     order = [r.run_id for r in the_plan.runs]
     try:
@@ -255,23 +347,15 @@ def prepare(runs: list[RunSpec], session: Session) -> None:
     for spec in runs:
         scen = session.registry.scenario(spec.scenario)
         for name in (spec.scenario, scen.transfer):
-            key = (
-                name,
-                spec.truth_mesh,
-                spec.steps,
-                spec.nu,
-                spec.parameters,
-                spec.model_options,
-                spec.E_true,
-            )
-            if name and name in session.registry.scenarios and key not in seen:
+            key = spec.setup.truth_key(name)
+            if name and key not in seen:
                 seen.add(key)
                 try:
                     session.truth(spec, name)
                 except ModelFailure as exc:
                     raise ConfigError(
-                        f"the truth ({spec.truth_mesh}, {name}) cannot be simulated "
-                        f"with these settings: {exc}"
+                        f"the truth ({spec.setup.truth_mesh}, {name}) cannot be "
+                        f"simulated with these settings: {exc}"
                     ) from None
 
 
@@ -284,7 +368,7 @@ def interleave(runs: list[RunSpec]) -> list[RunSpec]:
     """
     groups: dict[Any, list[RunSpec]] = {}
     for spec in runs:
-        groups.setdefault(Session.reference_key(spec), []).append(spec)
+        groups.setdefault(spec.reference_key(), []).append(spec)
     order: list[RunSpec] = []
     columns = list(groups.values())
     for i in range(max((len(c) for c in columns), default=0)):

@@ -43,15 +43,16 @@ class Truth:
     observations
         Noise-free marker displacements per step, shape (K, m).
     grid
-        Shape-error grid displacements per step, shape (K, G, 3).
-    tip
-        Tip displacement per step, shape (K, 3) (NaN if the model has no tip).
+        Shape-error point displacements per step, shape (K, G, d).
+    probes
+        The model's named outputs per step, name -> (K,) (empty if the model
+        has no ``probes``).
     """
 
     states: FloatArray
     observations: FloatArray
     grid: FloatArray
-    tip: FloatArray
+    probes: dict[str, FloatArray]
 
 
 def truth_key(model: ForwardModel, theta: FloatArray) -> str:
@@ -84,13 +85,17 @@ def simulate_path(
 
 
 def probe(model: ForwardModel, states: FloatArray) -> Truth:
-    """Observations, grid and tip displacements of each state."""
-    tip = getattr(model, "tip", None)
+    """Observations, shape-error points and probes of each state."""
+    probes: Any = getattr(model, "probes", None)
+    named: dict[str, list[float]] = {}
+    for s in states if callable(probes) else ():
+        for name, value in probes(s).items():
+            named.setdefault(name, []).append(float(value))
     return Truth(
         states=states,
         observations=np.array([model.observe(s) for s in states]),
         grid=np.array([model.grid(s) for s in states]),
-        tip=np.array([tip(s) if tip else np.full(3, np.nan) for s in states]),
+        probes={name: np.array(values) for name, values in named.items()},
     )
 
 

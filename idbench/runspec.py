@@ -1,0 +1,156 @@
+"""One run description, from which every key of a run derives.
+
+A comparison is a :class:`Setup` (what every run shares: the model and its
+resolved settings, the truth, the true values, the prior) times the per-run
+axes (scenario, mesh, estimator and its settings, sparsity, seed). The run id,
+the noise seed, the truth key, the reference-fit key and the resume check all
+derive from a :class:`RunSpec`; nothing copies its fields by hand.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from idbench.config import CompareConfig
+from idbench.files import stable_hash
+from idbench.scenario import Sparsity
+
+Items = tuple[tuple[str, Any], ...]
+
+
+@dataclass(frozen=True)
+class Setup:
+    """What every run of a comparison shares, fully resolved.
+
+    Attributes
+    ----------
+    model
+        Registered model name.
+    model_settings
+        The model's settings, all of them (defaults filled in), as sorted items.
+    identity
+        What of the settings identifies the data (the settings dataclass's
+        ``identity()`` if it has one, else all of them), JSON-able.
+    truth_mesh
+        The truth's discretisation.
+    steps
+        Load steps K.
+    true
+        True value of every parameter, in the model's parameter order.
+    prior
+        Prior (mean, std) of every parameter.
+    reference
+        Estimator whose fit gives the reference value.
+    """
+
+    model: str
+    model_settings: Items
+    identity: tuple[Any, ...]
+    truth_mesh: str
+    steps: int
+    true: Items
+    prior: tuple[float, float]
+    reference: str
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Parameter names."""
+        return tuple(n for n, _ in self.true)
+
+    def truth_key(self, scenario: str) -> str:
+        """What the truth of ``scenario`` depends on."""
+        return stable_hash(
+            [self.model, list(self.identity), self.truth_mesh, self.steps,
+             self._true_key(), scenario]
+        )  # fmt: skip
+
+    def _true_key(self) -> Any:
+        values = [v for _, v in self.true]
+        return values[0] if len(values) == 1 else values
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run: the shared set-up and the run's own axes; small and picklable.
+
+    ``timeout`` is how long the run may take, not what it computes: it is left
+    out of every key.
+    """
+
+    setup: Setup
+    scenario: str
+    mesh: str
+    estimator: str
+    settings: Items
+    seed: int
+    obs_every: int
+    obs_points: int
+    noise: float
+    timeout: float | None = None
+
+    @property
+    def run_id(self) -> str:
+        """Deterministic hash of the run description (timeout excluded)."""
+        fields = dataclasses.asdict(self)
+        fields.pop("timeout")
+        return stable_hash(fields)
+
+    @property
+    def sparsity(self) -> Sparsity:
+        """The run's sparsity settings."""
+        return Sparsity(self.obs_every, self.obs_points, self.noise)
+
+    def data_key(self) -> list[Any]:
+        """What the observation stream depends on (not estimator or model mesh).
+
+        Its hash seeds the noise: the layout (model, scenario, truth, steps,
+        true values, the settings' identity, sparsity, seed) is kept stable so
+        that noise draws, and so results, do not change between versions.
+        """
+        s = self.setup
+        return [
+            s.model, self.scenario, s.truth_mesh, s.steps, s._true_key(),
+            *s.identity, self.obs_every, self.obs_points, self.noise, self.seed,
+        ]  # fmt: skip
+
+    def reference_key(self) -> str:
+        """What the reference fit depends on: runs with the same key share one."""
+        s = self.setup
+        return stable_hash([self.data_key(), self.mesh, s.reference, list(s.prior)])
+
+    def model_key(self, mesh: str, scenario: str, role: str) -> str:
+        """Identity of the forward model of ``mesh`` on ``scenario`` in ``role``."""
+        s = self.setup
+        return stable_hash(
+            [s.model, list(s.model_settings), mesh, scenario, s.steps,
+             self.obs_points, role]
+        )  # fmt: skip
+
+
+def expand(config: CompareConfig, setup: Setup) -> list[RunSpec]:
+    """The runs of a resolved comparison, in a stable order."""
+    assert config.is_resolved(), "resolve the config first"
+    runs = []
+    for scenario in config.scenarios or ():
+        for mesh in config.meshes or ():
+            for sp in config.sparsities():
+                for estimator in config.estimators or ():
+                    settings = config.estimator_settings.get(estimator, {})
+                    for seed in range(config.seeds):
+                        runs.append(
+                            RunSpec(
+                                setup=setup,
+                                scenario=scenario,
+                                mesh=mesh,
+                                estimator=estimator,
+                                settings=tuple(sorted(settings.items())),
+                                seed=seed,
+                                obs_every=sp.obs_every,
+                                obs_points=sp.obs_points,
+                                noise=float(sp.noise),
+                                timeout=config.timeout,
+                            )
+                        )
+    return runs

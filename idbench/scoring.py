@@ -1,0 +1,148 @@
+"""The rows a run writes: its runs-table row and one traces-table row per step.
+
+Column names follow the model's parameter names (``E_final`` for a parameter
+``E``, ``k_final`` for ``k``) and its probes (``tip_x`` ...); no column exists
+that only one model has unless that model reports it. Each metric is defined
+once, in :mod:`idbench.metrics`.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import numpy as np
+
+from idbench import metrics
+from idbench.interfaces import Estimate, FloatArray, Observation
+from idbench.runspec import RunSpec
+from idbench.session import Session
+from idbench.truth import Truth, simulate_path
+
+
+def base_row(spec: RunSpec) -> dict[str, Any]:
+    """The columns every run row has, whatever its status."""
+    s = spec.setup
+    return {
+        "run_id": spec.run_id,
+        "model": s.model,
+        "model_settings": json.dumps(dict(s.model_settings), sort_keys=True),
+        "scenario": spec.scenario,
+        "estimator": spec.estimator,
+        "settings": json.dumps(dict(spec.settings), sort_keys=True),
+        "mesh": spec.mesh,
+        "model_nodes": np.nan,
+        "truth_mesh": s.truth_mesh,
+        "truth_nodes": np.nan,
+        "seed": spec.seed,
+        "obs_every": spec.obs_every,
+        "obs_points": spec.obs_points,
+        "noise": spec.noise,
+        "steps": s.steps,
+        "prior_mean": s.prior[0],
+        "prior_std": s.prior[1],
+        **{f"{n}_true": float(v) for n, v in s.true},
+        "status": "ok",
+        "error": "",
+        "failed_step": np.nan,
+        "traceback": "",
+    }
+
+
+def step_row(
+    spec: RunSpec,
+    k: int,
+    observation: Observation | None,
+    estimate: Estimate,
+    mean: FloatArray,
+    std: FloatArray,
+    grid: FloatArray,
+    truth: Truth,
+    direct: FloatArray,
+) -> dict[str, Any]:
+    """The traces row of step ``k`` (cost columns are added by the caller).
+
+    ``grid`` is the model's shape-error point displacements at this step (its
+    own state, or a forward solve with the current estimate).
+    """
+    se_sum, se_mean = metrics.shape_error(grid, truth.grid[k - 1])
+    row: dict[str, Any] = {
+        "run_id": spec.run_id,
+        "step": k,
+        "load": k / spec.setup.steps,
+        "observed": observation is not None,
+    }
+    for j, n in enumerate(spec.setup.names):
+        row[n] = mean[j]
+        row[f"{n}_std"] = std[j]
+    row.update(
+        shape_error=se_sum,
+        shape_error_mean=se_mean,
+        shape_error_direct=metrics.shape_error(direct[k - 1], truth.grid[k - 1])[0],
+    )
+    for name, values in truth.probes.items():
+        row[name] = values[k - 1]
+    return row
+
+
+def final_columns(
+    spec: RunSpec,
+    session: Session,
+    means: FloatArray,
+    stds: FloatArray,
+    traces: list[dict[str, Any]],
+    estimate: Estimate,
+) -> dict[str, Any]:
+    """The run row's results: estimates, reference, settling, errors, cost."""
+    ref = session.reference(spec)
+    out: dict[str, Any] = {}
+    for j, n in enumerate(spec.setup.names):
+        out[f"{n}_final"] = float(means[-1, j])
+        out[f"{n}_std_final"] = float(stds[-1, j])
+        out[f"{n}_ref"] = float(ref[j])
+    settle = metrics.settling_step(means, ref)
+    out["settling_step"] = settle if settle is not None else np.nan
+    used = metrics.observations_used(settle, spec.obs_every)
+    out["settling_obs"] = used if used is not None else np.nan
+    truth, direct = session.truth(spec), session.direct(spec)
+    out["shape_error_final"] = traces[-1]["shape_error"]
+    out["shape_error_mean_final"] = traces[-1]["shape_error_mean"]
+    out["shape_error_direct"], out["shape_error_direct_mean"] = metrics.shape_error(
+        direct[-1], truth.grid[-1]
+    )
+    out.update(transfer(spec, session, means[-1]))
+    out["n_solves"] = estimate.cost.forward_solves
+    out["newton_its"] = estimate.cost.newton_its
+    out["wall_s_step"] = float(np.mean([t["wall_s"] for t in traces]))
+    return out
+
+
+def empty_parameter_columns(spec: RunSpec) -> dict[str, Any]:
+    """NaN estimate columns, so a failed run's row has them too."""
+    out: dict[str, Any] = {}
+    for n in spec.setup.names:
+        out[f"{n}_final"] = np.nan
+        out[f"{n}_std_final"] = np.nan
+        out[f"{n}_ref"] = np.nan
+    return out
+
+
+def transfer(spec: RunSpec, session: Session, theta: FloatArray) -> dict[str, Any]:
+    """Shape error on the scenario's transfer path with the identified value."""
+    target = session.registry.scenario(spec.scenario).transfer
+    out: dict[str, Any] = {
+        "transfer_scenario": target or "",
+        "transfer_error": np.nan,
+        "transfer_error_direct": np.nan,
+    }
+    if not target:
+        return out
+    model = session.model(spec, spec.mesh, target, role="metrics")
+    truth = session.truth(spec, target)
+    states = simulate_path(model, theta)
+    out["transfer_error"] = metrics.shape_error(
+        model.grid(states[-1]), truth.grid[-1]
+    )[0]
+    direct = session.direct(spec, target)
+    out["transfer_error_direct"] = metrics.shape_error(direct[-1], truth.grid[-1])[0]
+    return out

@@ -1,0 +1,169 @@
+"""Per-process memo of what runs share: models, truths, reference fits, direct runs.
+
+A :class:`Session` belongs to one thread of one process (models keep caches
+such as factorizations that two threads must not use at once). The truth is
+also cached on disk (:mod:`idbench.truth`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from typing import Any
+
+import numpy as np
+
+from idbench.config import ConfigError, public_settings, suggest
+from idbench.interfaces import FloatArray, ForwardModel, ModelSpec, Observation, Prior
+from idbench.plugins import Registry, build_registry
+from idbench.runspec import RunSpec
+from idbench.truth import Truth, simulate_path, simulate_truth
+
+log = logging.getLogger(__name__)
+
+
+def model_settings(registry: Registry, model: str, given: dict[str, Any]) -> Any:
+    """The settings object of ``model`` with ``given`` values (None: no settings).
+
+    Raises
+    ------
+    ConfigError
+        Naming an unknown setting (and the allowed ones) or a bad value.
+    """
+    entry = registry.models[model]
+    cls = entry.settings
+    if cls is None:
+        if given:
+            raise ConfigError(f"model {model!r} has no settings; got {sorted(given)}")
+        return None
+    allowed = public_settings(cls)
+    for key in given:
+        if key not in allowed:
+            raise ConfigError(
+                f"model {model!r} has no setting {key!r}{suggest(key, allowed)}; "
+                f"allowed: {', '.join(allowed)}"
+            )
+    try:
+        return cls(**given)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"model {model!r}: {exc}") from None
+
+
+def settings_items(settings: Any) -> tuple[tuple[str, Any], ...]:
+    """Sorted (name, value) items of a settings object (empty for None)."""
+    if settings is None:
+        return ()
+    return tuple(sorted(dataclasses.asdict(settings).items()))
+
+
+def settings_identity(settings: Any) -> tuple[Any, ...]:
+    """What of ``settings`` identifies the data: its ``identity()`` or all of it."""
+    identity = getattr(settings, "identity", None)
+    if callable(identity):
+        return tuple(identity())
+    return tuple([list(item) for item in settings_items(settings)])
+
+
+class Session:
+    """Per-process memo of models, truths, reference fits and direct runs."""
+
+    def __init__(self, registry: Registry | None = None) -> None:
+        self.registry = registry or build_registry()
+        self._models: dict[str, ForwardModel] = {}
+        self._truths: dict[str, Truth] = {}
+        self._refs: dict[str, FloatArray] = {}
+        self._direct: dict[str, FloatArray] = {}
+
+    def model(
+        self, spec: RunSpec, mesh: str, scenario: str | None = None, role: str = "est"
+    ) -> ForwardModel:
+        """The forward model of ``mesh`` on ``scenario`` (one per role)."""
+        scenario = scenario or spec.scenario
+        key = spec.model_key(mesh, scenario, role)
+        if key not in self._models:
+            setup = spec.setup
+            settings = model_settings(
+                self.registry, setup.model, dict(setup.model_settings)
+            )
+            ms = ModelSpec(
+                mesh=mesh,
+                scenario=self.registry.scenario(scenario),
+                n_steps=setup.steps,
+                markers=spec.obs_points,
+                settings=settings,
+            )
+            self._models[key] = self.registry.model(setup.model)(ms)
+        return self._models[key]
+
+    def theta_true(self, spec: RunSpec) -> FloatArray:
+        """True parameters (p,), in the model's order."""
+        return np.array([v for _, v in spec.setup.true], dtype=float)
+
+    def truth(self, spec: RunSpec, scenario: str | None = None) -> Truth:
+        """The truth of ``scenario`` (default: the run's), from the disk cache."""
+        scenario = scenario or spec.scenario
+        key = spec.setup.truth_key(scenario)
+        if key not in self._truths:
+            model = self.model(spec, spec.setup.truth_mesh, scenario, role="truth")
+            self._truths[key] = simulate_truth(model, self.theta_true(spec))
+        return self._truths[key]
+
+    def observations(self, spec: RunSpec) -> list[Observation | None]:
+        """The noisy, sparse observation stream of a run (seeded from its data)."""
+        from idbench.files import stable_hash
+
+        truth = self.truth(spec)
+        seq = np.random.SeedSequence([spec.seed, int(stable_hash(spec.data_key()), 16)])
+        rng = np.random.default_rng(seq)
+        noise = rng.normal(0.0, 1.0, truth.observations.shape) * spec.noise
+        stream: list[Observation | None] = []
+        for k in range(1, spec.setup.steps + 1):
+            if spec.sparsity.observed(k):
+                values = truth.observations[k - 1] + noise[k - 1]
+                stream.append(Observation(values, spec.noise, k))
+            else:
+                stream.append(None)
+        return stream
+
+    def prior(self, model: ForwardModel, spec: RunSpec) -> Prior:
+        """The run's prior, the same for every parameter."""
+        mean, std = spec.setup.prior
+        return Prior.broadcast(mean, std, model.parameters.p)
+
+    def known_reference(self, spec: RunSpec) -> FloatArray | None:
+        """The reference value of ``spec``'s data if this session has it."""
+        return self._refs.get(spec.reference_key())
+
+    def remember_reference(self, spec: RunSpec, value: FloatArray) -> None:
+        """Seed the reference value of ``spec``'s data (fitted by another worker)."""
+        self._refs[spec.reference_key()] = np.asarray(value, dtype=float)
+
+    def reference(self, spec: RunSpec) -> FloatArray:
+        """The reference estimator fitted on the run's own data."""
+        key = spec.reference_key()
+        if key not in self._refs:
+            model = self.model(spec, spec.mesh, role="ref")
+            p = model.parameters.p
+            try:
+                est = self.registry.estimator(spec.setup.reference)()
+                est.start(model, self.prior(model, spec))
+                e = None
+                for k, obs in enumerate(self.observations(spec), start=1):
+                    e = est.update(k, obs)
+                self._refs[key] = (
+                    np.asarray(e.mean, dtype=float) if e else np.full(p, np.nan)
+                )
+            except Exception as exc:
+                log.warning("reference fit failed for %s: %s", spec.mesh, exc)
+                self._refs[key] = np.full(p, np.nan)
+        return self._refs[key]
+
+    def direct(self, spec: RunSpec, scenario: str | None = None) -> FloatArray:
+        """Shape-error point displacements (K, G, d) of the model run with the truth."""
+        scenario = scenario or spec.scenario
+        model = self.model(spec, spec.mesh, scenario, role="metrics")
+        key = spec.model_key(spec.mesh, scenario, "metrics")
+        if key not in self._direct:
+            states = simulate_path(model, self.theta_true(spec))
+            self._direct[key] = np.array([model.grid(s) for s in states])
+        return self._direct[key]
