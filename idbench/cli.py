@@ -18,9 +18,80 @@ class UsageError(Exception):
     """Bad command-line input; printed as one line, exit status 2."""
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """Help that shows each option's default and the registered names.
+
+    A default is appended as "(default: X)" unless it is None, False or already
+    in the text. ``%(scenarios)s``, ``%(models)s`` and ``%(estimators)s`` in a
+    help text become the registered names; the registry is built only when
+    help is printed.
+    """
+
+    _names: dict[str, str] | None = None
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        default = action.default
+        if (
+            action.option_strings
+            and "%(default)" not in text
+            and "default" not in text
+            and default not in (None, False, argparse.SUPPRESS)
+        ):
+            text += " (default: %(default)s)"
+        return text
+
+    def _expand_help(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if "%(scenarios)" in text or "%(models)" in text or "%(estimators)" in text:
+            names = self.registered()
+            text = text.replace("%(scenarios)s", names["scenarios"])
+            text = text.replace("%(models)s", names["models"])
+            text = text.replace("%(estimators)s", names["estimators"])
+            action = argparse.Action(
+                action.option_strings, action.dest, default=action.default,
+                help=text, choices=action.choices, metavar=action.metavar,
+            )  # fmt: skip
+        return super()._expand_help(action)
+
+    def _format_text(self, text: str) -> str:
+        for kind in ("scenarios", "models", "estimators"):
+            if f"%({kind})s" in text:
+                text = text.replace(f"%({kind})s", self.registered()[kind])
+        return super()._format_text(text)
+
+    @classmethod
+    def registered(cls) -> dict[str, str]:
+        """Registered scenario, model and estimator names, comma-separated."""
+        if cls._names is None:
+            from idbench.plugins import build_registry
+
+            reg = build_registry()
+            cls._names = {
+                "scenarios": ", ".join(reg.scenarios),
+                "models": ", ".join(reg.models),
+                "estimators": ", ".join(reg.estimators),
+            }
+        return cls._names
+
+
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", _HelpFormatter)
+        super().__init__(*args, **kwargs)
+
     def error(self, message: str) -> NoReturn:
         raise UsageError(f"{self.prog}: {message}")
+
+
+def _config_default(name: str) -> str:
+    """A CompareConfig field's default as the command line writes it."""
+    from idbench.config import CompareConfig
+
+    value = getattr(CompareConfig(), name)
+    if isinstance(value, tuple):
+        return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value)
+    return f"{value:g}" if isinstance(value, float) else str(value)
 
 
 def _floats(name: str) -> Any:
@@ -82,64 +153,145 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
     from idbench import __version__
 
-    parser = _Parser(prog="idbench", description=__doc__)
+    parser = _Parser(
+        prog="idbench",
+        description="Compare parameter estimators on coarse finite-element "
+        "soft-body simulations. Run 'idbench COMMAND --help' for a command's "
+        "options.",
+    )
     parser.add_argument("--version", action="version", version=f"idbench {__version__}")
     sub = parser.add_subparsers(dest="command", parser_class=_Parser)
 
     p = sub.add_parser("plugins", help="list plugins and what they registered")
     p.add_argument("--json", action="store_true", help="machine-readable output")
 
-    c = sub.add_parser("compare", help="run a grid of identification runs")
+    c = sub.add_parser(
+        "compare",
+        help="run a grid of identification runs",
+        description="Run every combination of scenario, mesh, estimator, "
+        "sparsity setting and seed; write runs.parquet and traces.parquet into "
+        "--out and print a summary. Comma lists become sweep axes. Options not "
+        "given come from --config, else from the defaults shown.",
+    )
+    d = _config_default
     c.add_argument("--config", type=Path, help="TOML file with any of these options")
     c.add_argument(
         "--quick",
         action="store_true",
         help="small truth (40x5x5), models 14x3x3,20x4x4, one seed",
     )
-    c.add_argument("--estimators", type=_names, help="comma list (default: all five)")
+    c.add_argument(
+        "--estimators",
+        type=_names,
+        help="comma list of estimators (default: all registered: %(estimators)s)",
+    )
     c.add_argument(
         "--meshes",
         type=_names,
-        help="model mesh specs: NXxNYxNZ, node count, or mesh file",
+        help="model mesh specs, comma list: NXxNYxNZ, node count, or mesh file "
+        f"(default: {d('meshes')})",
     )
-    c.add_argument("--truth-mesh", help="truth mesh spec (default 80x11x11)")
-    c.add_argument("--scenarios", type=_names, help="comma list (default bend-y)")
+    c.add_argument("--truth-mesh", help=f"truth mesh spec (default: {d('truth_mesh')})")
     c.add_argument(
-        "--obs-every", type=_ints("obs-every"), help="observe every k-th step"
+        "--scenarios",
+        type=_names,
+        help=f"comma list of %(scenarios)s (default: {d('scenarios')})",
     )
-    c.add_argument("--obs-points", type=_ints("obs-points"), help="marker counts M")
-    c.add_argument("--noise", type=_floats("noise"), help="noise sigma(s) in metres")
-    c.add_argument("--seeds", type=_number("seeds", int), help="number of seeds")
-    c.add_argument("--steps", type=_number("steps", int), help="load steps K")
     c.add_argument(
-        "--E-true", dest="E_true", type=_number("E-true"), help="true E (Pa)"
+        "--obs-every",
+        type=_ints("obs-every"),
+        help=f"observe every k-th step, comma list (default: {d('obs_every')})",
     )
-    c.add_argument("--nu", type=_number("nu"), help="Poisson ratio")
-    c.add_argument("--prior", type=_floats("prior"), help="prior MEAN,STD (Pa)")
-    c.add_argument("--timeout", type=_number("timeout"), help="seconds per run")
     c.add_argument(
-        "--out",
-        type=Path,
-        default=Path("idbench-out"),
-        help="results directory (default ./idbench-out)",
+        "--obs-points",
+        type=_ints("obs-points"),
+        help=f"marker counts M, comma list (default: {d('obs_points')})",
+    )
+    c.add_argument(
+        "--noise",
+        type=_floats("noise"),
+        help=f"noise sigma(s) in metres, comma list (default: {d('noise')})",
+    )
+    c.add_argument(
+        "--seeds",
+        type=_number("seeds", int),
+        help=f"number of noise seeds (default: {d('seeds')}; --quick: 1)",
+    )
+    c.add_argument(
+        "--steps",
+        type=_number("steps", int),
+        help=f"load steps K (default: {d('steps')})",
+    )
+    c.add_argument(
+        "--E-true",
+        dest="E_true",
+        type=_number("E-true"),
+        help=f"true E in Pa (default: {d('E_true')})",
+    )
+    c.add_argument(
+        "--nu", type=_number("nu"), help=f"Poisson ratio (default: {d('nu')})"
+    )
+    c.add_argument(
+        "--prior",
+        type=_floats("prior"),
+        help=f"prior MEAN,STD of each parameter (default: {d('prior')})",
+    )
+    c.add_argument(
+        "--timeout",
+        type=_number("timeout"),
+        help="seconds per run before it is recorded as failed (default: none)",
+    )
+    c.add_argument(
+        "--out", type=Path, default=Path("idbench-out"), help="results directory"
     )
     c.add_argument(
         "--jobs", type=_number("jobs", int), default=1, help="local worker processes"
     )
-    c.add_argument("--scheduler", help="Dask scheduler address tcp://HOST:PORT")
+    c.add_argument(
+        "--scheduler",
+        help="Dask scheduler address tcp://HOST:PORT (default: none, run locally)",
+    )
     c.add_argument(
         "--dry-run",
         action="store_true",
         help="validate, print the run count and a cost estimate",
     )
     c.add_argument(
-        "--plot", action="store_true", help="write figures and report.md into --out"
+        "--plot",
+        action="store_true",
+        help="also write figures, report.md and report.html into --out",
     )
-    c.add_argument("-v", "--verbose", action="count", default=0)
-    c.add_argument("-q", "--quiet", action="store_true")
+    c.add_argument(
+        "--format",
+        choices=("table", "markdown", "csv", "json"),
+        default="table",
+        help="summary format on stdout: table, markdown, csv or json",
+    )
+    c.add_argument(
+        "-v", "--verbose", action="count", default=0,
+        help="log more (-v: info, -vv: debug)",
+    )  # fmt: skip
+    c.add_argument(
+        "-q", "--quiet", action="store_true", help="no progress and no summary"
+    )
 
-    r = sub.add_parser("report", help="figures and report.md for a compare output")
+    r = sub.add_parser(
+        "report",
+        help="figures, report.md and report.html for a compare output",
+        description="Write figures (PNG and SVG), report.md and a self-contained "
+        "report.html into DIR from its runs.parquet and traces.parquet.",
+    )
     r.add_argument("directory", type=Path, help="the --out DIR of idbench compare")
+
+    i = sub.add_parser(
+        "info",
+        help="an estimator's or model's settings, defaults and meaning",
+        description="Print the settings of a registered estimator or model: "
+        "name, type, default and one line of meaning. Estimators: "
+        "%(estimators)s; models: %(models)s.",
+    )
+    i.add_argument("name", help="a registered estimator or model name")
+    i.add_argument("--json", action="store_true", help="machine-readable output")
 
     k = sub.add_parser(
         "calibrate", help="map the effective E of a coarse mesh over load space"
@@ -149,7 +301,8 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument(
         "--angles",
         type=_floats("angles"),
-        help="traction directions, degrees from +x (stretch) to -y (bend), 0..90",
+        help="traction directions, degrees from +x (stretch) to -y (bend), 0..90 "
+        "(default: 0,0.5,1,2,5,15,45,75,90)",
     )
     k.add_argument(
         "--steps", type=_number("steps", int), default=10, help="load levels"
@@ -163,14 +316,14 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument(
         "--evaluate",
         type=_names,
-        help="held-back scenarios to score (default mixed-30,mixed-60,bend-z,"
+        help="held-back scenarios to score (default: mixed-30,mixed-60,bend-z,"
         "stretch-x; 'none' skips)",
     )
     k.add_argument(
         "--evaluate-angles",
         type=_floats("evaluate-angles"),
         default=(3.0, 10.0),
-        help="also score ad-hoc paths at these angles (default 3,10: off the grid)",
+        help="also score ad-hoc paths at these angles (default: 3,10, off the grid)",
     )
     k.add_argument(
         "--seeds", type=_number("seeds", int), default=3, help="RO-UKF seeds"
@@ -179,9 +332,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--out",
         type=Path,
         default=Path("idbench-calibration"),
-        help="output directory (default ./idbench-calibration)",
+        help="output directory",
     )
-    k.add_argument("-q", "--quiet", action="store_true")
+    k.add_argument("-q", "--quiet", action="store_true", help="print only errors")
 
     s = sub.add_parser("simulate", help="simulate a load path and write ParaView files")
     s.add_argument("--mesh", required=True, help="mesh spec")
@@ -214,6 +367,7 @@ def main(argv: list[str] | None = None) -> int:
             "compare": cmd_compare,
             "simulate": cmd_simulate,
             "calibrate": cmd_calibrate,
+            "info": cmd_info,
         }[args.command]
         return handler(args)
     except (UsageError, ConfigError) as exc:
@@ -274,7 +428,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from idbench.config import build_config, load_toml
     from idbench.harness import Session
     from idbench.plugins import build_registry
-    from idbench.report import summary_table
+    from idbench.report import summary_text
     from idbench.sweep import compare, plan
 
     toml = load_toml(args.config) if args.config else None
@@ -299,46 +453,15 @@ def cmd_compare(args: argparse.Namespace) -> int:
         timeout=args.timeout,
     )
     registry = build_registry()
+    the_plan = plan(config, Session(registry))
     if args.dry_run:
-        the_plan = plan(config, Session(registry))
         nodes = ", ".join(f"{m}: {n} nodes" for m, n in the_plan.nodes.items())
         print(
             f"{len(the_plan.runs)} runs; meshes {nodes}; "
             f"about {the_plan.solves} forward solves"
         )
         return 0
-    from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
-    console = Console(stderr=True)
-    show = console.is_terminal and not args.quiet
-    with Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        TextColumn("{task.completed}/{task.total}"),
-        TimeRemainingColumn(),
-        console=console,
-        disable=not show,
-    ) as bar:
-        task = bar.add_task("runs", total=None)
-
-        def progress(done: int, total: int, row: dict[str, Any]) -> None:
-            bar.update(
-                task,
-                completed=done,
-                total=total,
-                description=f"{row['estimator']} {row['mesh']} {row['status']}",
-            )
-            if not show and not args.quiet:
-                log.info(
-                    "run %d/%d %s %s: %s",
-                    done,
-                    total,
-                    row["estimator"],
-                    row["mesh"],
-                    row["status"],
-                )
-
+    with _Progress(the_plan.runs, args.out, args.jobs, quiet=args.quiet) as progress:
         runs, _ = compare(
             config,
             args.out,
@@ -347,20 +470,161 @@ def cmd_compare(args: argparse.Namespace) -> int:
             registry=registry,
             progress=progress,
         )
+    machine = args.format in ("csv", "json")
+    say = sys.stderr if machine else sys.stdout
+    if not args.quiet or machine:
+        width = None
+        if args.format == "table" and sys.stdout.isatty():
+            import shutil
+
+            width = shutil.get_terminal_size().columns
+        print(summary_text(runs, args.format, width=width))
     if not args.quiet:
-        Console().print(summary_table(runs))
-        print(f"wrote {args.out / 'runs.parquet'} and {args.out / 'traces.parquet'}")
+        print(
+            f"wrote {args.out / 'runs.parquet'} and {args.out / 'traces.parquet'}",
+            file=say,
+        )
     if args.plot:
         from idbench.report import write_report
 
         for path in write_report(args.out):
             if not args.quiet:
-                print(f"wrote {path}")
+                print(f"wrote {path}", file=say)
     return 0
 
 
+class _Progress:
+    """Progress of a comparison on stderr: truths being simulated, then runs.
+
+    On a terminal: a bar whose label names what is running. Elsewhere (a pipe,
+    a log file): one line per truth step and per finished run, at most about
+    50 run lines per comparison (every run that is not ok is always shown).
+    Truth steps arrive as log records of ``idbench.truth``.
+    """
+
+    def __init__(self, runs: list[Any], out: Path, jobs: int, quiet: bool) -> None:
+        import time
+
+        from rich.console import Console
+
+        self.console = Console(stderr=True)
+        self.terminal = self.console.is_terminal
+        self.quiet = quiet
+        self.order = list(runs)
+        parts = out / "parts"
+        self.reported = {
+            r.run_id for r in runs if (parts / f"{r.run_id}.runs.parquet").exists()
+        }
+        self.jobs = jobs
+        self.every = max(1, -(-len(runs) // 50))
+        self.t0 = time.perf_counter()
+        self.bar: Any = None
+        self.handler = _TruthLog(self)
+        self.truth_log = logging.getLogger("idbench.truth")
+        self.saved = (self.truth_log.level, self.truth_log.propagate)
+
+    def __enter__(self) -> _Progress:
+        if self.quiet:
+            return self
+        from rich.progress import (
+            BarColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
+        self.bar = Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            TextColumn("{task.completed}/{task.total}"),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+            console=self.console,
+            disable=not self.terminal,
+        )
+        self.bar.__enter__()
+        self.task = self.bar.add_task("preparing: truths", total=len(self.order))
+        self.truth_log.addHandler(self.handler)
+        self.truth_log.setLevel(logging.INFO)
+        self.truth_log.propagate = log.getEffectiveLevel() <= logging.INFO
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.bar is not None:
+            self.bar.__exit__(*exc)
+            self.truth_log.removeHandler(self.handler)
+            self.truth_log.setLevel(self.saved[0])
+            self.truth_log.propagate = self.saved[1]
+
+    def elapsed(self) -> str:
+        import time
+
+        return f"{time.perf_counter() - self.t0:.0f} s"
+
+    def truth(self, message: str) -> None:
+        """A truth step finished (``message`` from idbench.truth's log)."""
+        if self.bar is None:
+            return
+        self.bar.update(self.task, description=message)
+        if not self.terminal:
+            print(f"[{self.elapsed()}] {message}", file=sys.stderr, flush=True)
+
+    def __call__(self, done: int, total: int, row: dict[str, Any]) -> None:
+        """A run finished (the ``progress`` callback of :func:`compare`)."""
+        self.reported.add(row["run_id"])
+        if self.bar is None:
+            return
+        what = _describe(row)
+        nxt = next((r for r in self.order if r.run_id not in self.reported), None)
+        if nxt is None:
+            running = "done"
+        elif self.jobs == 1:
+            running = f"running {nxt.estimator} {nxt.mesh} {nxt.scenario}"
+        else:
+            running = f"running on {self.jobs} workers"
+        self.bar.update(
+            self.task, completed=done, total=total, description=f"runs: {running}"
+        )
+        if not self.terminal and (
+            done % self.every == 0 or done == total or row["status"] != "ok"
+        ):
+            print(
+                f"[{self.elapsed()}] run {done}/{total} finished: {what}",
+                file=sys.stderr,
+                flush=True,
+            )
+
+
+class _TruthLog(logging.Handler):
+    """Forwards idbench.truth's step records to a :class:`_Progress`."""
+
+    def __init__(self, progress: _Progress) -> None:
+        super().__init__(logging.INFO)
+        self.progress = progress
+
+    def emit(self, record: logging.LogRecord) -> None:
+        message = record.getMessage()
+        if message.startswith("truth "):
+            self.progress.truth(message)
+
+
+def _describe(row: dict[str, Any]) -> str:
+    """A finished run in a few words: estimator, mesh, scenario, axes, status."""
+    parts = [str(row.get(k, "")) for k in ("estimator", "mesh", "scenario")]
+    for k in ("obs_every", "obs_points", "noise", "seed"):
+        if k in row:
+            parts.append(
+                f"{k}={row[k]:g}" if isinstance(row[k], float) else f"{k}={row[k]}"
+            )
+    status = row.get("status", "")
+    if status != "ok" and row.get("error"):
+        status = f"{status} ({str(row['error']).splitlines()[0]})"
+    return " ".join(parts) + f": {status}"
+
+
 def cmd_report(args: argparse.Namespace) -> int:
-    """``idbench report DIR``: figures (PNG, SVG) and report.md."""
+    """``idbench report DIR``: figures (PNG, SVG), report.md and report.html."""
     from idbench.report import write_report
 
     try:
@@ -370,6 +634,107 @@ def cmd_report(args: argparse.Namespace) -> int:
     for path in written:
         print(f"wrote {path}")
     return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    """``idbench info NAME``: a registered estimator's or model's settings."""
+    import dataclasses
+
+    from idbench.plugins import build_registry
+
+    reg = build_registry()
+    if args.name in reg.estimators:
+        kind, obj = "estimator", reg.estimator(args.name)
+        plugin = reg.estimators[args.name].plugin
+    elif args.name in reg.models:
+        kind, obj = "model", reg.model(args.name)
+        plugin = reg.models[args.name].plugin
+    else:
+        known = sorted({*reg.estimators, *reg.models})
+        raise UsageError(f"unknown name {args.name!r}; known: {', '.join(known)}")
+    target = obj if dataclasses.is_dataclass(obj) else getattr(obj, "Settings", None)
+    rows = []
+    if isinstance(target, type) and dataclasses.is_dataclass(target):
+        for f in dataclasses.fields(target):
+            if f.name.startswith("_") or not f.init:
+                continue
+            if f.default is not dataclasses.MISSING:
+                default: Any = f.default
+            elif f.default_factory is not dataclasses.MISSING:
+                default = f.default_factory()
+            else:
+                default = None
+            rows.append(
+                {
+                    "name": f.name,
+                    "type": str(f.type),
+                    "default": default,
+                    "meaning": _meaning(target, f.name),
+                }
+            )
+    doc = (getattr(obj, "__doc__", None) or "").strip().splitlines()
+    summary = _sentence(doc[0]) if doc else ""
+    if args.json:
+        out = {"name": args.name, "kind": kind, "plugin": plugin, "summary": summary}
+        print(json.dumps({**out, "settings": rows}, indent=2, default=repr))
+        return 0
+    print(f"{args.name} ({kind}, plugin {plugin}): {summary}")
+    if not rows:
+        print("no declared settings")
+        return 0
+    if kind == "estimator":
+        print(f"set in a TOML file as [estimators.{args.name}] NAME = VALUE")
+    width = max(len(r["name"]) for r in rows)
+    for r in rows:
+        print(f"  {r['name']:<{width}}  {r['type']} = {r['default']!r}")
+        if r["meaning"]:
+            print(f"  {'':<{width}}  {r['meaning']}")
+    return 0
+
+
+def _meaning(cls: type, name: str) -> str:
+    """First line of ``name``'s entry in a numpy docstring's Attributes/Parameters.
+
+    The class that declares the field is asked first, then the others of the
+    MRO.
+    """
+    owners = [c for c in cls.__mro__ if name in getattr(c, "__annotations__", {})]
+    for c in owners + [c for c in cls.__mro__ if c not in owners]:
+        text = _doc_entries(c.__doc__ or "").get(name, "")
+        if text and not text.lower().startswith("the shared settings"):
+            return text
+    return ""
+
+
+def _doc_entries(doc: str) -> dict[str, str]:
+    """``{name: first line of its description}`` of Attributes/Parameters."""
+    import inspect
+
+    lines = inspect.cleandoc(doc).splitlines()
+    out: dict[str, str] = {}
+    section = False
+    names: list[str] = []
+    for i, line in enumerate(lines):
+        nxt = lines[i + 1] if i + 1 < len(lines) else ""
+        if nxt.startswith("---") and line.strip():
+            section = line.strip() in ("Attributes", "Parameters")
+            names = []
+            continue
+        if not section or line.startswith("---") or not line.strip():
+            continue
+        if not line.startswith(" "):
+            names = [n.strip() for n in line.split(":")[0].split(",")]
+        elif names:
+            for n in names:
+                out[n] = f"{out.get(n, '')} {line.strip()}".strip()
+    return {n: _sentence(t) for n, t in out.items()}
+
+
+def _sentence(text: str) -> str:
+    """The first sentence of ``text``, without reST markup."""
+    text = text.replace("``", "").replace(":class:", "").replace("~", "")
+    end = text.find(". ")
+    return text if end < 0 else text[: end + 1]
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
