@@ -643,6 +643,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     from idbench.plugins import build_registry
 
     reg = build_registry()
+    obj: Any
     if args.name in reg.estimators:
         kind, obj = "estimator", reg.estimator(args.name)
         plugin = reg.estimators[args.name].plugin
