@@ -53,6 +53,7 @@ figure svg { max-width: 100%; height: auto; }
 figcaption { color: #555; font-size: 0.9em; }
 .meta td:first-child { font-weight: 600; }
 .hidden { display: none; }
+td.reason { min-width: 24em; }
 label { margin-right: 0.5em; }
 """
 
@@ -141,6 +142,7 @@ def write_html(
         f"<p>{len(runs)} runs; status: {html.escape(status)}. Written "
         f"{datetime.now(UTC):%Y-%m-%d %H:%M} UTC from "
         f"<code>{html.escape(root.name)}</code>.</p>",
+        f"<p>{html.escape(_machine(manifest))}</p>",
         "<h2>Data</h2><ul>",
         _link(root, "runs.parquet", "one row per run"),
         _link(root, "traces.parquet", "one row per run and step"),
@@ -190,9 +192,9 @@ def _summary_table(summary: pd.DataFrame, names: dict[str, str]) -> str:
     """The summary with a metric selector: key columns stay, metrics toggle."""
     if summary.empty:
         return "<p>(no runs)</p>"
-    cols = [c for c in summary.columns if c != "ok"]
-    if "reason" in cols and not summary["reason"].astype(bool).any():
-        cols.remove("reason")
+    cols = [c for c in summary.columns if c not in ("ok", "reason")]
+    if "reason" in summary and summary["reason"].astype(bool).any():
+        cols.append("reason")  # last, as in the text table
     metrics = [
         c
         for c in cols
@@ -260,6 +262,7 @@ def _table(
             v = row[c]
             raw = "" if _missing(v) else str(v)
             cls = ' class="num"' if numeric[c] else ""
+            cls = ' class="reason"' if c == "reason" else cls
             cells.append(
                 f'<td{cls}{attrs(c)} data-value="{html.escape(raw)}">'
                 f"{html.escape(_fmt(v))}</td>"
@@ -281,6 +284,7 @@ def _inline_svg(svg: str, stem: str) -> str:
     """Matplotlib's SVG file as inline markup, its ids prefixed to stay unique."""
     start = svg.find("<svg")
     svg = svg[start:] if start >= 0 else svg
+    svg = re.sub(r"<metadata>.*?</metadata>", "", svg, flags=re.DOTALL)
     svg = re.sub(
         r'(\bid="|url\(#|href="#)([^"\)]+)',
         lambda m: f"{m.group(1)}{stem}-{m.group(2)}",
@@ -308,3 +312,16 @@ def _manifest(manifest: dict[str, Any]) -> str:
         f'<table class="meta">{table}</table><h3>Settings</h3>'
         f"<pre>{html.escape(settings)}</pre>"
     )
+
+
+def _machine(manifest: dict[str, Any]) -> str:
+    """One line: idbench version, Python, platform, CPUs."""
+    versions = manifest.get("versions") or {}
+    parts = [
+        f"idbench {versions['idbench']}" if "idbench" in versions else "",
+        f"Python {manifest['python']}" if "python" in manifest else "",
+        str(manifest.get("platform", "")),
+        f"{manifest['cpu_count']} CPUs" if "cpu_count" in manifest else "",
+    ]
+    text = ", ".join(p for p in parts if p)
+    return f"Machine: {text} (details under Manifest)." if text else ""

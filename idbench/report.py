@@ -43,19 +43,27 @@ def sweep_axes(runs: pd.DataFrame) -> list[str]:
 
     The description of a run is every column before ``status`` (what
     :func:`idbench.harness.base_row` writes) and the true parameter values;
-    ids, seeds and node counts are left out. The columns that always make a
-    row (scenario, mesh, estimator) are not repeated here.
+    ids, seeds and node counts are left out. A column is an axis when it takes
+    more than one value for the same (scenario, mesh, estimator), so settings
+    that differ only between estimators are not. The columns that always make
+    a row (scenario, mesh, estimator) are not repeated here.
     """
     if "status" not in runs.columns:
         return []
     cols = list(runs.columns)
     described = cols[: cols.index("status")]
     described += [f"{n}_true" for n in parameter_names(runs) if f"{n}_true" in cols]
+    keys = [k for k in ROW_KEYS if k in cols and k != "model_nodes"]
     axes = []
     for col in described:
         if col in SEED_COLUMNS or col in ROW_KEYS:
             continue
-        if runs[col].astype(str).nunique(dropna=False) > 1:
+        values = runs[col].astype(str)
+        if keys:  # varies within one (scenario, mesh, estimator)
+            varies = (values.groupby([runs[k] for k in keys]).nunique() > 1).any()
+        else:
+            varies = values.nunique() > 1
+        if varies:
             axes.append(col)
     return axes
 
@@ -591,9 +599,9 @@ def _markdown(df: pd.DataFrame, names: dict[str, str] | None = None) -> str:
     if df.empty:
         return "(no runs)"
     names = names or {}
-    cols = [c for c in df.columns if not (names and c in HIDDEN)]
-    if names and "reason" in cols and not df["reason"].astype(bool).any():
-        cols.remove("reason")
+    cols = [c for c in df.columns if not (names and c in (*HIDDEN, "reason"))]
+    if names and "reason" in df and df["reason"].astype(bool).any():
+        cols.append("reason")  # last, as in the text table
     head = "| " + " | ".join(names.get(c, str(c)) for c in cols) + " |"
     rule = "|" + "---|" * len(cols)
     body = [
