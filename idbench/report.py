@@ -60,9 +60,9 @@ def sweep_axes(runs: pd.DataFrame) -> list[str]:
             continue
         values = runs[col].astype(str)
         if keys:  # varies within one (scenario, mesh, estimator)
-            varies = (values.groupby([runs[k] for k in keys]).nunique() > 1).any()
+            varies = bool((values.groupby([runs[k] for k in keys]).nunique() > 1).any())
         else:
-            varies = values.nunique() > 1
+            varies = bool(values.nunique() > 1)
         if varies:
             axes.append(col)
     return axes
