@@ -36,14 +36,15 @@ KEY_COLUMNS = ("scenario", "model_nodes", "mesh", "estimator", "n", "status")
 
 STYLE = """
 body { font: 15px/1.45 system-ui, -apple-system, "Segoe UI", sans-serif;
-  margin: 0 auto; max-width: 1200px; padding: 1em 2em; color: #222; }
+  margin: 0 auto; max-width: 1500px; padding: 1em 2em; color: #222; }
 h1 { font-size: 1.6em; margin-bottom: 0.2em; }
 h2 { border-bottom: 1px solid #ccc; margin-top: 1.8em; }
 table { border-collapse: collapse; font-size: 0.9em; margin: 0.6em 0; }
 th, td { border: 1px solid #ddd; padding: 0.25em 0.55em; }
 td.num { text-align: right; font-variant-numeric: tabular-nums; }
 th { background: #f3f3f3; }
-table.sortable th { cursor: pointer; user-select: none; white-space: nowrap; }
+table.sortable th { cursor: pointer; user-select: none; max-width: 8em;
+  vertical-align: bottom; }
 table.sortable th[aria-sort="ascending"]::after { content: " \\25B2"; }
 table.sortable th[aria-sort="descending"]::after { content: " \\25BC"; }
 tr.notok td { color: #8a4b00; }
@@ -53,7 +54,7 @@ figure svg { max-width: 100%; height: auto; }
 figcaption { color: #555; font-size: 0.9em; }
 .meta td:first-child { font-weight: 600; }
 .hidden { display: none; }
-td.reason { min-width: 24em; }
+td.reason { min-width: 20em; }
 label { margin-right: 0.5em; }
 """
 
