@@ -21,6 +21,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from idbench.summary import format_cell, headers, parameter_names_of_summary
+
 CAPTIONS = {
     "stiffness_vs_resolution": "Identified parameters against model resolution"
     " (one panel per parameter; mean over seeds, bars: one std).",
@@ -126,8 +128,6 @@ def write_html(
     svgs
         The figures' SVG text by stem, in the order to show them.
     """
-    from idbench.report import headers
-
     manifest_path = root / "manifest.json"
     manifest = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
     counts = runs["status"].value_counts() if "status" in runs else pd.Series()
@@ -219,8 +219,6 @@ def _summary_table(summary: pd.DataFrame, names: dict[str, str]) -> str:
 
 
 def _axes(summary: pd.DataFrame) -> list[str]:
-    from idbench.report import parameter_names_of_summary
-
     params = set(parameter_names_of_summary(summary))
     fixed = {"settling_step", "shape_error_mm", "direct_mm", "transfer_mm"}
     fixed |= {"n_solves", "wall_s_step"}
@@ -243,8 +241,6 @@ def _table(
     df: pd.DataFrame, names: dict[str, str], ident: str, metrics: set[str] | None = None
 ) -> str:
     """A sortable HTML table; cells carry their raw value for sorting."""
-    from idbench.report import _fmt
-
     metrics = metrics or set()
 
     def attrs(col: str) -> str:
@@ -266,7 +262,7 @@ def _table(
             cls = ' class="reason"' if c == "reason" else cls
             cells.append(
                 f'<td{cls}{attrs(c)} data-value="{html.escape(raw)}">'
-                f"{html.escape(_fmt(v))}</td>"
+                f"{html.escape(format_cell(v))}</td>"
             )
         notok = row.get("status", "ok") not in ("ok", True) and "status" in df
         tr = '<tr class="notok">' if notok else "<tr>"
