@@ -544,7 +544,9 @@ class _Progress:
             disable=not self.terminal,
         )
         self.bar.__enter__()
-        self.task = self.bar.add_task("preparing: truths", total=len(self.order))
+        first = self.next_run()
+        label = f"preparing truths, then {first}" if first else "preparing"
+        self.task = self.bar.add_task(label, total=len(self.order))
         self.truth_log.addHandler(self.handler)
         self.truth_log.setLevel(logging.INFO)
         self.truth_log.propagate = log.getEffectiveLevel() <= logging.INFO
@@ -556,6 +558,11 @@ class _Progress:
             self.truth_log.removeHandler(self.handler)
             self.truth_log.setLevel(self.saved[0])
             self.truth_log.propagate = self.saved[1]
+
+    def next_run(self) -> str:
+        """The run a serial sweep does next (plan order), or "" when none is left."""
+        nxt = next((r for r in self.order if r.run_id not in self.reported), None)
+        return "" if nxt is None else f"{nxt.estimator} {nxt.mesh} {nxt.scenario}"
 
     def elapsed(self) -> str:
         import time
@@ -576,11 +583,11 @@ class _Progress:
         if self.bar is None:
             return
         what = _describe(row)
-        nxt = next((r for r in self.order if r.run_id not in self.reported), None)
-        if nxt is None:
+        nxt = self.next_run()
+        if not nxt:
             running = "done"
         elif self.jobs == 1:
-            running = f"running {nxt.estimator} {nxt.mesh} {nxt.scenario}"
+            running = f"running {nxt}"
         else:
             running = f"running on {self.jobs} workers"
         self.bar.update(
