@@ -428,6 +428,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from idbench.config import build_config, load_toml
     from idbench.harness import Session
     from idbench.plugins import build_registry
+    from idbench.progress import CompareProgress
     from idbench.report import summary_text
     from idbench.sweep import compare, plan
 
@@ -461,7 +462,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
             f"about {the_plan.solves} forward solves"
         )
         return 0
-    with _Progress(the_plan.runs, args.out, args.jobs, quiet=args.quiet) as progress:
+    with CompareProgress(
+        the_plan.runs, args.out, args.jobs, quiet=args.quiet
+    ) as progress:
         runs, _ = compare(
             config,
             args.out,
@@ -493,143 +496,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
-class _Progress:
-    """Progress of a comparison on stderr: truths being simulated, then runs.
-
-    On a terminal: a bar whose label names what is running. Elsewhere (a pipe,
-    a log file): one line per truth step and per finished run, at most about
-    50 run lines per comparison (every run that is not ok is always shown).
-    Truth steps arrive as log records of ``idbench.truth``.
-    """
-
-    def __init__(self, runs: list[Any], out: Path, jobs: int, quiet: bool) -> None:
-        import time
-
-        from rich.console import Console
-
-        self.console = Console(stderr=True)
-        self.terminal = self.console.is_terminal
-        self.quiet = quiet
-        self.order = list(runs)
-        parts = out / "parts"
-        self.reported = {
-            r.run_id for r in runs if (parts / f"{r.run_id}.runs.parquet").exists()
-        }
-        self.jobs = jobs
-        self.every = max(1, -(-len(runs) // 50))
-        self.t0 = time.perf_counter()
-        self.bar: Any = None
-        self.handler = _TruthLog(self)
-        self.truth_log = logging.getLogger("idbench.truth")
-        self.saved = (self.truth_log.level, self.truth_log.propagate)
-
-    def __enter__(self) -> _Progress:
-        if self.quiet:
-            return self
-        from rich.progress import (
-            BarColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
-
-        self.bar = Progress(
-            TextColumn("{task.description}"),
-            BarColumn(),
-            TextColumn("{task.completed}/{task.total}"),
-            TimeElapsedColumn(),
-            TimeRemainingColumn(),
-            console=self.console,
-            disable=not self.terminal,
-        )
-        self.bar.__enter__()
-        first = self.next_run()
-        label = f"preparing truths, then {first}" if first else "preparing"
-        self.task = self.bar.add_task(label, total=len(self.order))
-        self.truth_log.addHandler(self.handler)
-        self.truth_log.setLevel(logging.INFO)
-        self.truth_log.propagate = log.getEffectiveLevel() <= logging.INFO
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self.bar is not None:
-            self.bar.__exit__(*exc)
-            self.truth_log.removeHandler(self.handler)
-            self.truth_log.setLevel(self.saved[0])
-            self.truth_log.propagate = self.saved[1]
-
-    def next_run(self) -> str:
-        """The run a serial sweep does next (plan order), or "" when none is left."""
-        nxt = next((r for r in self.order if r.run_id not in self.reported), None)
-        return "" if nxt is None else f"{nxt.estimator} {nxt.mesh} {nxt.scenario}"
-
-    def elapsed(self) -> str:
-        import time
-
-        return f"{time.perf_counter() - self.t0:.0f} s"
-
-    def truth(self, message: str) -> None:
-        """A truth step finished (``message`` from idbench.truth's log)."""
-        if self.bar is None:
-            return
-        self.bar.update(self.task, description=message)
-        if not self.terminal:
-            print(f"[{self.elapsed()}] {message}", file=sys.stderr, flush=True)
-
-    def __call__(self, done: int, total: int, row: dict[str, Any]) -> None:
-        """A run finished (the ``progress`` callback of :func:`compare`)."""
-        self.reported.add(row["run_id"])
-        if self.bar is None:
-            return
-        what = _describe(row)
-        nxt = self.next_run()
-        if not nxt:
-            running = "done"
-        elif self.jobs == 1:
-            running = f"running {nxt}"
-        else:
-            running = f"running on {self.jobs} workers"
-        self.bar.update(
-            self.task, completed=done, total=total, description=f"runs: {running}"
-        )
-        if not self.terminal and (
-            done % self.every == 0 or done == total or row["status"] != "ok"
-        ):
-            print(
-                f"[{self.elapsed()}] run {done}/{total} finished: {what}",
-                file=sys.stderr,
-                flush=True,
-            )
-
-
-class _TruthLog(logging.Handler):
-    """Forwards idbench.truth's step records to a :class:`_Progress`."""
-
-    def __init__(self, progress: _Progress) -> None:
-        super().__init__(logging.INFO)
-        self.progress = progress
-
-    def emit(self, record: logging.LogRecord) -> None:
-        message = record.getMessage()
-        if message.startswith("truth "):
-            self.progress.truth(message)
-
-
-def _describe(row: dict[str, Any]) -> str:
-    """A finished run in a few words: estimator, mesh, scenario, axes, status."""
-    parts = [str(row.get(k, "")) for k in ("estimator", "mesh", "scenario")]
-    for k in ("obs_every", "obs_points", "noise", "seed"):
-        if k in row:
-            parts.append(
-                f"{k}={row[k]:g}" if isinstance(row[k], float) else f"{k}={row[k]}"
-            )
-    status = row.get("status", "")
-    if status != "ok" and row.get("error"):
-        status = f"{status} ({str(row['error']).splitlines()[0]})"
-    return " ".join(parts) + f": {status}"
-
-
 def cmd_report(args: argparse.Namespace) -> int:
     """``idbench report DIR``: figures (PNG, SVG), report.md and report.html."""
     from idbench.report import write_report
@@ -645,8 +511,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 def cmd_info(args: argparse.Namespace) -> int:
     """``idbench info NAME``: a registered estimator's or model's settings."""
-    import dataclasses
-
+    from idbench.info import settings, summary_line
     from idbench.plugins import build_registry
 
     reg = build_registry()
@@ -660,28 +525,8 @@ def cmd_info(args: argparse.Namespace) -> int:
     else:
         known = sorted({*reg.estimators, *reg.models})
         raise UsageError(f"unknown name {args.name!r}; known: {', '.join(known)}")
-    target = obj if dataclasses.is_dataclass(obj) else getattr(obj, "Settings", None)
-    rows = []
-    if isinstance(target, type) and dataclasses.is_dataclass(target):
-        for f in dataclasses.fields(target):
-            if f.name.startswith("_") or not f.init:
-                continue
-            if f.default is not dataclasses.MISSING:
-                default: Any = f.default
-            elif f.default_factory is not dataclasses.MISSING:
-                default = f.default_factory()
-            else:
-                default = None
-            rows.append(
-                {
-                    "name": f.name,
-                    "type": str(f.type),
-                    "default": default,
-                    "meaning": _meaning(target, f.name),
-                }
-            )
-    doc = (getattr(obj, "__doc__", None) or "").strip().splitlines()
-    summary = _sentence(doc[0]) if doc else ""
+    rows = settings(obj)
+    summary = summary_line(obj)
     if args.json:
         out = {"name": args.name, "kind": kind, "plugin": plugin, "summary": summary}
         print(json.dumps({**out, "settings": rows}, indent=2, default=repr))
@@ -698,51 +543,6 @@ def cmd_info(args: argparse.Namespace) -> int:
         if r["meaning"]:
             print(f"  {'':<{width}}  {r['meaning']}")
     return 0
-
-
-def _meaning(cls: type, name: str) -> str:
-    """First line of ``name``'s entry in a numpy docstring's Attributes/Parameters.
-
-    The class that declares the field is asked first, then the others of the
-    MRO.
-    """
-    owners = [c for c in cls.__mro__ if name in getattr(c, "__annotations__", {})]
-    for c in owners + [c for c in cls.__mro__ if c not in owners]:
-        text = _doc_entries(c.__doc__ or "").get(name, "")
-        if text and not text.lower().startswith("the shared settings"):
-            return text
-    return ""
-
-
-def _doc_entries(doc: str) -> dict[str, str]:
-    """``{name: first line of its description}`` of Attributes/Parameters."""
-    import inspect
-
-    lines = inspect.cleandoc(doc).splitlines()
-    out: dict[str, str] = {}
-    section = False
-    names: list[str] = []
-    for i, line in enumerate(lines):
-        nxt = lines[i + 1] if i + 1 < len(lines) else ""
-        if nxt.startswith("---") and line.strip():
-            section = line.strip() in ("Attributes", "Parameters")
-            names = []
-            continue
-        if not section or line.startswith("---") or not line.strip():
-            continue
-        if not line.startswith(" "):
-            names = [n.strip() for n in line.split(":")[0].split(",")]
-        elif names:
-            for n in names:
-                out[n] = f"{out.get(n, '')} {line.strip()}".strip()
-    return {n: _sentence(t) for n, t in out.items()}
-
-
-def _sentence(text: str) -> str:
-    """The first sentence of ``text``, without reST markup."""
-    text = text.replace("``", "").replace(":class:", "").replace("~", "")
-    end = text.find(". ")
-    return text if end < 0 else text[: end + 1]
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
