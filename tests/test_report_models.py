@@ -164,3 +164,26 @@ def test_frontier_figure_without_ok_runs(tmp_path):
     written = write_report(tmp_path)
     assert tmp_path / "realtime_frontier.svg" in written
     assert "RuntimeError: boom" in summary_text(runs)
+
+
+def test_study_values_are_overlaid_and_labelled(registry, tmp_path):
+    from idbench.figures import STUDY_LABEL
+    from idbench.report import figures
+
+    out, runs, traces = run(registry, tmp_path)
+    study = pd.DataFrame(
+        {"figure": ["stiffness_vs_resolution", "shape_error"], "x": [5, 20],
+         "y": [0.6, 0.01]}
+    )  # fmt: skip
+    figs = figures(runs, traces, study)
+    for stem in ("stiffness_vs_resolution", "shape_error"):
+        labels = [t.get_text() for t in figs[stem].legends[0].get_texts()]
+        assert STUDY_LABEL in labels, stem
+    assert "read off the paper's figure" in STUDY_LABEL
+    labels = [
+        t.get_text() for t in figures(runs, traces)["shape_error"].legends[0].texts
+    ]
+    assert STUDY_LABEL not in labels  # nothing given, nothing drawn
+    study.to_csv(out / "study_values.csv", index=False)
+    write_report(out)
+    assert "read off the paper" in (out / "stiffness_vs_resolution.svg").read_text()
