@@ -155,7 +155,7 @@ def parameters_vs_resolution(
                 capsize=3, label=s, **style(i),
             )  # fmt: skip
         if ratio:
-            ax.axhline(1.0, color="0.4", ls="--", lw=1, label=f"true {name}")
+            ax.axhline(1.0, color="0.4", ls="--", lw=1, label="true value")
         _study(study, "stiffness_vs_resolution", ax)
         ax.set(
             xlabel="model nodes" if log else "model mesh",
@@ -268,7 +268,7 @@ def estimates_vs_step(
         panels[0].plot([], [], lw=1.1, label=s, **style(i))
     for j, m in enumerate(meshes):
         panels[0].add_line(
-            Line2D([], [], color="0.3", ls=LINESTYLES[j % len(LINESTYLES)], label=m)
+            Line2D([], [], color="0.3", ls=LINESTYLES[j % 4], label=f"mesh {m}")
         )
     _legend(fig, panels)
     return fig
