@@ -27,7 +27,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from idbench.config import CompareConfig  # noqa: E402
-from idbench.harness import Session  # noqa: E402
+from idbench.session import Session  # noqa: E402
 from idbench.sweep import compare, plan, prepare  # noqa: E402
 
 CONFIG = CompareConfig(

@@ -5,6 +5,8 @@ The public API is what this module exports; plugins import only from here.
 
 from __future__ import annotations
 
+from typing import Any
+
 from idbench.config import ConfigError
 from idbench.interfaces import (
     Cost,
@@ -33,8 +35,28 @@ from idbench.scenario import Scenario, Sparsity
 
 __version__ = "0.1.0"
 
+_LAZY = {
+    "CompareConfig": "idbench.config",
+    "compare": "idbench.sweep",
+    "effective_path": "idbench.effective",
+    "shape_error": "idbench.metrics",
+    "simulate_path": "idbench.truth",
+    "simulate_truth": "idbench.truth",
+}
+
+
+def __getattr__(name: str) -> Any:
+    """The heavier parts of the public API, imported on first use."""
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'idbench' has no attribute {name!r}")
+
+
 __all__ = [
     "Command",
+    "CompareConfig",
     "ConfigError",
     "Cost",
     "Diverged",
@@ -55,6 +77,11 @@ __all__ = [
     "Sparsity",
     "__version__",
     "build_registry",
+    "compare",
+    "effective_path",
     "get_plugin_manager",
     "hookimpl",
+    "shape_error",
+    "simulate_path",
+    "simulate_truth",
 ]

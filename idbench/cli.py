@@ -22,9 +22,131 @@ class UsageError(Exception):
     """Bad command-line input; printed as one line, exit status 2."""
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """Help that shows each option's default and the registered names.
+
+    A default is appended as "(default: X)" unless it is None, False or already
+    in the text. ``%(scenarios)s``, ``%(models)s`` and ``%(estimators)s`` in a
+    help text become the registered names; the registry is built only when
+    help is printed.
+    """
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        default = action.default
+        if (
+            action.option_strings
+            and "%(default)" not in text
+            and "default" not in text
+            and default not in (None, False, argparse.SUPPRESS)
+        ):
+            text += " (default: %(default)s)"
+        return text
+
+    def _expand_help(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if "%(scenarios)" in text or "%(models)" in text or "%(estimators)" in text:
+            names = self.registered()
+            text = text.replace("%(scenarios)s", names["scenarios"])
+            text = text.replace("%(models)s", names["models"])
+            text = text.replace("%(estimators)s", names["estimators"])
+            action = argparse.Action(
+                action.option_strings, action.dest, default=action.default,
+                help=text, choices=action.choices, metavar=action.metavar,
+            )  # fmt: skip
+        return super()._expand_help(action)
+
+    def _format_text(self, text: str) -> str:
+        for kind in ("scenarios", "models", "estimators"):
+            if f"%({kind})s" in text:
+                text = text.replace(f"%({kind})s", self.registered()[kind])
+        return super()._format_text(text)
+
+    @classmethod
+    def registered(cls) -> dict[str, str]:
+        """Registered scenario, model and estimator names, comma-separated."""
+        reg = registry()
+        return {
+            "scenarios": ", ".join(reg.scenarios),
+            "models": ", ".join(reg.models),
+            "estimators": ", ".join(reg.estimators),
+        }
+
+
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", _HelpFormatter)
+        super().__init__(*args, **kwargs)
+
     def error(self, message: str) -> NoReturn:
         raise UsageError(f"{self.prog}: {message}")
+
+
+_REGISTRY: list[Any] = []
+
+
+def registry() -> Any:
+    """The plugin registry, built once per process (plugins are imported here)."""
+    if not _REGISTRY:
+        from idbench.plugins import build_registry
+
+        _REGISTRY.append(build_registry())
+    return _REGISTRY[0]
+
+
+def _config_default(name: str) -> str:
+    """A CompareConfig field's default (the default model's) as the CLI writes it."""
+    from idbench.config import CompareConfig
+
+    try:
+        config = CompareConfig().resolve(registry())
+    except ConfigError:
+        config = CompareConfig()
+    value = getattr(config, name)
+    if value is None:
+        return "none"
+    if isinstance(value, tuple):
+        return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value)
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def _value(text: str) -> Any:
+    """A setting's value as TOML would read it (number, bool, list), else the text."""
+    import tomllib
+
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def _assignments(name: str) -> Any:
+    """Parse ``KEY=VALUE[,KEY=VALUE...]`` into a dict (values as TOML reads them)."""
+
+    def parse(text: str) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for part in _split_top_level(text):
+            key, sep, value = part.partition("=")
+            if not sep or not key.strip() or not value.strip():
+                raise UsageError(f"--{name} {text!r}: need NAME=VALUE[,NAME=VALUE]")
+            out[key.strip()] = _value(value.strip())
+        return out
+
+    return parse
+
+
+def _split_top_level(text: str) -> list[str]:
+    """Split at commas that are not inside brackets (``grid=[20,4,4],nu=0.3``)."""
+    parts, depth, cur = [], 0, ""
+    for ch in text:
+        depth += (ch in "[{(" and 1) or 0
+        depth -= (ch in "]})" and 1) or 0
+        if ch == "," and depth == 0:
+            parts.append(cur)
+            cur = ""
+        else:
+            cur += ch
+    return [p for p in [*parts, cur] if p.strip()]
 
 
 def _floats(name: str) -> Any:
@@ -95,41 +217,104 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
     from idbench import __version__
 
-    parser = _Parser(prog="idbench", description=__doc__)
+    parser = _Parser(
+        prog="idbench",
+        description="Compare parameter estimators on coarse finite-element "
+        "soft-body simulations. Run 'idbench COMMAND --help' for a command's "
+        "options.",
+    )
     parser.add_argument("--version", action="version", version=f"idbench {__version__}")
     sub = parser.add_subparsers(dest="command", parser_class=_Parser)
 
     p = sub.add_parser("plugins", help="list plugins and what they registered")
     p.add_argument("--json", action="store_true", help="machine-readable output")
 
-    c = sub.add_parser("compare", help="run a grid of identification runs")
+    c = sub.add_parser(
+        "compare",
+        help="run a grid of identification runs",
+        description="Run every combination of scenario, mesh, estimator, "
+        "sparsity setting and seed; write runs.parquet and traces.parquet into "
+        "--out and print a summary. Comma lists become sweep axes. Options not "
+        "given come from --config, else from the defaults shown.",
+    )
+    d = _config_default
     c.add_argument("--config", type=Path, help="TOML file with any of these options")
     c.add_argument(
         "--quick",
         action="store_true",
-        help="small truth (40x5x5), models 14x3x3,20x4x4, one seed",
+        help="a small comparison: the model's quick truth and meshes, one seed",
     )
-    c.add_argument("--estimators", type=_names, help="comma list (default: all five)")
+    c.add_argument(
+        "--estimators",
+        type=_names,
+        help="comma list of estimators (default: all registered: %(estimators)s)",
+    )
     c.add_argument(
         "--meshes",
         type=_names,
-        help="model mesh specs: NXxNYxNZ, node count, or mesh file",
+        help="model mesh specs, comma list: NXxNYxNZ, node count, or mesh file "
+        f"(default: {d('meshes')})",
     )
-    c.add_argument("--truth-mesh", help="truth mesh spec (default 80x11x11)")
-    c.add_argument("--scenarios", type=_names, help="comma list (default bend-y)")
+    c.add_argument("--truth-mesh", help=f"truth mesh spec (default: {d('truth_mesh')})")
     c.add_argument(
-        "--obs-every", type=_ints("obs-every"), help="observe every k-th step"
+        "--scenarios",
+        type=_names,
+        help=f"comma list of %(scenarios)s (default: {d('scenarios')})",
     )
-    c.add_argument("--obs-points", type=_ints("obs-points"), help="marker counts M")
-    c.add_argument("--noise", type=_floats("noise"), help="noise sigma(s) in metres")
-    c.add_argument("--seeds", type=_number("seeds", int), help="number of seeds")
-    c.add_argument("--steps", type=_number("steps", int), help="load steps K")
     c.add_argument(
-        "--E-true", dest="E_true", type=_number("E-true"), help="true E (Pa)"
+        "--obs-every",
+        type=_ints("obs-every"),
+        help=f"observe every k-th step, comma list (default: {d('obs_every')})",
     )
-    c.add_argument("--nu", type=_number("nu"), help="Poisson ratio")
-    c.add_argument("--prior", type=_floats("prior"), help="prior MEAN,STD (Pa)")
-    c.add_argument("--timeout", type=_number("timeout"), help="seconds per run")
+    c.add_argument(
+        "--obs-points",
+        type=_ints("obs-points"),
+        help=f"marker counts M, comma list (default: {d('obs_points')})",
+    )
+    c.add_argument(
+        "--noise",
+        type=_floats("noise"),
+        help="noise sigma(s) in the model's length unit (metres for the built-in "
+        f"models), comma list (default: {d('noise')})",
+    )
+    c.add_argument(
+        "--seeds",
+        type=_number("seeds", int),
+        help=f"number of noise seeds (default: {d('seeds')}; --quick: 1)",
+    )
+    c.add_argument(
+        "--steps",
+        type=_number("steps", int),
+        help=f"load steps K (default: {d('steps')})",
+    )
+    c.add_argument(
+        "--model",
+        help=f"registered model, one of %(models)s (default: {d('model')})",
+    )
+    c.add_argument(
+        "--model-option",
+        dest="model_options",
+        type=_assignments("model-option"),
+        action="append",
+        help="a setting of the model, NAME=VALUE (repeatable; 'idbench info MODEL' "
+        "lists them)",
+    )
+    c.add_argument(
+        "--true",
+        type=_assignments("true"),
+        help="true parameter values, NAME=VALUE[,...] (default: the model's)",
+    )
+    _add_shorthands(c)
+    c.add_argument(
+        "--prior",
+        type=_floats("prior"),
+        help=f"prior MEAN,STD of each parameter (default: {d('prior')})",
+    )
+    c.add_argument(
+        "--timeout",
+        type=_number("timeout"),
+        help="seconds per run before it is recorded as failed (default: none)",
+    )
     c.add_argument(
         "--out",
         type=_path("out"),
@@ -139,76 +324,103 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument(
         "--jobs", type=_number("jobs", int), default=1, help="local worker processes"
     )
-    c.add_argument("--scheduler", help="Dask scheduler address tcp://HOST:PORT")
+    c.add_argument(
+        "--scheduler",
+        help="Dask scheduler address tcp://HOST:PORT (default: none, run locally)",
+    )
     c.add_argument(
         "--dry-run",
         action="store_true",
         help="validate, print the run count and a cost estimate",
     )
     c.add_argument(
-        "--plot", action="store_true", help="write figures and report.md into --out"
+        "--plot",
+        action="store_true",
+        help="also write figures, report.md and report.html into --out",
     )
-    c.add_argument("-v", "--verbose", action="count", default=0)
-    c.add_argument("-q", "--quiet", action="store_true")
+    c.add_argument(
+        "--format",
+        choices=("table", "markdown", "csv", "json"),
+        default="table",
+        help="summary format on stdout: table, markdown, csv or json",
+    )
+    c.add_argument(
+        "-v", "--verbose", action="count", default=0,
+        help="log more (-v: info, -vv: debug)",
+    )  # fmt: skip
+    c.add_argument(
+        "-q", "--quiet", action="store_true", help="no progress and no summary"
+    )
 
-    r = sub.add_parser("report", help="figures and report.md for a compare output")
+    r = sub.add_parser(
+        "report",
+        help="figures, report.md and report.html for a compare output",
+        description="Write figures (PNG and SVG), report.md and a self-contained "
+        "report.html into DIR from its runs.parquet and traces.parquet.",
+    )
     r.add_argument("directory", type=Path, help="the --out DIR of idbench compare")
 
-    k = sub.add_parser(
-        "calibrate", help="map the effective E of a coarse mesh over load space"
+    i = sub.add_parser(
+        "info",
+        help="an estimator's or model's settings, defaults and meaning",
+        description="Print the settings of a registered estimator or model: "
+        "name, type, default and one line of meaning. Estimators: "
+        "%(estimators)s; models: %(models)s.",
     )
-    k.add_argument("--mesh", required=True, help="coarse model mesh spec")
-    k.add_argument("--truth-mesh", default="80x11x11", help="truth mesh spec")
-    k.add_argument(
-        "--angles",
-        type=_floats("angles"),
-        help="traction directions, degrees from +x (stretch) to -y (bend), 0..90",
-    )
-    k.add_argument(
-        "--steps", type=_number("steps", int), default=10, help="load levels"
-    )
-    k.add_argument(
-        "--E-true", dest="E_true", type=_number("E-true"), default=5000.0,
-        help="true E (Pa)",
-    )  # fmt: skip
-    k.add_argument("--nu", type=_number("nu"), default=0.45, help="Poisson ratio")
-    k.add_argument("--model", default="svk-beam", help="registered model name")
-    k.add_argument(
-        "--evaluate",
-        type=_names,
-        help="held-back scenarios to score (default mixed-30,mixed-60,bend-z,"
-        "stretch-x; 'none' skips)",
-    )
-    k.add_argument(
-        "--evaluate-angles",
-        type=_floats("evaluate-angles"),
-        default=(3.0, 10.0),
-        help="also score ad-hoc paths at these angles (default 3,10: off the grid)",
-    )
-    k.add_argument(
-        "--seeds", type=_number("seeds", int), default=3, help="RO-UKF seeds"
-    )
-    k.add_argument(
-        "--out",
-        type=_path("out"),
-        default=Path("idbench-calibration"),
-        help="output directory (default ./idbench-calibration)",
-    )
-    k.add_argument("-q", "--quiet", action="store_true")
+    i.add_argument("name", help="a registered estimator or model name")
+    i.add_argument("--json", action="store_true", help="machine-readable output")
 
-    s = sub.add_parser("simulate", help="simulate a load path and write ParaView files")
-    s.add_argument("--mesh", required=True, help="mesh spec")
-    s.add_argument("--scenario", required=True, help="scenario name")
-    s.add_argument(
-        "--E", type=_number("E"), default=5000.0, help="Young's modulus (Pa)"
+    s = sub.add_parser(
+        "simulate",
+        help="simulate a load path and write ParaView files",
+        description="Simulate one scenario with the true parameter values and "
+        "write the displacement field as an XDMF time series (for ParaView).",
     )
-    s.add_argument("--nu", type=_number("nu"), default=0.45, help="Poisson ratio")
+    s.add_argument("--mesh", required=True, help="the model's discretisation")
+    s.add_argument("--scenario", required=True, help="one of %(scenarios)s")
+    s.add_argument(
+        "--model", help=f"registered model, one of %(models)s (default: {d('model')})"
+    )
+    s.add_argument(
+        "--model-option",
+        dest="model_options",
+        type=_assignments("model-option"),
+        action="append",
+        help="a setting of the model, NAME=VALUE (repeatable)",
+    )
+    s.add_argument(
+        "--true",
+        type=_assignments("true"),
+        help="parameter values, NAME=VALUE[,...] (default: the model's)",
+    )
     s.add_argument("--steps", type=_number("steps", int), default=20, help="load steps")
-    s.add_argument("--model", default="svk-beam", help="registered model name")
     s.add_argument(
         "--out", type=_path("out"), required=True, help="output .xdmf file"
     )
+    for name, entry in sorted(registry().commands.items()):
+        command = entry.obj
+        q = sub.add_parser(name, help=f"{command.help} (plugin {entry.plugin})")
+        command.configure(q)
     return parser
+
+
+def _add_shorthands(parser: argparse.ArgumentParser) -> None:
+    """The models' shorthand options (e.g. the beam's ``--nu``)."""
+    seen: set[str] = set()
+    for model, entry in registry().models.items():
+        for option, (setting, text) in (
+            entry.defaults.shorthands.items() if entry.defaults else ()
+        ):
+            if option in seen:
+                continue
+            seen.add(option)
+            parser.add_argument(
+                f"--{option}",
+                dest=f"shorthand:{setting}",
+                type=_value,
+                help=f"{text}: sets the {model} setting {setting!r} "
+                f"(same as --model-option {setting}=VALUE)",
+            )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -222,6 +434,7 @@ def main(argv: list[str] | None = None) -> int:
     from idbench.results import ResultsError
 
     argv = sys.argv[1:] if argv is None else list(argv)
+    _REGISTRY.clear()  # plugins may have changed since the last call (tests)
     debug = "--debug" in argv
     argv = [a for a in argv if a != "--debug"]
     with contextlib.suppress(Exception):  # stderr may have no file descriptor
@@ -233,14 +446,19 @@ def main(argv: list[str] | None = None) -> int:
             build_parser().print_help()
             return 2
         _logging(getattr(args, "verbose", 0), debug)
-        handler = {
+        handlers = {
             "report": cmd_report,
             "plugins": cmd_plugins,
             "compare": cmd_compare,
             "simulate": cmd_simulate,
-            "calibrate": cmd_calibrate,
-        }[args.command]
-        return handler(args)
+            "info": cmd_info,
+        }
+        if args.command in handlers:
+            return handlers[args.command](args)
+        try:
+            return int(registry().commands[args.command].obj.run(args))
+        except ValueError as exc:  # a plugin command's bad input
+            raise UsageError(str(exc)) from None
     except (UsageError, ConfigError, ResultsError) as exc:
         return _fail(exc, 2, debug)
     except ModelFailure as exc:
@@ -335,20 +553,22 @@ def cmd_plugins(args: argparse.Namespace) -> int:
 def cmd_compare(args: argparse.Namespace) -> int:
     """``idbench compare``: run a comparison, write the tables, print a summary."""
     from idbench.config import build_config, load_toml
-    from idbench.harness import Session
-    from idbench.plugins import build_registry
-    from idbench.report import summary_table
+    from idbench.progress import CompareProgress
+    from idbench.report import summary_text
+    from idbench.session import Session
     from idbench.sweep import compare, plan
 
     if args.out is None:
         args.out = Path("idbench-out-quick" if args.quick else "idbench-out")
-    toml = load_toml(args.config) if args.config else None
+    reg = registry()
+    toml = load_toml(args.config, _shorthand_settings(reg)) if args.config else None
     prior = args.prior
     if prior is not None and len(prior) != 2:
         raise UsageError(f"--prior {args.prior_text!r}: need MEAN,STD")
     config = build_config(
         quick=args.quick,
         toml=toml,
+        registry=reg,
         estimators=args.estimators,
         meshes=args.meshes,
         truth_mesh=args.truth_mesh,
@@ -358,52 +578,23 @@ def cmd_compare(args: argparse.Namespace) -> int:
         noise=args.noise,
         seeds=args.seeds,
         steps=args.steps,
-        E_true=args.E_true,
-        nu=args.nu,
+        true=args.true,
         prior=prior,
         timeout=args.timeout,
+        model=args.model,
+        shorthand_settings=_model_options(args) or None,
     )
-    registry = build_registry()
+    the_plan = plan(config, Session(reg))
     if args.dry_run:
-        the_plan = plan(config, Session(registry))
         nodes = ", ".join(f"{m}: {n} nodes" for m, n in the_plan.nodes.items())
         print(
             f"{len(the_plan.runs)} runs; meshes {nodes}; "
             f"about {the_plan.solves} forward solves"
         )
         return 0
-    from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
-    console = Console(stderr=True)
-    show = console.is_terminal and not args.quiet
-    with Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        TextColumn("{task.completed}/{task.total}"),
-        TimeRemainingColumn(),
-        console=console,
-        disable=not show,
-    ) as bar:
-        task = bar.add_task("runs", total=None)
-
-        def progress(done: int, total: int, row: dict[str, Any]) -> None:
-            bar.update(
-                task,
-                completed=done,
-                total=total,
-                description=f"{row['estimator']} {row['mesh']} {row['status']}",
-            )
-            if not show and not args.quiet:
-                log.info(
-                    "run %d/%d %s %s: %s",
-                    done,
-                    total,
-                    row["estimator"],
-                    row["mesh"],
-                    row["status"],
-                )
-
+    with CompareProgress(
+        the_plan.runs, args.out, args.jobs, quiet=args.quiet
+    ) as progress:
         runs, _ = compare(
             config,
             args.out,
@@ -411,20 +602,52 @@ def cmd_compare(args: argparse.Namespace) -> int:
             scheduler=args.scheduler,
             progress=progress,
         )
+    machine = args.format in ("csv", "json")
+    say = sys.stderr if machine else sys.stdout
+    if not args.quiet or machine:
+        width = None
+        if args.format == "table" and sys.stdout.isatty():
+            import shutil
+
+            width = shutil.get_terminal_size().columns
+        print(summary_text(runs, args.format, width=width))
     if not args.quiet:
-        Console().print(summary_table(runs))
-        print(f"wrote {args.out / 'runs.parquet'} and {args.out / 'traces.parquet'}")
+        print(
+            f"wrote {args.out / 'runs.parquet'} and {args.out / 'traces.parquet'}",
+            file=say,
+        )
     if args.plot:
         from idbench.report import write_report
 
         for path in write_report(args.out):
             if not args.quiet:
-                print(f"wrote {path}")
+                print(f"wrote {path}", file=say)
     return 0
 
 
+def _shorthand_settings(reg: Any) -> dict[str, str]:
+    """Every model's shorthand option -> the setting it sets."""
+    out: dict[str, str] = {}
+    for entry in reg.models.values():
+        if entry.defaults:
+            for option, (setting, _) in entry.defaults.shorthands.items():
+                out.setdefault(option, setting)
+    return out
+
+
+def _model_options(args: argparse.Namespace) -> dict[str, Any]:
+    """``--model-option`` values and the models' shorthand options, merged."""
+    given: dict[str, Any] = {}
+    for item in getattr(args, "model_options", None) or ():
+        given.update(item)
+    for key, value in vars(args).items():
+        if key.startswith("shorthand:") and value is not None:
+            given[key.split(":", 1)[1]] = value
+    return given
+
+
 def cmd_report(args: argparse.Namespace) -> int:
-    """``idbench report DIR``: figures (PNG, SVG) and report.md."""
+    """``idbench report DIR``: figures (PNG, SVG), report.md and report.html."""
     from idbench.report import write_report
 
     try:
@@ -441,132 +664,95 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_calibrate(args: argparse.Namespace) -> int:
-    """``idbench calibrate``: the E_eff map, its collapse and held-back scores."""
-    from rich.console import Console
+def cmd_info(args: argparse.Namespace) -> int:
+    """``idbench info NAME``: a registered estimator's or model's settings."""
+    from idbench.info import settings, summary_line
 
-    from idbench.calibrate import (
-        ANGLES,
-        HELD_BACK,
-        CalibrationSettings,
-        calibrate,
-        collapse,
-        evaluate,
-    )
-    from idbench.interfaces import ModelFailure
-    from idbench.plugins import build_registry
-
-    if args.out.exists() and not args.out.is_dir():
-        raise UsageError(f"--out {str(args.out)!r} is a file; need a directory")
-    settings = CalibrationSettings(
-        mesh=args.mesh,
-        truth_mesh=args.truth_mesh,
-        angles=args.angles or ANGLES,
-        steps=args.steps,
-        E_true=args.E_true,
-        nu=args.nu,
-        model=args.model,
-    )
-    scenarios = HELD_BACK if args.evaluate is None else args.evaluate
-    if tuple(scenarios) == ("none",):
-        scenarios = ()
-    if args.seeds < 1:
-        raise UsageError(f"--seeds {args.seeds}: must be >= 1")
-    for angle in args.evaluate_angles:
-        if not 0 <= angle <= 90:
-            raise UsageError(f"--evaluate-angles {angle:g}: must be in 0..90")
-    registry = build_registry()
-    for name, table in (("scenario", registry.scenarios), ("model", registry.models)):
-        wanted = scenarios if name == "scenario" else (args.model,)
-        for value in wanted:
-            if value not in table:
-                raise UsageError(
-                    f"unknown {name} {value!r}; known: {', '.join(sorted(table))}"
-                )
-    console = Console(stderr=True)
-
-    def progress(done: int, total: int, angle: float) -> None:
-        if not args.quiet:
-            console.print(f"calibrated {done}/{total}: {angle:g} deg")
-
-    try:
-        result = calibrate(settings, registry, progress)
-    except (ValueError, OSError) as exc:
-        raise UsageError(str(exc)) from None
-    except ModelFailure as exc:
-        print(f"idbench: calibration failed: {exc}", file=sys.stderr)
-        return 1
-    written = result.save(args.out)
-    fit = collapse(result)
-    fit.to_csv(args.out / "collapse.csv", index=False)
-    written.append(args.out / "collapse.csv")
-    if scenarios:
-        paths = [*scenarios, *(result.manipulation(a) for a in args.evaluate_angles)]
-        try:
-            scores = evaluate(
-                result, paths, seeds=args.seeds, registry=registry,
-                out=args.out / "ro-ukf",
-            )  # fmt: skip
-        except ModelFailure as exc:
-            print(f"idbench: evaluation failed: {exc}", file=sys.stderr)
-            return 1
-        scores.to_parquet(args.out / "evaluation.parquet", index=False)
-        scores.to_csv(args.out / "evaluation.csv", index=False)
-        written += [args.out / "evaluation.parquet", args.out / "evaluation.csv"]
-    if not args.quiet:
-        wide = result.table.pivot(index="fraction", columns="angle", values="ratio")
-        print("E_eff / E_true by load fraction (rows) and angle in degrees (columns)")
-        print(wide.round(3).to_string())
-        print(fit.round(4).to_string(index=False))
-        if scenarios:
-            print(scores.round(6).to_string(index=False))
-        for path in written:
-            print(f"wrote {path}")
+    reg = registry()
+    obj: Any
+    if args.name in reg.estimators:
+        kind, obj = "estimator", reg.estimator(args.name)
+        plugin = reg.estimators[args.name].plugin
+    elif args.name in reg.models:
+        kind, obj = "model", reg.models[args.name].settings or reg.model(args.name)
+        plugin = reg.models[args.name].plugin
+    else:
+        known = sorted({*reg.estimators, *reg.models})
+        raise UsageError(f"unknown name {args.name!r}; known: {', '.join(known)}")
+    rows = settings(obj)
+    summary = summary_line(obj)
+    if args.json:
+        out = {"name": args.name, "kind": kind, "plugin": plugin, "summary": summary}
+        print(json.dumps({**out, "settings": rows}, indent=2, default=repr))
+        return 0
+    print(f"{args.name} ({kind}, plugin {plugin}): {summary}")
+    if not rows:
+        print("no declared settings")
+        return 0
+    if kind == "estimator":
+        print(f"set in a TOML file as [estimators.{args.name}] NAME = VALUE")
+    else:
+        print(
+            f"set with --model-option NAME=VALUE or in a TOML file as "
+            f"[model.{args.name}] NAME = VALUE"
+        )
+    width = max(len(r["name"]) for r in rows)
+    for r in rows:
+        print(f"  {r['name']:<{width}}  {r['type']} = {r['default']!r}")
+        if r["meaning"]:
+            print(f"  {'':<{width}}  {r['meaning']}")
     return 0
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    """``idbench simulate``: one load path, written as an XDMF time series."""
+    """``idbench simulate``: one load path, written as an XDMF time series.
+
+    Needs a model that can show its field: ``mesh() -> (points, tets)`` and
+    ``displacement_field(state) -> (N, 3)``; its probes are printed per step.
+    """
     import meshio
     import numpy as np
 
+    from idbench.config import CompareConfig
     from idbench.interfaces import ModelSpec
-    from idbench.plugins import build_registry
+    from idbench.session import model_settings, true_values
     from idbench.truth import simulate_path
 
     if args.out.is_dir() or args.out.suffix.lower() != ".xdmf":
         raise UsageError(f"--out {str(args.out)!r}: need a file name ending in .xdmf")
     if args.steps < 1:
         raise UsageError(f"--steps {args.steps}: must be >= 1")
-    if not 0 < args.E:
-        raise UsageError(f"--E {args.E}: must be > 0")
-    if not -1 < args.nu < 0.5:
-        raise UsageError(f"--nu {args.nu}: must be in (-1, 0.5)")
-    reg = build_registry()
+    reg = registry()
+    model_name = CompareConfig(model=args.model).resolve(reg).model
+    assert model_name is not None
+    settings = model_settings(reg, model_name, _model_options(args))
     try:
         scenario = reg.scenario(args.scenario)
-        factory = reg.model(args.model)
     except KeyError as exc:
         raise UsageError(str(exc.args[0])) from None
-    spec = ModelSpec(mesh=args.mesh, scenario=scenario, n_steps=args.steps, nu=args.nu)
+    spec = ModelSpec(args.mesh, scenario, n_steps=args.steps, settings=settings)
     try:
-        model = factory(spec)
+        model = reg.model(model_name)(spec)
     except (ValueError, OSError) as exc:
         raise UsageError(f"--mesh {args.mesh!r}: {exc}") from None
-    theta = np.full(model.parameters.p, args.E)
-    states = simulate_path(model, theta)
+    if not (hasattr(model, "mesh") and hasattr(model, "displacement_field")):
+        raise UsageError(
+            f"model {model_name!r} has no mesh() and displacement_field(): "
+            "it cannot be written for ParaView"
+        )
+    true = true_values(model.parameters, args.true or {}, model_name)
+    states = simulate_path(model, np.array([v for _, v in true]))
     points, tets = model.mesh()
     args.out.parent.mkdir(parents=True, exist_ok=True)
+    probes = getattr(model, "probes", None)
     with meshio.xdmf.TimeSeriesWriter(args.out, data_format="XML") as writer:
         writer.write_points_cells(points, [("tetra", tets)])
         for k, state in enumerate(states, start=1):
             u = model.displacement_field(state)
             writer.write_data(k / args.steps, point_data={"displacement": u})
-            tip = model.tip(state)
-            print(
-                f"step {k:3d}  load {k / args.steps:5.2f}  tip displacement "
-                f"{tip[0]: .5f} {tip[1]: .5f} {tip[2]: .5f} m"
-            )
+            named = probes(state) if probes else {}
+            shown = "  ".join(f"{n} {v: .5g}" for n, v in named.items())
+            print(f"step {k:3d}  load {k / args.steps:5.2f}  {shown}".rstrip())
     print(f"wrote {args.out}")
     return 0
 

@@ -409,7 +409,10 @@ def build_config(
         fields["model"] = name
         models[name] = {**models.get(name, {}), **short}  # shorthands win
         fields["model_settings"] = models
+    quick = quick or bool(fields.get("quick", False))
+    if quick:
+        fields.setdefault("seeds", 1)
     try:
-        return CompareConfig(**{**fields, "quick": quick or fields.get("quick", False)})
+        return CompareConfig(**{**fields, "quick": quick})
     except TypeError as exc:
         raise ConfigError(str(exc)) from None

@@ -16,7 +16,7 @@ system) or compute the truth themselves.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
+from collections.abc import Generator
 from typing import Any
 
 from idbench.config import ConfigError
@@ -42,7 +42,9 @@ def _client(address: str) -> Any:
         ) from None
 
 
-def execute_on_dask(runs: list[RunSpec], address: str) -> Iterator[RunResult]:
+def execute_on_dask(
+    runs: list[RunSpec], address: str
+) -> Generator[RunResult, None, None]:
     """Execute ``runs`` on the Dask scheduler at ``address``; yield as they finish."""
     from distributed import as_completed
 

@@ -1,5 +1,7 @@
 """Where runs execute: in this process, or in worker processes we can kill.
 
+(A Dask cluster is the third place: :mod:`idbench.distributed`.)
+
 :func:`execute_all` picks the executor. In-process runs are the fastest and
 accept a registry built by hand; worker processes isolate the sweep from what
 a run can do to its process (``os._exit``, a segfault, a hang in compiled code
@@ -79,7 +81,6 @@ def execute_all(
     session: Session,
     *,
     jobs: int = 1,
-    scheduler: str | None = None,
     timeout: float | None = None,
     order: Callable[[list[RunSpec]], list[RunSpec]] | None = None,
     key: Callable[[RunSpec], Any] | None = None,
@@ -94,8 +95,6 @@ def execute_all(
         This process's session (used by in-process runs).
     jobs
         Worker processes; 1 without a timeout runs in this process.
-    scheduler
-        A Dask scheduler address: run there instead.
     timeout
         With a timeout, runs always go to worker processes (even ``jobs=1``)
         so that a run hung in compiled code can be killed.
@@ -103,11 +102,7 @@ def execute_all(
         Dispatch order and the key under which runs share a reference fit
         (passed on from worker to worker); defaults: as given, none shared.
     """
-    if scheduler:
-        from idbench.distributed import execute_on_dask
-
-        yield from execute_on_dask(runs, scheduler)
-    elif jobs == 1 and timeout is None:
+    if jobs == 1 and timeout is None:
         for spec in runs:
             yield execute(spec, session)
     else:

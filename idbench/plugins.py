@@ -201,6 +201,11 @@ class Registry:
         """The scenario registered as ``name``."""
         return _lookup(self.scenarios, name, "scenario").obj  # type: ignore[no-any-return]
 
+    def with_scenarios(self, scenarios: list[Scenario], plugin: str) -> Registry:
+        """A copy that also knows ``scenarios`` (ad-hoc load paths of a tool)."""
+        added = {sc.name: Entry(sc.name, sc, plugin) for sc in scenarios}
+        return dataclasses.replace(self, scenarios={**self.scenarios, **added})
+
     def broken(self) -> str:
         """A note naming the plugins that failed (empty if none), for messages."""
         if not self.errors:

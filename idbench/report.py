@@ -1,4 +1,7 @@
-"""Summaries and figures of a comparison's results."""
+"""The report of a comparison: frontier table, figures, report.md and report.html.
+
+The summary itself lives in :mod:`idbench.summary` (re-exported here).
+"""
 
 from __future__ import annotations
 
@@ -8,30 +11,31 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from idbench.summary import (
+    FORMATS,
+    _markdown,
+    headers,
+    parameter_names,
+    summarise,
+    summary_text,
+    sweep_axes,
+)
 
-def summarise(runs: pd.DataFrame) -> pd.DataFrame:
-    """One row per (scenario, mesh, estimator): means over seeds and settings."""
-    if runs.empty:
-        return pd.DataFrame()
-    df = runs.copy()
-    df["E_ratio"] = df.get("E_final", np.nan) / df.get("E_true", np.nan)
-    keys = ["scenario", "mesh", "model_nodes", "estimator"]
-    agg: dict[str, Any] = {
-        "runs": ("run_id", "size"),
-        "ok": ("status", lambda s: int((s == "ok").sum())),
-        "E_final": ("E_final", "mean"),
-        "E_ratio": ("E_ratio", "mean"),
-        "E_ref": ("E_ref", "mean"),
-        "settling_step": ("settling_step", "mean"),
-        "shape_error_final": ("shape_error_final", "mean"),
-        "shape_error_direct": ("shape_error_direct", "mean"),
-        "transfer_error": ("transfer_error", "mean"),
-        "n_solves": ("n_solves", "mean"),
-        "wall_s_step": ("wall_s_step", "mean"),
-    }
-    agg = {k: v for k, v in agg.items() if v[0] in df.columns}
-    return df.groupby(keys, dropna=False, sort=True).agg(**agg).reset_index()
-
+__all__ = [
+    "BUDGETS_HZ",
+    "FORMATS",
+    "figures",
+    "frontier",
+    "frontier_display",
+    "frontier_figure",
+    "headers",
+    "pareto_front",
+    "parameter_names",
+    "summarise",
+    "summary_text",
+    "sweep_axes",
+    "write_report",
+]
 
 BUDGETS_HZ = (30, 60)
 FRONTIER_KEYS = ["scenario", "mesh", "model_nodes", "estimator"]
@@ -151,186 +155,71 @@ def pareto_front(cost: np.ndarray, error: np.ndarray) -> np.ndarray:
     return finite & ~dominated
 
 
-SUMMARY_COLUMNS = {
-    "scenario": "scenario",
-    "model_nodes": "nodes",
-    "estimator": "estimator",
-    "ok": "ok",
-    "E_final": "E final",
-    "E_ratio": "E/E_true",
-    "E_ref": "E_ref",
-    "settling_step": "settle",
-    "shape_error_final": "shape err",
-    "shape_error_direct": "direct",
-    "transfer_error": "transfer",
-    "n_solves": "solves",
-    "wall_s_step": "s/step",
-}
+def figures(
+    runs: pd.DataFrame, traces: pd.DataFrame, study: pd.DataFrame | None = None
+) -> dict[str, Any]:
+    """The report's figures (matplotlib), by file stem.
 
-
-def summary_table(runs: pd.DataFrame) -> Any:
-    """A rich table of :func:`summarise`, grouped by mesh and estimator."""
-    from rich.table import Table
-
-    summary = summarise(runs)
-    table = Table(title="idbench compare: means over seeds")
-    if summary.empty:
-        table.add_column("no runs")
-        return table
-    cols = [c for c in SUMMARY_COLUMNS if c in summary.columns]
-    for col in cols:
-        text = not pd.api.types.is_numeric_dtype(summary[col])
-        table.add_column(SUMMARY_COLUMNS[col], justify="left" if text else "right")
-    for _, row in summary.iterrows():
-        table.add_row(*(_fmt(row[c]) for c in cols))
-    return table
-
-
-def _fmt(v: Any) -> str:
-    if isinstance(v, float | np.floating):
-        if not np.isfinite(v):
-            return "-"
-        return f"{v:.4g}"
-    return str(v)
-
-
-def _figures(runs: pd.DataFrame, traces: pd.DataFrame) -> dict[str, Any]:
-    """The report's figures (matplotlib), by file stem."""
+    ``stiffness_vs_resolution`` (one panel per parameter), ``shape_error``
+    (one per scenario) and ``estimates_vs_step`` (one per parameter) need ok
+    runs and a parameter; ``realtime_frontier`` is always drawn (it says so
+    when no run is ok). See :mod:`idbench.figures`.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from idbench import figures as fg
 
     figs: dict[str, Any] = {}
     ok = runs[runs["status"] == "ok"] if "status" in runs else runs
-    if ok.empty or "E_final" not in ok:
-        return figs
-    # identified E against model resolution, one line per estimator
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for est, df in ok.groupby("estimator"):
-        e = df.groupby("model_nodes")["E_final"].mean()
-        ax.plot(e.index.to_numpy(), e.to_numpy(), "o-", label=str(est))
-    ax.axhline(float(ok["E_true"].iloc[0]), color="k", ls="--", label="E_true")
-    ax.set(
-        xscale="log",
-        xlabel="model nodes",
-        ylabel="identified E (Pa)",
-        title="Identified stiffness against resolution",
-    )
-    ax.legend(fontsize="small")
-    figs["stiffness_vs_resolution"] = fig
-    # shape error: direct simulation with E_true against assimilation
-    fig, ax = plt.subplots(figsize=(6, 4))
-    d = ok.groupby("model_nodes")["shape_error_direct"].mean()
-    ax.plot(d.index.to_numpy(), d.to_numpy(), "ks--", label="direct (E_true)")
-    for est, df in ok.groupby("estimator"):
-        h = df.groupby("model_nodes")["shape_error_final"].mean()
-        ax.plot(h.index.to_numpy(), h.to_numpy(), "o-", label=str(est))
-    ax.set(
-        xscale="log",
-        xlabel="model nodes",
-        ylabel="shape error (m, sum over grid)",
-        title="Shape error at the last step",
-    )
-    ax.legend(fontsize="small")
-    figs["shape_error"] = fig
-    # effective E along the path, per scenario and mesh (first seed)
-    if not traces.empty and "E" in traces:
-        tr = traces.merge(ok[["run_id", "scenario", "mesh", "estimator", "seed"]])
-        tr = tr[tr["seed"] == tr["seed"].min()]
-        fig, ax = plt.subplots(figsize=(6, 4))
-        for (scen, mesh, est), df in tr.groupby(["scenario", "mesh", "estimator"]):
-            ax.plot(df["step"], df["E"], label=f"{scen} {mesh} {est}", lw=1)
-        ax.set(
-            xlabel="load step",
-            ylabel="estimate of E (Pa)",
-            title="Estimates along the load path",
+    names = parameter_names(runs)
+    axes = [a for a in sweep_axes(runs) if a in ok.columns]
+    if not ok.empty and names:
+        figs["stiffness_vs_resolution"] = fg.parameters_vs_resolution(
+            ok, names, axes, study
         )
-        ax.legend(fontsize="xx-small", ncol=2)
-        figs["estimates_vs_step"] = fig
-    table = frontier(runs, traces)
-    if not table.empty:
-        figs["realtime_frontier"] = frontier_figure(table)
+    if not ok.empty and "shape_error_mean_final" in ok:
+        figs["shape_error"] = fg.shape_error_vs_resolution(ok, axes, study)
+    if not ok.empty and not traces.empty and names and names[0] in traces:
+        figs["estimates_vs_step"] = fg.estimates_vs_step(ok, traces, names, axes)
+    figs["realtime_frontier"] = fg.frontier_figure(frontier(runs, traces), BUDGETS_HZ)
     return figs
 
 
+def frontier_display(table: pd.DataFrame) -> pd.DataFrame:
+    """The :func:`frontier` table for people: shape error in mm per grid point."""
+    if table.empty or "shape_error_mean_final" not in table:
+        return table
+    out = table.drop(columns=["shape_error_final", "shape_error_mean_final"])
+    out.insert(
+        list(table.columns).index("shape_error_final"),
+        "shape_error_mm",
+        1000.0 * table["shape_error_mean_final"],
+    )
+    return out
+
+
 def frontier_figure(table: pd.DataFrame) -> Any:
-    """Shape error against wall time per step (log-log), from :func:`frontier`.
+    """Shape error against wall time per step; see :mod:`idbench.figures`."""
+    from idbench.figures import frontier_figure as draw
 
-    One marker per (mesh, estimator), labelled with its node count; one colour
-    per estimator; vertical lines at the real-time budgets; the Pareto front of
-    each scenario as a step line.
-    """
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    scenarios = sorted(table["scenario"].unique()) if "scenario" in table else [None]
-    markers = "osD^v<>"
-    labelled: list[tuple[float, float, float]] = []
-    for i, (est, df) in enumerate(table.groupby("estimator", sort=True)):
-        for j, scen in enumerate(scenarios):
-            d = df if scen is None else df[df["scenario"] == scen]
-            label = str(est) if len(scenarios) == 1 else f"{est} {scen}"
-            ax.plot(
-                d["wall_s_step"],
-                d["shape_error_final"],
-                markers[j % len(markers)],
-                color=f"C{i}",
-                label=label,
-                ms=6,
-            )
-            for _, row in d.iterrows():
-                here = (
-                    row["model_nodes"],
-                    row["wall_s_step"],
-                    row["shape_error_final"],
-                )
-                if any(_near(here, q) for q in labelled):
-                    continue  # an equal mesh's label is already there
-                labelled.append(here)
-                ax.annotate(
-                    f"{row['model_nodes']:.0f}",
-                    (row["wall_s_step"], row["shape_error_final"]),
-                    xytext=(4, 3),
-                    textcoords="offset points",
-                    fontsize="x-small",
-                )
-    for scen in scenarios:
-        d = table if scen is None else table[table["scenario"] == scen]
-        front = d[d["pareto"]].sort_values("wall_s_step")
-        ax.plot(
-            front["wall_s_step"],
-            front["shape_error_final"],
-            "k-",
-            drawstyle="steps-post",
-            lw=0.8,
-            alpha=0.6,
-            label="Pareto front" if scen == scenarios[0] else None,
-        )
-    for hz, ls in zip(BUDGETS_HZ, ("--", ":"), strict=False):
-        ax.axvline(1.0 / hz, color="grey", ls=ls, lw=1, label=f"{hz} Hz budget")
-    ax.set(
-        xscale="log",
-        yscale="log",
-        xlabel="wall time per step (s)",
-        ylabel="shape error at the last step (m, sum over grid)",
-        title="Real-time frontier: accuracy against cost per step",
-    )
-    ax.legend(fontsize="x-small")
-    return fig
+    return draw(table, BUDGETS_HZ)
 
 
-def _near(a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
-    """Same node count and within 15% on both axes of a log-log plot."""
-    return bool(
-        a[0] == b[0]
-        and abs(np.log(a[1] / b[1])) < 0.14
-        and abs(np.log(a[2] / b[2])) < 0.14
-    )
+def write_report(
+    directory: str | Path, study: pd.DataFrame | None = None
+) -> list[Path]:
+    """Write figures (PNG, SVG), ``report.md`` and ``report.html`` for DIR.
 
-
-def write_report(directory: str | Path) -> list[Path]:
-    """Write figures (PNG and SVG) and ``report.md`` for a compare output DIR.
+    Parameters
+    ----------
+    directory
+        A compare output (``runs.parquet``, ``traces.parquet``,
+        ``manifest.json``).
+    study
+        Values the original study reported, overlaid on the figures (columns
+        ``figure``, ``x``, ``y``, optional ``label``). Default: DIR's
+        ``study_values.csv`` if there is one.
 
     Returns
     -------
@@ -339,32 +228,41 @@ def write_report(directory: str | Path) -> list[Path]:
     """
     import matplotlib.pyplot as plt
 
+    from idbench.html_report import write_html
+
     root = Path(directory)
     runs_path, traces_path = root / "runs.parquet", root / "traces.parquet"
     if not runs_path.exists():
         raise FileNotFoundError(f"{runs_path} not found: is {root} a compare output?")
     runs = pd.read_parquet(runs_path)
     traces = pd.read_parquet(traces_path) if traces_path.exists() else pd.DataFrame()
+    if study is None and (root / "study_values.csv").exists():
+        study = pd.read_csv(root / "study_values.csv")
     written = []
-    for stem, fig in _figures(runs, traces).items():
+    svgs: dict[str, str] = {}
+    for stem, fig in figures(runs, traces, study).items():
         for ext in ("png", "svg"):
             path = root / f"{stem}.{ext}"
-            fig.savefig(path, dpi=110)
+            fig.savefig(path, dpi=110, bbox_inches="tight")
             written.append(path)
+        svgs[stem] = (root / f"{stem}.svg").read_text()
         plt.close(fig)
     summary = summarise(runs)
+    table = frontier(runs, traces)
     lines = [
         "# idbench report",
         "",
         f"{len(runs)} runs; status: "
         + ", ".join(f"{k} {v}" for k, v in runs["status"].value_counts().items()),
         "",
-        "## Means over seeds",
+        "## Summary",
         "",
-        _markdown(summary),
+        "Means over the ok runs of each row; n: runs (one a seed). Shape errors"
+        " in mm per grid point.",
+        "",
+        _markdown(summary, headers(summary)),
         "",
     ]
-    table = frontier(runs, traces)
     if not table.empty:
         lines += [
             "## Real-time frontier",
@@ -375,23 +273,12 @@ def write_report(directory: str | Path) -> list[Path]:
             " strictly better in one;"
             " `best_<rate>hz`: lowest shape error within that budget.",
             "",
-            _markdown(table),
+            _markdown(frontier_display(table)),
             "",
         ]
     lines += [f"![{p.stem}]({p.name})" for p in written if p.suffix == ".png"]
     md = root / "report.md"
     md.write_text("\n".join(lines) + "\n")
     written.append(md)
+    written.append(write_html(root, runs, summary, frontier_display(table), svgs))
     return written
-
-
-def _markdown(df: pd.DataFrame) -> str:
-    if df.empty:
-        return "(no runs)"
-    head = "| " + " | ".join(map(str, df.columns)) + " |"
-    rule = "|" + "---|" * len(df.columns)
-    body = [
-        "| " + " | ".join(_fmt(v) for v in row) + " |"
-        for row in df.itertuples(index=False)
-    ]
-    return "\n".join([head, rule, *body])

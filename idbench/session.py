@@ -14,7 +14,14 @@ from typing import Any
 import numpy as np
 
 from idbench.config import ConfigError, public_settings, suggest
-from idbench.interfaces import FloatArray, ForwardModel, ModelSpec, Observation, Prior
+from idbench.interfaces import (
+    FloatArray,
+    ForwardModel,
+    ModelSpec,
+    Observation,
+    ParameterSpec,
+    Prior,
+)
 from idbench.plugins import Registry, build_registry
 from idbench.runspec import RunSpec
 from idbench.truth import Truth, simulate_path, simulate_truth
@@ -62,6 +69,42 @@ def settings_identity(settings: Any) -> tuple[Any, ...]:
     if callable(identity):
         return tuple(identity())
     return tuple([list(item) for item in settings_items(settings)])
+
+
+def true_values(
+    parameters: ParameterSpec, given: dict[str, float], model: str
+) -> tuple[tuple[str, float], ...]:
+    """The true value of every parameter: ``given``, else the model's default.
+
+    Raises
+    ------
+    ConfigError
+        For a name the model does not have, a value missing without a default,
+        or values outside the parameter bounds.
+    """
+    names = parameters.names
+    for name in given:
+        if name not in names:
+            raise ConfigError(
+                f"true value for {name!r}: model {model!r} has no such parameter; "
+                f"its parameters: {', '.join(names)}"
+            )
+    defaults = parameters.default or (None,) * len(names)
+    values = []
+    for name, default in zip(names, defaults, strict=True):
+        value = given.get(name, default)
+        if value is None:
+            raise ConfigError(
+                f"no true value for parameter {name!r} of model {model!r}: "
+                f"give one with --true {name}=VALUE"
+            )
+        values.append((name, float(value)))
+    if not parameters.contains(np.array([v for _, v in values])):
+        raise ConfigError(
+            f"true values {dict(values)} lie outside the parameter bounds "
+            f"{parameters.lower}..{parameters.upper}"
+        )
+    return tuple(values)
 
 
 class Session:

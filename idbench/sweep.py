@@ -20,16 +20,21 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
 from idbench.config import CompareConfig, ConfigError, public_settings, suggest
 from idbench.executors import THREAD_ENV, execute_all
-from idbench.interfaces import ForwardModel, ModelFailure, ModelSpec, ParameterSpec
+from idbench.interfaces import ForwardModel, ModelFailure, ModelSpec
 from idbench.plugins import Registry, build_registry
 from idbench.results import ResultStore
 from idbench.runspec import RunSpec, Setup, expand
-from idbench.session import Session, model_settings, settings_identity, settings_items
+from idbench.session import (
+    Session,
+    model_settings,
+    settings_identity,
+    settings_items,
+    true_values,
+)
 
 log = logging.getLogger(__name__)
 
@@ -86,7 +91,7 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         identity=settings_identity(settings),
         truth_mesh=config.truth_mesh,
         steps=config.steps,
-        true=_true_values(probe.parameters, config.true, config.model),
+        true=true_values(probe.parameters, config.true, config.model),
         prior=(float(config.prior[0]), float(config.prior[1])),  # type: ignore[index]
         reference=config.reference,  # type: ignore[arg-type]
     )
@@ -111,6 +116,11 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         steps = config.steps
         solves += int(guess(n_state, p, steps)) if guess else 2 * steps
     return Plan(config, runs, nodes, solves)
+
+
+def runs_of(config: CompareConfig, registry: Registry | None = None) -> list[RunSpec]:
+    """The runs of ``config``, resolved and validated (see :func:`plan`)."""
+    return plan(config, Session(registry or build_registry())).runs
 
 
 def _build(
@@ -147,35 +157,6 @@ def _build(
             f"model {config.model!r} (plugin {reg.models[config.model].plugin!r}) "
             f"raised {type(exc).__name__} building mesh {mesh!r}: {exc}"
         ) from None
-
-
-def _true_values(
-    parameters: ParameterSpec, given: dict[str, float], model: str
-) -> tuple[tuple[str, float], ...]:
-    """The true value of every parameter: ``given``, else the model's default."""
-    names = parameters.names
-    for name in given:
-        if name not in names:
-            raise ConfigError(
-                f"true value for {name!r}: model {model!r} has no such parameter; "
-                f"its parameters: {', '.join(names)}"
-            )
-    defaults = parameters.default or (None,) * len(names)
-    values = []
-    for name, default in zip(names, defaults, strict=True):
-        value = given.get(name, default)
-        if value is None:
-            raise ConfigError(
-                f"no true value for parameter {name!r} of model {model!r}: "
-                f"give one with --true {name}=VALUE"
-            )
-        values.append((name, float(value)))
-    if not parameters.contains(np.array([v for _, v in values])):
-        raise ConfigError(
-            f"true values {dict(values)} lie outside the parameter bounds "
-            f"{parameters.lower}..{parameters.upper}"
-        )
-    return tuple(values)
 
 
 def _check_estimator_settings(
@@ -312,15 +293,19 @@ def _compare(
         except ConfigError:
             store.discard_if_unused()  # so fixed settings can use the folder
             raise
-    results = execute_all(
-        pending,
-        session,
-        jobs=jobs,
-        scheduler=scheduler,
-        timeout=config.timeout if isolate else None,
-        order=interleave,
-        key=RunSpec.reference_key,
-    )
+    if scheduler:
+        from idbench.distributed import execute_on_dask
+
+        results = execute_on_dask(pending, scheduler)
+    else:
+        results = execute_all(
+            pending,
+            session,
+            jobs=jobs,
+            timeout=config.timeout if isolate else None,
+            order=interleave,
+            key=RunSpec.reference_key,
+        )
     order = [r.run_id for r in the_plan.runs]
     try:
         for row, traces in results:

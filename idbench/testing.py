@@ -84,6 +84,7 @@ def check_model(
     assert g.ndim == 2 and g.shape[1] == 3, "grid() must have shape (G, 3)"
     desc = model.describe()
     assert isinstance(desc, dict), "describe() must return a dict"
+    check_optional_members(model, first[-1])
     sens = getattr(model, "sensitivity", None)
     if sens is None:
         return
@@ -103,6 +104,48 @@ def check_model(
     scale = max(np.abs(fd).max(), np.finfo(float).tiny)
     err = np.abs(J - fd).max() / scale
     assert err <= fd_rtol, f"sensitivity differs from finite differences by {err:.2e}"
+
+
+def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
+    """Check the optional members a model has: probes, n_nodes, default truths.
+
+    ``probes(state)`` must map names to finite scalars (they become traces
+    columns, so they must not shadow the core's); ``n_nodes`` must be a whole
+    number >= 1; ``parameters.default``, if set, must lie inside the bounds.
+    """
+    probes = getattr(model, "probes", None)
+    if probes is not None:
+        named = probes(state)
+        assert isinstance(named, dict), "probes() must return a dict"
+        reserved = {"run_id", "step", "load", "observed", "shape_error",
+                    "shape_error_mean", "shape_error_direct", "n_solves",
+                    "newton_its", "wall_s", *model.parameters.names}  # fmt: skip
+        for name, value in named.items():
+            assert isinstance(name, str) and name, f"probe name {name!r}"
+            assert name not in reserved, f"probe {name!r} shadows a traces column"
+            assert np.ndim(value) == 0 and np.isfinite(value), (
+                f"probe {name!r} must be a finite scalar, got {value!r}"
+            )
+    n_nodes = getattr(model, "n_nodes", None)
+    if n_nodes is not None:
+        assert isinstance(n_nodes, int | np.integer) and n_nodes >= 1, (
+            f"n_nodes must be a whole number >= 1, got {n_nodes!r}"
+        )
+    default = model.parameters.default
+    if default is not None:
+        assert model.parameters.contains(np.asarray(default, dtype=float)), (
+            f"parameters.default {default} lies outside the bounds"
+        )
+
+
+def check_model_settings(cls: type) -> None:
+    """Check a model's settings class: a dataclass, every field with a default."""
+    assert dataclasses.is_dataclass(cls), "model settings must be a dataclass"
+    for f in dataclasses.fields(cls):
+        has = f.default is not dataclasses.MISSING
+        has = has or f.default_factory is not dataclasses.MISSING
+        assert has, f"setting {f.name!r} needs a default"
+    cls()
 
 
 def check_estimator(

@@ -11,8 +11,11 @@ from __future__ import annotations
 
 import logging
 import os
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import platformdirs
@@ -71,9 +74,15 @@ def truth_key(model: ForwardModel, theta: FloatArray) -> str:
 
 
 def simulate_path(
-    model: ForwardModel, theta: FloatArray, n_steps: int | None = None
+    model: ForwardModel,
+    theta: FloatArray,
+    n_steps: int | None = None,
+    on_step: Callable[[int, int], None] | None = None,
 ) -> FloatArray:
-    """States (K, n) of the whole load path at fixed ``theta``."""
+    """States (K, n) of the whole load path at fixed ``theta``.
+
+    ``on_step(k, K)``, if given, is called after each step (for progress).
+    """
     theta = np.atleast_1d(np.asarray(theta, dtype=float))
     n_steps = model.n_steps if n_steps is None else n_steps
     state = model.reset()
@@ -81,6 +90,8 @@ def simulate_path(
     for k in range(1, n_steps + 1):
         state = model.step(theta, k, state)
         states[k - 1] = state
+        if on_step is not None:
+            on_step(k, n_steps)
     return states
 
 
@@ -119,7 +130,20 @@ def simulate_truth(
     states = _load(path, key, shape) if cache else None
     if states is None:
         log.info("simulating truth %s", key)
-        states = simulate_path(model, theta)
+        desc = model.describe()
+        parts = [desc.get("mesh"), desc.get("scenario")]
+        what = " ".join(
+            str(v.get("name", "") if isinstance(v, dict) else v) for v in parts if v
+        )
+        t0 = time.perf_counter()
+
+        def on_step(k: int, n: int) -> None:
+            log.info(
+                "truth %s: step %d/%d, %.0f s",
+                what or key, k, n, time.perf_counter() - t0,
+            )  # fmt: skip
+
+        states = simulate_path(model, theta, on_step=on_step)
         if cache:
             _save(path, key, states)
     return probe(model, states)
@@ -142,6 +166,8 @@ def _load(path: Path, key: str, shape: tuple[int, int]) -> FloatArray | None:
             stored = str(data["digest"]) if "digest" in data else ""
         if states.shape != shape:
             raise ValueError(f"states of shape {states.shape}, expected {shape}")
+        if not stored:
+            raise ValueError("written by an older idbench (no content digest)")
         if stored != digest(states):
             raise ValueError("content digest mismatch (altered or damaged)")
         if not np.all(np.isfinite(states)):

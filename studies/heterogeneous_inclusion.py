@@ -81,8 +81,9 @@ QUICK: dict[str, Any] = {
 
 
 def options(p: int) -> dict[str, Any]:
-    """Model options for p regions: p - 1 background slabs and the inclusion."""
+    """Beam settings for p regions: p - 1 background slabs and the inclusion."""
     return {
+        "parameters": "E_regions",
         "inclusion": INCLUSION,
         "regions": p - 1,
         "true_factors": (1.0,) * (p - 1) + (STIFFER,),
@@ -113,8 +114,7 @@ def compute(
             "truth_mesh": s["truth_mesh"],
             "steps": s["steps"],
             "obs_points": (MARKERS,),
-            "parameters": "E_regions",
-            "model_options": options(p),
+            "model_settings": {"svk-beam": options(p)},
         }
         grids = [
             (
@@ -233,8 +233,7 @@ def full_ukf_cost(meshes: tuple[str, ...], p_values: tuple[int, ...]) -> pd.Data
                 mesh=mesh,
                 scenario=registry.scenario("bend-y"),
                 n_steps=1,
-                parameters="E_regions",
-                options=options(p_values[0]),
+                settings=options(p_values[0]),
             )
         )
         for p in p_values:

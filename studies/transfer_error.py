@@ -22,8 +22,10 @@ import pandas as pd
 
 from idbench import metrics
 from idbench.config import CompareConfig
-from idbench.harness import RunSpec, Session, expand
+from idbench.runspec import RunSpec
+from idbench.session import Session
 from idbench.sweep import compare
+from idbench.sweep import runs_of as expand
 from idbench.truth import simulate_path
 
 # Parameters (full size: the paper's 239- and 510-node models, truth 11,700)
@@ -114,7 +116,7 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
         .reset_index()
     )
     table["transfer_vs_fit"] = table["transfer_error"] / table["fit_on_target"]
-    table["E_true"] = float(config.E_true)
+    table["E_true"] = float(runs["E_true"].iloc[0])
     return table
 
 

@@ -6,7 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from idbench.calibrate import (
+from idbench.cli import main
+from idbench.config import ConfigError
+from idbench_skfem.calibrate import (
     Calibration,
     CalibrationSettings,
     calibrate,
@@ -14,8 +16,6 @@ from idbench.calibrate import (
     evaluate,
     reference_magnitude,
 )
-from idbench.cli import main
-from idbench.config import ConfigError
 
 STRETCH, BEND = 250.0, 8.9
 
@@ -103,7 +103,7 @@ def test_cli_writes_the_map_and_rejects_bad_input(tmp_path, capsys):
     for bad, message in (
         (["--angles", "0,120"], "angles (0.0, 120.0)"),
         (["--evaluate", "bend-q"], "unknown scenario 'bend-q'"),
-        (["--steps", "x"], "--steps 'x'"),
+        (["--steps", "x"], "--steps: invalid int value: 'x'"),
         (["--mesh", "nowhere.msh"], "nowhere.msh"),
         (["--evaluate-angles", "120"], "--evaluate-angles 120"),
     ):

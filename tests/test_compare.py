@@ -20,9 +20,9 @@ import idbench
 import idbench.sweep
 from idbench.cli import main
 from idbench.config import CompareConfig, ConfigError
-from idbench.harness import expand
 from idbench.results import ResultsError
 from idbench.sweep import compare
+from idbench.sweep import runs_of as expand
 
 TRUTH = "20x3x3"
 COARSE, FINE = "6x2x2", "10x2x2"
@@ -293,7 +293,8 @@ def test_run_id_is_deterministic():
     assert expand(tiny(noise=(2e-4,)))[0].run_id not in a
     # and the same in another interpreter (no hash randomisation)
     code = (
-        "from idbench.config import CompareConfig; from idbench.harness import expand;"
+        "from idbench.config import CompareConfig;"
+        "from idbench.sweep import runs_of as expand;"
         f"print(' '.join(r.run_id for r in expand(CompareConfig(truth_mesh={TRUTH!r},"
         f"meshes=({COARSE!r},{FINE!r}),estimators=('rls','batch-ls'),steps=6,"
         "seeds=1))))"
@@ -546,20 +547,22 @@ def test_failure_at_the_first_step(tmp_path):
 
 
 def test_interleave_puts_runs_on_different_data_first():
-    from idbench.harness import Session, expand
     from idbench.sweep import interleave
+    from idbench.sweep import runs_of as expand
 
     cfg = CompareConfig(meshes=("4x1x1",), seeds=3, estimators=("rls", "lms", "ro-ukf"))
     runs = expand(cfg)
     order = interleave(runs)
     assert sorted(r.run_id for r in order) == sorted(r.run_id for r in runs)
-    keys = [Session.reference_key(r) for r in order]
+    keys = [r.reference_key() for r in order]
     assert len(set(keys[:3])) == 3  # one run per data first
     assert keys[3:6] == keys[:3]
 
 
 def test_a_worker_uses_the_reference_another_worker_fitted(tmp_path):
-    from idbench.harness import Session, execute, expand
+    from idbench.harness import execute
+    from idbench.session import Session
+    from idbench.sweep import runs_of as expand
 
     spec = expand(CompareConfig(truth_mesh="8x2x2", meshes=("4x1x1",), steps=4,
                                 seeds=1, estimators=("rls",)))[0]  # fmt: skip

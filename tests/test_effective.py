@@ -41,7 +41,9 @@ def test_same_mesh_recovers_the_true_modulus_at_every_step(registry, scenario):
 
 
 def test_region_moduli_are_recovered_when_the_model_is_exact(registry):
-    model = beam(registry, "8x2x2", parameters="E_regions", options=(("regions", 2),))
+    model = beam(
+        registry, "8x2x2", settings={"parameters": "E_regions", "regions": 2}
+    )
     theta = np.array([E_TRUE, 3.0 * E_TRUE])
     truth = simulate_truth(model, theta, cache=False)
     path = effective_path(model, truth.grid, [E_TRUE, E_TRUE])

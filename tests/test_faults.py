@@ -385,10 +385,11 @@ def test_readme_order_compare_then_quick_uses_two_folders(tmp_path, monkeypatch)
     [
         ("[estimators]\nrls = 5\n", "[estimators] rls = 5"),
         ("model = 5\n", "model 5"),
-        ("estimator_settings = 5\n", "estimator_settings 5"),
-        ('model_options = "x"\n', "model_options 'x'"),
-        ('model_options = {true_factors = "abc"}\n', "true_factors 'abc'"),
-        ("model_options = {colour = 1}\n", "no model option 'colour'"),
+        ("estimator_settings = 5\n", "unknown key 'estimator_settings'"),
+        ("[model]\nsvk-beam = 5\n", "[model] svk-beam = 5"),
+        ('[model.svk-beam]\ntrue_factors = "abc"\n', "true_factors 'abc'"),
+        ("[model.svk-beam]\ncolour = 1\n", "has no setting 'colour'"),
+        ("true = {F = 1.0}\n", "model 'svk-beam' has no such parameter"),
         ("compare = 5\n", "compare = 5"),
         ("prior = 5\n", "prior 5"),
     ],
@@ -403,7 +404,9 @@ def test_bad_toml_values_are_one_line(tmp_path, capsys, toml, words):
 
 def test_failed_truth_solves_are_one_line_without_warnings(tmp_path, capsys):
     out = str(tmp_path / "o")
-    for opt in (["--E-true", "1e-300"], ["--nu", "0.4999999"]):
+    err = _one_line(capsys, ["compare", *TINY, "--E-true", "1e-300", "--out", out])
+    assert "outside the parameter bounds" in err
+    for opt in (["--E-true", "2"], ["--nu", "0.4999999"]):
         err = _one_line(capsys, ["compare", *TINY, *opt, "--out", out])
         assert "cannot be simulated" in err and "Warning" not in err
     assert main(["compare", *TINY, "--out", out, "-q"]) == 0  # the folder is free

@@ -116,8 +116,7 @@ def test_ro_ukf_identifies_two_regions(est, prior_mean):
         "10x2x2",
         n_steps=20,
         markers=8,
-        parameters="E_regions",
-        options=(("regions", 2),),
+        settings={"parameters": "E_regions", "regions": 2},
     )
     truth = np.array([4000.0, 7000.0])
     obs = observe_truth(model, truth)

@@ -347,6 +347,7 @@ def test_hookspec_names() -> None:
         "register_models",
         "register_estimators",
         "register_scenarios",
+        "register_commands",
     }
 
 

@@ -544,7 +544,8 @@ def test_a_model_plugin_bug_is_one_clean_line_naming_the_plugin(tmp_path):
     pm.register(BrokenModelPlugin(), name="broken-plug")
     reg = idbench.build_registry(pm)
     with pytest.raises(ConfigError) as info:
-        compare(tiny(model="broken-model", estimators=("rls",)), tmp_path, registry=reg)
+        cfg = tiny(model="broken-model", scenarios=("bend-y",), prior=(1e3, 1e3))
+        compare(cfg, tmp_path, registry=reg)
     text = str(info.value)
     assert "'broken-model' (plugin 'broken-plug') raised TypeError" in text
     assert "\n" not in text

@@ -11,6 +11,7 @@ import idbench
 from idbench_skfem import _reference, mesh
 from idbench_skfem.model import SvkBeam, make_model
 from idbench_skfem.scenarios import SCENARIOS
+from idbench_skfem.settings import end_traction
 from idbench_skfem.solver import pardiso_available, resolve_backend
 
 BEND_Y, BEND_Z, STRETCH_X, MIXED_30, MIXED_60 = SCENARIOS
@@ -25,7 +26,7 @@ def _run(model, theta, n=None, substeps=1):
 
 
 def _tiny(direction=(0.0, -1.0, 0.0), magnitude=1e-4):
-    return idbench.Scenario("tiny", direction, magnitude)
+    return end_traction("tiny", direction, magnitude)
 
 
 # -- physics -------------------------------------------------------------------
@@ -149,7 +150,11 @@ def test_bad_arguments():
     with pytest.raises(ValueError, match="theta"):
         m.step(np.array([1.0, 2.0]), 1, m.reset())
     with pytest.raises(ValueError, match="'Q'"):
-        make_model(idbench.ModelSpec(mesh="4x2x2", scenario=BEND_Y, parameters="Q"))
+        make_model(
+            idbench.ModelSpec(
+                mesh="4x2x2", scenario=BEND_Y, settings={"parameters": "Q"}
+            )
+        )
 
 
 # -- sensitivities ---------------------------------------------------------------
@@ -261,8 +266,9 @@ def test_backend_selection(monkeypatch):
 
 def test_observation_operators_and_description():
     spec = idbench.ModelSpec(
-        mesh="14x3x3", scenario=BEND_Y, n_steps=3, markers=6, grid=(4, 4, 20)
-    )
+        mesh="14x3x3", scenario=BEND_Y, n_steps=3, markers=6,
+        settings={"grid": (4, 4, 20)},
+    )  # fmt: skip
     m = make_model(spec)
     u = _run(m, E_TRUE)
     assert m.marker_points.shape == (6, 3) and m.grid_points.shape == (320, 3)

@@ -50,3 +50,32 @@ def test_builtin_estimators_conform(registry, name):
         idbench.Prior((1.0, 2.0), (1.0, 1.0)),
         transform="identity",
     )
+
+
+def test_beam_settings_and_probes_conform(registry):
+    from idbench.testing import check_model_settings, check_optional_members
+
+    check_model_settings(registry.models["svk-beam"].settings)
+    spec = idbench.ModelSpec(mesh="4x1x1", scenario=registry.scenario("bend-y"),
+                             n_steps=2)  # fmt: skip
+    model = registry.model("svk-beam")(spec)
+    state = model.step(np.array([5000.0]), 1, model.reset())
+    check_optional_members(model, state)
+    assert set(model.probes(state)) == {"tip_x", "tip_y", "tip_z"}
+
+
+def test_bad_probes_and_sizes_are_caught():
+    from idbench.testing import check_optional_members
+
+    model = LinearToy(p=1)
+    state = model.step(np.array([2.0]), 1, model.reset())
+    model.probes = lambda s: {"shape_error": 1.0}
+    with pytest.raises(AssertionError, match="shadows"):
+        check_optional_members(model, state)
+    model.probes = lambda s: {"end": np.array([1.0, 2.0])}
+    with pytest.raises(AssertionError, match="finite scalar"):
+        check_optional_members(model, state)
+    del model.probes
+    model.n_nodes = 0
+    with pytest.raises(AssertionError, match="n_nodes"):
+        check_optional_members(model, state)

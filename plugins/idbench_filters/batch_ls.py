@@ -24,6 +24,7 @@ before; ``refit="each"`` refits, warm-started, at every observed step.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -71,6 +72,8 @@ class BatchLs(Settings):
         At most this many residual evaluations (path simulations) a fit
         (default 100).
     """
+
+    reference: ClassVar[bool] = True  # the harness's E_ref: the best constant fit
 
     refit: str = "end"
     method: str = "trf"

@@ -17,8 +17,32 @@ def register_scenarios(register: Callable[[Any], None]) -> None:
 
 
 @idbench.hookimpl
-def register_models(register: Callable[[str, Callable[..., Any]], None]) -> None:
+def register_models(register: Callable[..., None]) -> None:
     """Register the St Venant-Kirchhoff cantilever as ``"svk-beam"``."""
     from idbench_skfem.model import make_model
+    from idbench_skfem.settings import BeamSettings
 
-    register("svk-beam", make_model)
+    register("svk-beam", make_model, settings=BeamSettings, defaults=BEAM_DEFAULTS)
+
+
+@idbench.hookimpl
+def register_commands(register: Callable[[str, Any], None]) -> None:
+    """Register ``idbench calibrate`` (the beam's effective-E map)."""
+    from idbench_skfem.commands import CALIBRATE
+
+    register("calibrate", CALIBRATE)
+
+
+BEAM_DEFAULTS = idbench.ModelDefaults(
+    truth_mesh="80x11x11",
+    meshes=("9x2x2", "14x3x3", "20x4x4"),
+    scenarios=("bend-y",),
+    prior=(2500.0, 2500.0),
+    quick={"truth_mesh": "40x5x5", "meshes": ("14x3x3", "20x4x4")},
+    shorthands={
+        "E-true": ("E", "true Young's modulus (Pa)"),
+        "nu": ("nu", "Poisson ratio"),
+    },
+    primary=True,
+)
+"""The study's comparison (DESIGN.md section 7): what ``idbench compare`` runs."""

@@ -8,6 +8,8 @@ clamped at x = min x and loaded by a dead uniform traction on x = max x.
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -18,6 +20,7 @@ from idbench_skfem import mesh as meshes
 from idbench_skfem.assembly import Assembler, Kinematics
 from idbench_skfem.probes import grid_points, interpolation_matrix, marker_points
 from idbench_skfem.regions import parameter_regions
+from idbench_skfem.settings import BeamSettings, EndTraction
 from idbench_skfem.solver import SolverError, make_solver, resolve_backend
 
 log = logging.getLogger(__name__)
@@ -45,7 +48,7 @@ class SvkBeam:
     beam
         The mesh and its boundary.
     scenario
-        The load path; ``scenario.traction(k, n_steps)`` is the end traction.
+        The load path, read as an end traction (:class:`EndTraction`).
     n_steps
         Number of load steps K.
     nu
@@ -82,7 +85,7 @@ class SvkBeam:
             raise ValueError(f"n_steps = {n_steps}: need at least one load step")
         opts = dict(options or {})
         self.beam = beam
-        self.scenario = scenario
+        self.scenario = EndTraction.of(scenario)
         self.n_steps = int(n_steps)
         self.nu = float(nu)
         self.options = opts
@@ -186,6 +189,11 @@ class SvkBeam:
     def tip(self, state: FloatArray) -> FloatArray:
         """Displacement of the end-face centre, shape (3,)."""
         return self._tip @ state
+
+    def probes(self, state: FloatArray) -> dict[str, float]:
+        """Named outputs for the traces: the tip displacement ``tip_x..z`` (m)."""
+        tip = self.tip(state)
+        return {"tip_x": tip[0], "tip_y": tip[1], "tip_z": tip[2]}
 
     def sensitivity(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
         """D observe / d theta at the converged ``state``, shape (3M, p).
@@ -349,33 +357,28 @@ class SvkBeam:
         raise AssertionError("unreachable")  # pragma: no cover
 
 
-OPTIONS = (
-    "regions",
-    "inclusion",
-    "rtol",
-    "atol",
-    "max_iterations",
-    "sensitivity_refine",
-    "solver",
-    "true_factors",
-)
-"""The model options :class:`SvkBeam` understands (``true_factors``: the core's)."""
-
-
 def make_model(spec: ModelSpec) -> SvkBeam:
-    """Build the model described by ``spec`` (registered as ``"svk-beam"``)."""
-    for key in dict(spec.options):
-        if key not in OPTIONS:
-            raise ValueError(
-                f"svk-beam has no model option {key!r}; allowed: {', '.join(OPTIONS)}"
-            )
-    return SvkBeam(
+    """Build the model described by ``spec`` (registered as ``"svk-beam"``).
+
+    ``spec.settings`` is a :class:`BeamSettings`, a mapping of its fields, or
+    None (the defaults).
+    """
+    settings = spec.settings
+    if settings is None:
+        settings = BeamSettings()
+    elif isinstance(settings, Mapping):
+        settings = BeamSettings(**settings)
+    model = SvkBeam(
         meshes.parse(spec.mesh),
         spec.scenario,
         n_steps=spec.n_steps,
-        nu=spec.nu,
+        nu=settings.nu,
         markers=spec.markers,
-        grid=tuple(spec.grid),  # type: ignore[arg-type]
-        parameters=spec.parameters,
-        options=dict(spec.options),
+        grid=settings.grid,
+        parameters=settings.parameters,
+        options=settings.options(),
     )
+    model.parameters = replace(
+        model.parameters, default=settings.true_values(model.parameters.p)
+    )
+    return model

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 from idbench import Scenario
+from idbench_skfem.settings import end_traction
 
 BEND_TRACTION = 8.9
 """End traction (Pa) for bending and mixed paths: tip moves about 0.05 m."""
@@ -15,21 +16,22 @@ STRETCH_TRACTION = 250.0
 
 def _mixed(angle_deg: float) -> Scenario:
     a = math.radians(angle_deg)
-    return Scenario(
-        name=f"mixed-{angle_deg:g}",
-        direction=(math.cos(a), -math.sin(a), 0.0),
-        magnitude=BEND_TRACTION,
-        transfer="stretch-x",
-        description=f"traction in the x-y plane, {angle_deg:g} deg from +x to -y",
+    return end_traction(
+        f"mixed-{angle_deg:g}",
+        (math.cos(a), -math.sin(a), 0.0),
+        BEND_TRACTION,
+        "stretch-x",
+        f"traction in the x-y plane, {angle_deg:g} deg from +x to -y",
     )
 
 
 SCENARIOS: tuple[Scenario, ...] = (
-    Scenario("bend-y", (0.0, -1.0, 0.0), BEND_TRACTION, "stretch-x", "bending in -y"),
-    Scenario("bend-z", (0.0, 0.0, -1.0), BEND_TRACTION, "stretch-x", "bending in -z"),
-    Scenario(
-        "stretch-x", (1.0, 0.0, 0.0), STRETCH_TRACTION, "bend-y", "stretching in +x"
-    ),
+    end_traction("bend-y", (0.0, -1.0, 0.0), BEND_TRACTION, "stretch-x",
+                 "bending in -y"),
+    end_traction("bend-z", (0.0, 0.0, -1.0), BEND_TRACTION, "stretch-x",
+                 "bending in -z"),
+    end_traction("stretch-x", (1.0, 0.0, 0.0), STRETCH_TRACTION, "bend-y",
+                 "stretching in +x"),
     _mixed(30.0),
     _mixed(60.0),
-)
+)  # fmt: skip

@@ -23,21 +23,31 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
+from numpy.typing import NDArray
 from scipy.interpolate import PchipInterpolator
 
-from idbench.config import CompareConfig, ConfigError
-from idbench.effective import effective_path
-from idbench.interfaces import FloatArray, ForwardModel, ModelFailure, ModelSpec
-from idbench.metrics import shape_error
-from idbench.plugins import Entry, Registry, build_registry
-from idbench.scenario import Scenario
-from idbench.truth import simulate_truth
+from idbench import (
+    CompareConfig,
+    ConfigError,
+    ForwardModel,
+    ModelFailure,
+    ModelSpec,
+    Registry,
+    Scenario,
+    build_registry,
+    effective_path,
+    shape_error,
+    simulate_truth,
+)
+from idbench_skfem.settings import EndTraction, end_traction
+
+FloatArray = NDArray[np.float64]
 
 log = logging.getLogger(__name__)
 
@@ -183,9 +193,9 @@ class Calibration:
         :func:`evaluate` on directions off the angle grid, e.g. 3 or 10
         degrees, where E_eff changes fastest.
         """
-        return Scenario(
+        return end_traction(
             f"pull-{angle:g}",
-            tuple(direction(angle)),  # type: ignore[arg-type]
+            direction(angle),
             self.magnitude_at(angle),
             transfer="bend-y",
             description=f"end traction {angle:g} deg off +x towards -y",
@@ -249,19 +259,20 @@ def calibrate(
     ``progress(done, total, angle)`` is called after each direction.
     """
     registry = registry or build_registry()
-    stretch = settings.stretch_magnitude or registry.scenario("stretch-x").magnitude
-    bend = settings.bend_magnitude or registry.scenario("bend-y").magnitude
+    stretch = settings.stretch_magnitude or _magnitude(registry, "stretch-x")
+    bend = settings.bend_magnitude or _magnitude(registry, "bend-y")
     settings = _replace(settings, stretch_magnitude=stretch, bend_magnitude=bend)
     rows: list[dict[str, Any]] = []
     for i, angle in enumerate(settings.angles, start=1):
         magnitude = reference_magnitude(angle, stretch, bend)
-        scenario = Scenario(f"calibrate-{angle:g}", tuple(direction(angle)), magnitude)
+        scenario = end_traction(f"calibrate-{angle:g}", direction(angle), magnitude)
         truth_model = _model(registry, settings, settings.truth_mesh, scenario)
         truth = simulate_truth(truth_model, np.array([settings.E_true]))
         model = _model(registry, settings, settings.mesh, scenario)
         path = effective_path(model, truth.grid, np.array([settings.E_true]))
+        tips = np.stack([truth.probes[f"tip_{a}"] for a in "xyz"], axis=1)
         for k in range(1, settings.steps + 1):
-            tip = truth.tip[k - 1]
+            tip = tips[k - 1]
             rows.append(
                 {
                     "angle": angle,
@@ -346,31 +357,26 @@ def evaluate(
     ``shape_error_path`` (mean per grid point in m, at the last step and
     averaged over the steps), and the E range used.
     """
-    from idbench.sweep import compare
+    from idbench import compare
 
     registry = registry or build_registry()
     extra = {sc.name: sc for sc in scenarios if isinstance(sc, Scenario)}
     if extra:  # ad-hoc manipulations: a registry that knows them too
-        registry = replace(
-            registry,
-            scenarios={
-                **registry.scenarios,
-                **{n: Entry(n, sc, "calibrate") for n, sc in extra.items()},
-            },
-        )
+        registry = registry.with_scenarios(list(extra.values()), plugin="calibrate")
     names = [sc.name if isinstance(sc, Scenario) else sc for sc in scenarios]
     s = calibration.settings
     constant = calibration.E_eff(direction(90.0), calibration.magnitude_at(90.0))
     rows: list[dict[str, Any]] = []
     for name in names:
         scenario = registry.scenario(name)
+        load = EndTraction.of(scenario)
         spec = _replace(s, steps=steps)
         truth = simulate_truth(
             _model(registry, spec, s.truth_mesh, scenario), np.array([s.E_true])
         )
         model = _model(registry, spec, s.mesh, scenario)
         loads = [
-            calibration.E_eff(scenario.direction, k / steps * scenario.magnitude)
+            calibration.E_eff(load.direction, k / steps * load.magnitude)
             for k in range(1, steps + 1)
         ]
         plans = {
@@ -397,10 +403,9 @@ def evaluate(
         scenarios=tuple(names),
         seeds=seeds,
         steps=steps,
-        E_true=s.E_true,
-        nu=s.nu,
+        true={"E": s.E_true},
         model=s.model,
-        grid=s.grid,
+        model_settings={s.model: {"nu": s.nu, "grid": list(s.grid)}},
     )
     runs, traces = compare(config, out, registry=registry)
     ok = runs[runs["status"] == "ok"]
@@ -451,11 +456,15 @@ def _model(
         mesh=mesh,
         scenario=scenario,
         n_steps=settings.steps,
-        nu=settings.nu,
-        grid=settings.grid,
+        settings={"nu": settings.nu, "grid": settings.grid},
     )
     model: ForwardModel = registry.model(settings.model)(spec)
     return model
+
+
+def _magnitude(registry: Registry, name: str) -> float:
+    """End traction (Pa) of the registered beam scenario ``name``."""
+    return EndTraction.of(registry.scenario(name)).magnitude
 
 
 def _replace(settings: CalibrationSettings, **changes: Any) -> CalibrationSettings:
