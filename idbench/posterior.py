@@ -489,6 +489,40 @@ def _quantiles(x: FloatArray, f: FloatArray, levels: Sequence[float]) -> FloatAr
     return out
 
 
+def model_error(
+    model: ForwardModel,
+    theta: FloatArray,
+    observations: Sequence[Observation | None],
+) -> float:
+    r"""Std of the model's misfit beyond the observation noise, per component.
+
+    The coarse-vs-fine misfit at the best constant parameters theta (e.g. E_ref
+    fitted to noise-free truth observations of a calibration load path):
+
+    .. math::
+
+        e^2 = \max\Big(0, \frac{1}{N} \sum_{k \text{ observed}}
+        \lVert y_k - h(u_k(\theta)) \rVert^2 - \bar\sigma^2\Big),
+
+    N the number of observed components and sigma-bar^2 the mean noise
+    variance of the observations. One path simulation.
+    """
+    obs = {i: o for i, o in enumerate(observations, start=1) if o is not None}
+    if not obs:
+        raise ValueError("no observations to measure a misfit on")
+    theta = np.atleast_1d(np.asarray(theta, dtype=float))
+    u = np.asarray(model.reset(), dtype=float)
+    sq, n, noise = 0.0, 0, 0.0
+    for k in range(1, max(obs) + 1):
+        u = np.asarray(model.step(theta, k, u), dtype=float)
+        if k in obs:
+            y = np.asarray(obs[k].values, dtype=float)
+            sq += float(np.sum((y - np.asarray(model.observe(u), dtype=float)) ** 2))
+            n += y.size
+            noise += y.size * float(obs[k].noise_std) ** 2
+    return math.sqrt(max(0.0, (sq - noise) / n))
+
+
 def _parabolic_peak(x: FloatArray, f: FloatArray) -> float:
     """Abscissa of the vertex of the parabola through the largest f and neighbours."""
     i = int(np.argmax(f))
