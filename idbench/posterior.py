@@ -393,7 +393,8 @@ def grid_posterior(
     zoom into them until they hold at least 8 points (at most 20 zooms), then a
     final grid of ``points`` over that range. ``converged`` is False when the
     final grid's ends are within ``tail / 2`` of the maximum at a search edge
-    that is not a model bound.
+    that is not a model bound (mass cut off), or fewer than 5 of its points lie
+    within 5 of the maximum (not resolved).
     """
     settings = settings or PosteriorSettings()
     if model.parameters.p != 1:
@@ -411,10 +412,11 @@ def grid_posterior(
     sd = math.sqrt(float(target.var[0]))
     blo, bhi = (float(b[0]) for b in target.xi_bounds())
     mu = float(target.mu[0])
-    lo0, hi0 = max(mu - settings.span * sd, blo), min(mu + settings.span * sd, bhi)
-    if blo >= lo0:
+    lo0, hi0 = mu - settings.span * sd, mu + settings.span * sd
+    at_lower, at_upper = lo0 <= blo, hi0 >= bhi  # a model bound truncates
+    if at_lower:
         lo0 = blo + 1e-9 * max(1.0, abs(blo))  # the bounds are open
-    if bhi <= hi0:
+    if at_upper:
         hi0 = bhi - 1e-9 * max(1.0, abs(bhi))
     lo, hi = lo0, hi0
     zooms = 0
@@ -445,8 +447,9 @@ def grid_posterior(
     dens = pdf_xi / theta if target.transform == "log" else pdf_xi
     mode = _parabolic_peak(theta, dens)
     edge_drop = top - max(float(lp[0]), float(lp[-1]))
-    cut = (lo <= lo0 and lp[0] > top - settings.tail / 2 and lo0 > blo + 1e-6) or (
-        hi >= hi0 and lp[-1] > top - settings.tail / 2 and hi0 < bhi - 1e-6
+    half = top - settings.tail / 2
+    cut = (lo <= lo0 and lp[0] > half and not at_lower) or (
+        hi >= hi0 and lp[-1] > half and not at_upper
     )
     resolved = np.sum(lp > top - 5.0) >= 5
     return Posterior(

@@ -162,6 +162,19 @@ def test_grid_cut_off_by_its_search_range_is_not_converged():
     assert not post.converged
 
 
+def test_grid_truncated_at_a_model_bound_is_converged():
+    """The model's bounds truncate the density; that is the answer, not a cut."""
+    model, prior, obs, stream = toy(1, lower=2.99, upper=1e6)
+    mean, P = exact(model, prior, obs)
+    sd = np.sqrt(P[0, 0])
+    post = grid_posterior(model, prior, stream, IDENTITY)
+    assert post.converged
+    assert post.grid[0] > 2.99 and post.grid[0] < 2.99 + 0.1 * sd
+    want = stats.truncnorm((2.99 - mean[0]) / sd, np.inf, loc=mean[0], scale=sd)
+    np.testing.assert_allclose(post.mean, [want.mean()], rtol=0, atol=1e-3 * sd)
+    np.testing.assert_allclose(post.std, [want.std()], rtol=1e-3)
+
+
 # --- p >= 2 (and p = 1): MCMC ------------------------------------------------------
 
 
