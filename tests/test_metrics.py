@@ -143,3 +143,135 @@ def test_settling_returns_python_int():
 )
 def test_observations_used(step, every, expected):
     assert metrics.observations_used(step, every) == expected
+
+
+# --- uncertainty: coverage, NEES, CRPS, Wasserstein-1, NIS -----------------------
+
+
+@pytest.mark.parametrize("level", [0.68, 0.95])
+def test_coverage_matches_monte_carlo(level):
+    """Truths drawn from the estimate's own Gaussian are covered at ``level``."""
+    rng = np.random.default_rng(7)
+    n = 40_000
+    mean, std = np.array([3.0, -2.0]), np.array([0.5, 2.0])
+    truths = mean + std * rng.standard_normal((n, 2))
+    hits = np.array([metrics.coverage(mean, std, t, level) for t in truths[:4000]])
+    frac = hits.mean(axis=0)
+    se = np.sqrt(level * (1 - level) / 4000)
+    np.testing.assert_allclose(frac, level, atol=4 * se)
+    # the same with a broadcast over many truths at once (vectorised call)
+    frac = metrics.coverage(mean[0], std[0], truths[:, 0], level).mean()
+    assert abs(frac - level) < 4 * np.sqrt(level * (1 - level) / n)
+
+
+def test_coverage_edges_and_bad_input():
+    assert metrics.coverage([1.0], [1.0], [1.0 + 1.959], 0.95)[0] == 1.0
+    assert metrics.coverage([1.0], [1.0], [1.0 + 1.961], 0.95)[0] == 0.0
+    assert metrics.coverage([1.0], [1.0], [1.995], 0.68)[0] == 0.0  # z = 0.9945
+    out = metrics.coverage([1.0, 2.0, 3.0], [np.nan, 1.0, 0.0], [1.0, 2.0, 3.0], 0.68)
+    assert np.isnan(out[0]) and out[1] == 1.0 and out[2] == 1.0
+    for bad in (0.0, 1.0, 68):
+        with pytest.raises(ValueError, match=f"level = {bad!r}"):
+            metrics.coverage([1.0], [1.0], [1.0], bad)
+
+
+def test_nees_is_squared_z_and_chi_squared_on_average():
+    assert metrics.nees([5.0], [2.0], [1.0]) == pytest.approx(4.0)
+    assert metrics.nees([5.0, 0.0], [2.0, 0.5], [1.0, 1.0]) == pytest.approx(8.0)
+    assert metrics.nees([1.0], [0.0], [1.0]) == 0.0
+    assert metrics.nees([1.5], [0.0], [1.0]) == np.inf
+    assert np.isnan(metrics.nees([1.0], [np.nan], [1.0]))
+    rng = np.random.default_rng(3)
+    std = np.array([1.0, 10.0, 0.1])
+    vals = [
+        metrics.nees(std * rng.standard_normal(3), std, np.zeros(3))
+        for _ in range(5000)
+    ]
+    assert np.mean(vals) == pytest.approx(3.0, abs=4 * np.sqrt(6 / 5000))
+
+
+@pytest.mark.parametrize(
+    ("mean", "std", "value"), [(0.0, 1.0, 0.3), (10.0, 3.0, 2.0), (-1.0, 0.01, -1.0)]
+)
+def test_crps_gaussian_matches_numerical_integration(mean, std, value):
+    from scipy import integrate, stats
+
+    F = stats.norm(mean, std).cdf
+    lo, hi = mean - 12 * std, mean + 12 * std
+    left, _ = integrate.quad(lambda x: F(x) ** 2, min(lo, value - 1), value, limit=200)
+    right, _ = integrate.quad(
+        lambda x: (1 - F(x)) ** 2, value, max(hi, value + 1), limit=200
+    )
+    got = metrics.crps_gaussian([mean], [std], [value])
+    np.testing.assert_allclose(got, [left + right], rtol=1e-7)
+
+
+def test_crps_gaussian_limits():
+    # a point estimate scores its absolute error; a perfect centre scores
+    # sigma (sqrt 2 - 1) / sqrt(pi)
+    np.testing.assert_allclose(metrics.crps_gaussian([2.0], [0.0], [5.0]), [3.0])
+    np.testing.assert_allclose(
+        metrics.crps_gaussian([0.0], [2.0], [0.0]),
+        [2 * (np.sqrt(2) - 1) / np.sqrt(np.pi)],
+    )
+    assert np.isnan(metrics.crps_gaussian([0.0], [-1.0], [0.0])[0])
+
+
+def test_wasserstein_between_shifted_gaussians_is_the_shift():
+    from scipy import stats
+
+    x = np.linspace(-10, 14, 4001)
+    density = stats.norm(2.0, 1.5).pdf(x)
+    assert metrics.wasserstein_to_grid(0.5, 1.5, x, density) == pytest.approx(
+        1.5, rel=1e-5
+    )
+    # unnormalised density, and a Gaussian mostly outside the grid (closed-form tails)
+    assert metrics.wasserstein_to_grid(-20.0, 1.5, x, 7 * density) == pytest.approx(
+        22.0, rel=1e-5
+    )
+    assert metrics.wasserstein_to_grid(2.0, 1.5, x, density) == pytest.approx(
+        0.0, abs=1e-5
+    )
+
+
+def test_wasserstein_matches_scipy_on_samples():
+    """A skewed gridded density against a narrow Gaussian, vs samples of both."""
+    from scipy import stats
+
+    rng = np.random.default_rng(11)
+    post = stats.lognorm(s=0.3, scale=5.0)
+    x = np.linspace(0.5, 25.0, 3001)
+    got = metrics.wasserstein_to_grid(4.0, 0.2, x, post.pdf(x))
+    n = 200_000
+    a = post.rvs(size=n, random_state=rng)
+    b = 4.0 + 0.2 * rng.standard_normal(n)
+    want = stats.wasserstein_distance(a, b)
+    assert got == pytest.approx(want, rel=0.02)
+    # a point estimate
+    got0 = metrics.wasserstein_to_grid(4.0, 0.0, x, post.pdf(x))
+    assert got0 == pytest.approx(np.mean(np.abs(a - 4.0)), rel=0.02)
+    assert metrics.wasserstein_to_grid(30.0, 0.0, x, post.pdf(x)) == pytest.approx(
+        np.mean(30.0 - a), rel=0.01
+    )
+
+
+def test_wasserstein_bad_grid():
+    with pytest.raises(ValueError, match="grid must increase"):
+        metrics.wasserstein_to_grid(0.0, 1.0, [0.0, 0.0, 1.0], [1.0, 1.0, 1.0])
+    with pytest.raises(ValueError, match="equal length"):
+        metrics.wasserstein_to_grid(0.0, 1.0, [0.0, 1.0], [1.0])
+    assert np.isnan(metrics.wasserstein_to_grid(np.nan, 1.0, [0.0, 1.0], [1.0, 1.0]))
+
+
+def test_nis_is_chi_squared_on_average():
+    rng = np.random.default_rng(5)
+    B = rng.normal(size=(4, 4))
+    S = B @ B.T + 0.1 * np.eye(4)
+    C = np.linalg.cholesky(S)
+    vals = [metrics.nis(C @ rng.standard_normal(4), S) for _ in range(5000)]
+    assert np.mean(vals) == pytest.approx(4.0, abs=4 * np.sqrt(8 / 5000))
+    assert metrics.nis([2.0], [[4.0]]) == pytest.approx(1.0)
+    assert metrics.nis([2.0, 1.0], [4.0, 1.0]) == pytest.approx(2.0)
+    assert np.isnan(metrics.nis([1.0, 1.0], np.zeros((2, 2))))
+    with pytest.raises(ValueError, match="differ"):
+        metrics.nis([1.0, 1.0], np.eye(3))

@@ -33,7 +33,7 @@ from idbench.sweep import compare
 from idbench_skfem import mesh as meshes
 
 TRUTH, MODEL, STEPS = "12x3x3", "4x1x1", 5
-BUILTIN_ESTIMATORS = {"ro-ukf", "ukf", "rls", "lms", "batch-ls"}
+BUILTIN_ESTIMATORS = {"ro-ukf", "ukf", "enkf", "etkf", "rls", "lms", "batch-ls"}
 
 
 

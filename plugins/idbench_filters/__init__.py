@@ -1,4 +1,4 @@
-"""Built-in estimator plugin: RO-UKF, full UKF, RLS, normalised LMS, batch LS."""
+"""Built-in estimator plugin: RO-UKF, full UKF, EnKF, ETKF, RLS, LMS, batch LS."""
 
 from __future__ import annotations
 
@@ -6,19 +6,32 @@ from collections.abc import Callable
 
 import idbench
 from idbench_filters.batch_ls import BatchLs
+from idbench_filters.enkf import Enkf
+from idbench_filters.etkf import Etkf
 from idbench_filters.lms import Lms
 from idbench_filters.rls import Rls
 from idbench_filters.ro_ukf import RoUkf
 from idbench_filters.ukf import Ukf
 
-__all__ = ["BatchLs", "Lms", "RoUkf", "Rls", "Ukf", "register_estimators"]
+__all__ = [
+    "BatchLs",
+    "Enkf",
+    "Etkf",
+    "Lms",
+    "RoUkf",
+    "Rls",
+    "Ukf",
+    "register_estimators",
+]
 
 
 @idbench.hookimpl
 def register_estimators(register: Callable[[str, type], None]) -> None:
-    """Register ``ro-ukf``, ``ukf``, ``rls``, ``lms`` and ``batch-ls``."""
+    """Register the seven estimators (``ro-ukf``, ``enkf``, ``batch-ls``, ...)."""
     register("ro-ukf", RoUkf)
     register("ukf", Ukf)
+    register("enkf", Enkf)
+    register("etkf", Etkf)
     register("rls", Rls)
     register("lms", Lms)
     register("batch-ls", BatchLs)

@@ -1,0 +1,206 @@
+r"""Shared machinery of the ensemble filters (EnKF, ETKF).
+
+The ensemble has N members x_i = [u_i; xi_i] (rows of X, shape (N, n)). At
+:meth:`EnsembleFilter.start` every u_i is the unloaded state and the xi_i are
+drawn from the prior N(mu_xi, P_xi) with the filter's own seeded
+:class:`numpy.random.Generator`. With ``init = "exact"`` (default) the draws
+are centred and whitened so that the sample mean and the sample covariance
+(divisor N - 1) equal mu_xi and P_xi exactly (needs N >= p + 1); ``"random"``
+keeps the plain draws. Each step:
+
+1. forecast: every member advances one load step with its own parameters,
+   u_i <- M_k(theta(xi_i), u_i) (N forward solves; one ``model.step_many``
+   call when the model has it);
+2. with an observation y: the analysis of the subclass (perturbed
+   observations or square root) on the joint state, then multiplicative
+   inflation of the anomalies, x_i <- xbar + rho (x_i - xbar), rho >= 1;
+3. report the sample mean of xi and its sample covariance (divisor N - 1).
+
+The innovation of the last observed step, nu = y - mean_i h(u_i) and its
+forecast covariance S = cov_i h(u_i) + R, is kept in :attr:`innovation` for
+the normalised innovation squared nu^T S^-1 nu.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from idbench import Diverged, Estimate, ForwardModel, ModelFailure, Observation, Prior
+from idbench_filters._common import (
+    FloatArray,
+    RunState,
+    Settings,
+    advance,
+    check_choice,
+    check_estimate,
+    check_positive,
+    check_step,
+    noise_var,
+    prior_xi,
+    to_theta,
+)
+
+INITS = ("exact", "random")
+
+
+def draw_prior(
+    rng: np.random.Generator,
+    mean: FloatArray,
+    cov: FloatArray,
+    n_members: int,
+    exact: bool,
+) -> FloatArray:
+    """N draws (N, p) of N(mean, cov); with ``exact`` their sample moments match.
+
+    Exact moments: Z (N, p) standard normal, centred, then Z <- Z C^-T with C
+    the lower Cholesky factor of Z^T Z / (N - 1), so Z^T Z / (N - 1) = I_p;
+    the draws are mean + Z chol(cov)^T.
+    """
+    p = mean.size
+    z = rng.standard_normal((n_members, p))
+    if exact:
+        if n_members < p + 1:
+            raise ValueError(
+                f"members = {n_members} is too few for init = 'exact' with "
+                f"p = {p} parameters; use members >= {p + 1} or init = 'random'"
+            )
+        z -= z.mean(axis=0)
+        c = np.linalg.cholesky(z.T @ z / (n_members - 1))
+        z = np.linalg.solve(c, z.T).T
+    return mean[None, :] + z @ np.linalg.cholesky(cov).T
+
+
+def forecast(
+    model: ForwardModel, thetas: FloatArray, k: int, states: FloatArray
+) -> FloatArray:
+    """Advance every member one load step: (N, p), (N, n_u) -> (N, n_u).
+
+    Uses ``model.step_many(thetas, k, states)`` when the model has it; a member
+    whose batched result is non-finite, or all of them if the batched call
+    raises :class:`~idbench.ModelFailure`, is redone one by one with the
+    sub-step retry of :func:`~idbench_filters._common.advance`.
+    """
+    step_many = getattr(model, "step_many", None)
+    if step_many is not None:
+        try:
+            new = np.array(step_many(thetas, k, states), dtype=float)
+        except ModelFailure:
+            new = None
+        if new is not None and new.shape == states.shape:
+            for i in np.flatnonzero(~np.all(np.isfinite(new), axis=1)):
+                new[i] = advance(model, thetas[i], k, states[i])
+            return new
+    return np.stack(
+        [advance(model, thetas[i], k, states[i]) for i in range(states.shape[0])]
+    )
+
+
+@dataclass
+class EnsembleFilter(Settings):
+    """Base of the ensemble filters: settings, start, forecast and reporting.
+
+    Attributes
+    ----------
+    transform, sigma_floor
+        The shared settings, see :class:`~idbench_filters._common.Settings`.
+    members
+        Ensemble size N >= 2; None (default) means 2p + 2.
+    inflation
+        Multiplicative inflation rho >= 1 of the anomalies after each analysis;
+        1 (default) is none.
+    init
+        ``"exact"`` (default): the initial draws have exactly the prior's mean
+        and covariance (needs N >= p + 1); ``"random"``: plain draws.
+    seed
+        Seed of the filter's :class:`numpy.random.Generator` (initial draws and,
+        for the EnKF, observation perturbations).
+    """
+
+    members: int | None = None
+    inflation: float = 1.0
+    init: str = "exact"
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        n = self.members
+        if n is not None and (isinstance(n, bool) or not isinstance(n, int) or n < 2):
+            raise ValueError(
+                f"members = {n!r} is not allowed; an ensemble needs an integer "
+                ">= 2 members"
+            )
+        check_positive("inflation", self.inflation)
+        if self.inflation < 1:
+            raise ValueError(
+                f"inflation = {self.inflation!r} is not allowed; it must be >= 1 "
+                "(1 = no inflation)"
+            )
+        check_choice("init", self.init, INITS)
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
+            raise ValueError(f"seed = {self.seed!r} is not allowed; use an integer")
+        if self.seed < 0:
+            raise ValueError(f"seed = {self.seed!r} is not allowed; it must be >= 0")
+        self.innovation: tuple[FloatArray, FloatArray] | None = None
+
+    def start(self, model: ForwardModel, prior: Prior) -> None:
+        """Begin a run: u_i = reset(), xi_i drawn from the prior (see ``init``)."""
+        p = model.parameters.p
+        n_members = self.members if self.members is not None else 2 * p + 2
+        mu, p_xi = prior_xi(prior, p, self.transform)
+        u0 = np.asarray(model.reset(), dtype=float)
+        self._rng = np.random.default_rng(self.seed)
+        xi = draw_prior(self._rng, mu, p_xi, n_members, self.init == "exact")
+        self._nu = u0.size
+        self._X = np.hstack([np.tile(u0, (n_members, 1)), xi])
+        self.innovation = None
+        self._run = RunState(model, model.cost())
+
+    @property
+    def solves_per_step(self) -> int:
+        """Forward solves a step: N."""
+        if self._run is None:
+            raise RuntimeError("call start() first")
+        return int(self._X.shape[0])
+
+    @property
+    def ensemble(self) -> FloatArray:
+        """The current members (N, n), rows [u_i; xi_i] (a copy)."""
+        return self._X.copy()
+
+    def analysis(
+        self, X: FloatArray, HX: FloatArray, y: FloatArray, r: float
+    ) -> FloatArray:
+        """Analysis ensemble (N, n) from the forecast X, HX (N, m), y and R = r I."""
+        raise NotImplementedError
+
+    def update(self, k: int, observation: Observation | None) -> Estimate:
+        """Forecast every member to step k, then assimilate the observation."""
+        run = self._run
+        if run is None:
+            raise RuntimeError("call start() before update()")
+        model = run.model
+        check_step(k, observation, model.n_steps)
+        nu = self._nu
+        X = self._X.copy()
+        thetas = np.stack([to_theta(x, self.transform) for x in X[:, nu:]])
+        X[:, :nu] = forecast(model, thetas, k, X[:, :nu])
+        try:
+            if observation is not None:
+                y = np.asarray(observation.values, dtype=float)
+                HX = np.stack([model.observe(x) for x in X[:, :nu]]).astype(float)
+                r = noise_var(observation, self.sigma_floor)
+                s = np.atleast_2d(np.cov(HX, rowvar=False)) + r * np.eye(y.size)
+                self.innovation = (y - HX.mean(axis=0), s)
+                X = self.analysis(X, HX, y, r)
+                if self.inflation > 1:
+                    xbar = X.mean(axis=0)
+                    X = xbar + self.inflation * (X - xbar)
+        except np.linalg.LinAlgError as exc:
+            raise Diverged(f"linear algebra failed: {exc}", step=k) from exc
+        xbar = X.mean(axis=0)
+        cov_xi = np.atleast_2d(np.cov(X[:, nu:], rowvar=False))
+        check_estimate(model, xbar[nu:], k, self.transform, cov_xi, X)
+        self._X = X
+        return run.estimate(xbar[nu:], cov_xi, self.transform, xbar[:nu])
