@@ -29,16 +29,15 @@ from typing import ClassVar
 import numpy as np
 from scipy.optimize import least_squares
 
-from idbench import Diverged, Estimate, ForwardModel, Observation, Prior
+from idbench import Diverged, ForwardModel, Observation, Prior
 from idbench_filters._common import (
     FloatArray,
-    RunState,
     Settings,
+    Step,
     advance,
     check_choice,
     check_estimate,
     check_positive,
-    check_step,
     dtheta_dxi,
     noise_var,
     prior_xi,
@@ -94,7 +93,7 @@ class BatchLs(Settings):
                 "it must be an integer >= 1"
             )
 
-    def start(self, model: ForwardModel, prior: Prior) -> None:
+    def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run: no observations yet; report the prior until the first fit."""
         self._mu, self._P = prior_xi(prior, model.parameters.p, self.transform)
         self._xi, self._cov = self._mu.copy(), self._P.copy()
@@ -104,7 +103,6 @@ class BatchLs(Settings):
         lo = to_xi(np.asarray(spec.lower, dtype=float), self.transform)
         hi = to_xi(np.asarray(spec.upper, dtype=float), self.transform)
         self._bounds = (np.where(np.isfinite(lo), lo, -np.inf), hi)
-        self._run = RunState(model, model.cost())
 
     def _simulate(self, xi: FloatArray, n: int) -> list[FloatArray]:
         """States at steps 1..n with theta(xi) (the last path is cached)."""
@@ -172,12 +170,9 @@ class BatchLs(Settings):
         self._xi, self._cov = xi, cov
         return self._simulate(xi, k)[-1]
 
-    def update(self, k: int, observation: Observation | None) -> Estimate:
+    def assimilate(self, k: int, observation: Observation | None) -> Step:
         """Record the observation; fit at step K ("end") or at each observation."""
-        run = self._run
-        if run is None:
-            raise RuntimeError("call start() before update()")
-        check_step(k, observation, run.model.n_steps)
+        run = self.run
         if observation is not None:
             y = np.asarray(observation.values, dtype=float)
             self._obs.append((k, y, np.sqrt(noise_var(observation, self.sigma_floor))))
@@ -185,4 +180,4 @@ class BatchLs(Settings):
             k == run.model.n_steps if self.refit == "end" else observation is not None
         )
         state = self._fit(k) if fit_now else None
-        return run.estimate(self._xi, self._cov, self.transform, state)
+        return Step(self._xi, self._cov, state)
