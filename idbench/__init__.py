@@ -6,6 +6,7 @@ The public API is what this module exports; plugins import only from here.
 from __future__ import annotations
 
 from idbench.interfaces import (
+    BatchModel,
     Cost,
     Diverged,
     Estimate,
@@ -31,6 +32,7 @@ from idbench.scenario import Scenario, Sparsity
 __version__ = "0.1.0"
 
 __all__ = [
+    "BatchModel",
     "Cost",
     "Diverged",
     "Estimate",

@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from idbench import Cost, ModelFailure, ModelSpec, ParameterSpec, Scenario
+from idbench_skfem import batched
 from idbench_skfem import mesh as meshes
 from idbench_skfem.assembly import Assembler, Kinematics
 from idbench_skfem.probes import grid_points, interpolation_matrix, marker_points
@@ -174,6 +175,32 @@ class SvkBeam:
                 u.tobytes(),
             )
         return u
+
+    # -- batched steps (idbench.BatchModel) -----------------------------------
+
+    _batch_anchor: batched._Anchor | None = None
+    _batch_stats: batched.BatchStats | None = None
+
+    def step_many(self, thetas: FloatArray, k: int, states: FloatArray) -> FloatArray:
+        """Solve load step ``k`` for r parameter/state pairs, sharing factorizations.
+
+        ``thetas`` (r, p), ``states`` (r, n) -> states (r, n); row i equals
+        ``step(thetas[i], k, states[i])`` to the Newton tolerance. See
+        :mod:`idbench_skfem.batched`.
+
+        Raises
+        ------
+        ModelFailure
+            If any pair fails (the caller may retry pairs with :meth:`step`).
+        """
+        return batched.step_many(self, thetas, k, states)
+
+    @property
+    def batch_stats(self) -> batched.BatchStats:
+        """Factorizations and iterations of :meth:`step_many` so far."""
+        if self._batch_stats is None:
+            self._batch_stats = batched.BatchStats()
+        return self._batch_stats
 
     def observe(self, state: FloatArray) -> FloatArray:
         """Marker displacements, shape (3M,), ``[p0x, p0y, p0z, p1x, ...]``."""

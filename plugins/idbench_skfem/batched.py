@@ -1,0 +1,290 @@
+r"""Batched load steps of the SVK beam: one factorization for many sigma points.
+
+For St Venant-Kirchhoff (any energy linear in the moduli) the internal force
+and tangent of region-wise moduli theta are
+
+.. math::
+
+    f_{int}(u; \theta) = \sum_r \theta_r g_r(u), \qquad
+    K(u; \theta) = \sum_r \theta_r K_r(u),
+
+so near a state u_f where K(u_f; theta_f) is factored, K(u; theta) is about
+s K(u_f; theta_f) with the scalar s = prod_r (theta_r / theta_{f,r})^{w_r}
+(w_r the volume fraction of region r; exact for one region at u = u_f).
+:func:`step_many` advances r parameter/state pairs to load step k:
+
+1. the *anchor*, the pair whose theta is most central, is solved by the model's
+   own Newton (:meth:`SvkBeam._newton`), from the better (smaller residual) of
+   its given state and a secant prediction from the anchor of the previous
+   call when that was at step k - 1;
+2. the sensitivity S = du/dtheta = -K^-1 [g_1 ... g_p] at the anchor's
+   solution u_a costs p back-substitutions with the factorization in hand;
+3. every other pair i starts from the best of its given state, the prediction
+   u_a + S (theta_i - theta_a) and the secant one state_i + (u_a - state_a),
+   and iterates modified Newton u <- u - K_f^-1 r(u) / s_i with the last
+   factorization K_f, testing the *true* residual r(u) = f_int(u; theta_i) -
+   f_ext against the same tolerance as :meth:`SvkBeam.step`. When an
+   iteration reduces |r| by less than ``SLOW`` (or increases it) the tangent
+   is refactored at the current iterate (a full Newton step), which then
+   serves the later pairs.
+
+Each result therefore meets the convergence test of ``step`` on the same
+load: it equals ``step(theta_i, k, state_i)`` to the Newton tolerance, not
+bitwise (a different iterate satisfies the same test). Backtracking keeps
+det F > 0 as in ``step``. Failures raise :class:`idbench.ModelFailure`, and
+the caller may fall back to ``step`` (with its sub-step retries).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from idbench import ModelFailure
+
+if TYPE_CHECKING:
+    from idbench_skfem.model import SvkBeam
+
+FloatArray = NDArray[np.float64]
+
+SLOW = 0.25
+"""Refactor when a modified-Newton iteration reduces |r| by less than this factor."""
+
+MAX_MODIFIED = 6
+"""Modified-Newton iterations in a row before the tangent is refactored."""
+
+
+@dataclass
+class BatchStats:
+    """Work of the batched steps, cumulative (for benchmarks and tests).
+
+    Attributes
+    ----------
+    calls, pairs
+        Calls of :func:`step_many` and parameter/state pairs advanced.
+    factorizations
+        Numeric factorizations of the tangent, anchors' Newton included.
+    modified
+        Modified-Newton iterations (residual + back-substitution, no factor).
+    converged_at_prediction
+        Pairs whose best prediction already met the tolerance.
+    """
+
+    calls: int = 0
+    pairs: int = 0
+    factorizations: int = 0
+    modified: int = 0
+    converged_at_prediction: int = 0
+
+
+@dataclass
+class _Anchor:
+    """The anchor of the previous call, for the secant prediction."""
+
+    k: int
+    theta: FloatArray
+    start: FloatArray
+    final: FloatArray
+
+
+def _central(log_thetas: FloatArray) -> int:
+    """Index of the row nearest (L1) to the median of the rows, the first if tied."""
+    d = np.abs(log_thetas - np.median(log_thetas, axis=0)).sum(axis=1)
+    return int(np.argmin(d))
+
+
+def step_many(
+    model: SvkBeam, thetas: FloatArray, k: int, states: FloatArray
+) -> FloatArray:
+    """Advance r parameter/state pairs to load step ``k``; see the module docstring.
+
+    Parameters
+    ----------
+    model
+        The beam (its caches, solver and cost counters are used and updated).
+    thetas
+        Parameters, shape (r, p).
+    k
+        Load step, 1..K.
+    states
+        Starting states, shape (r, n); not modified.
+
+    Returns
+    -------
+    numpy.ndarray
+        Converged states (r, n), row i equal to ``model.step(thetas[i], k,
+        states[i])`` to the Newton tolerance.
+    """
+    th = np.asarray(thetas, dtype=np.float64)
+    X = np.asarray(states, dtype=np.float64)
+    p, n = model.parameters.p, model.n_state
+    if th.ndim != 2 or th.shape[1] != p:
+        raise ValueError(f"thetas has shape {th.shape}, expected (r, {p})")
+    if X.shape != (len(th), n):
+        raise ValueError(f"states has shape {X.shape}, expected ({len(th)}, {n})")
+    if not 1 <= k <= model.n_steps:
+        raise ValueError(f"load step k = {k}: must be in 1..{model.n_steps}")
+    moduli = [model._modulus(t, k) for t in th]  # validates every theta
+    r = len(th)
+    out = np.empty((r, n))
+    if r == 0:
+        return out
+    stats = model.batch_stats
+    stats.calls += 1
+    stats.pairs += r
+    model._cost[0] += r
+    model._factored_key = None
+    asm = model._asm
+    f_ext = model._load(model.scenario.traction(k, model.n_steps))
+    tol = max(model.rtol * float(np.linalg.norm(f_ext)), model.atol)
+    log_th = np.log(th)
+    weights = np.bincount(model._regions, weights=asm.volumes, minlength=p)
+    weights = weights / weights.sum()
+
+    # 1. the anchor, by the model's Newton, from the better of two starts
+    a = _central(log_th)
+    start = X[a]
+    prev = model._batch_anchor
+    if prev is not None and prev.k == k - 1:
+        start = _best_start(
+            model, moduli[a], f_ext, [X[a], X[a] + (prev.final - prev.start)]
+        )[0]
+    its0 = model._cost[1]
+    u_a, _ = model._newton(moduli[a], f_ext, np.array(start), k)
+    stats.factorizations += model._cost[1] - its0
+    out[a] = u_a
+    model._batch_anchor = _Anchor(k, th[a].copy(), X[a].copy(), u_a.copy())
+    factored = model._cost[1] > its0  # the solver holds K at an iterate of u_a
+    theta_f = th[a]
+
+    # 2. sensitivity du/dtheta at the anchor (one solve per parameter)
+    S = None
+    if r > 1:
+        if not factored:
+            model._factor(asm.kinematics(u_a, moduli[a]), moduli[a], k)
+            stats.factorizations += 1
+            factored = True
+        kin_unit = asm.kinematics(u_a, np.ones(asm.n_elements))
+        g = asm.region_forces(kin_unit, model._regions, p)
+        S = -model._solver.solve(g).reshape(n, p)
+        model._cost[2] += p
+
+    # 3. the others: prediction, then modified Newton with the shared factor
+    for i in range(r):
+        if i == a:
+            continue
+        assert S is not None
+        pred = u_a + S @ (th[i] - th[a])
+        kin = asm.kinematics(pred, moduli[i])
+        if np.all(kin.det > 0):
+            res = asm.forces(kin) - f_ext
+            if float(np.linalg.norm(res)) <= tol:
+                stats.converged_at_prediction += 1
+                out[i] = pred
+                continue
+        candidates = [pred, X[i]]
+        if not np.array_equal(X[i], X[a]):
+            candidates.append(X[i] + (u_a - X[a]))
+        u, kin, res = _best_start(model, moduli[i], f_ext, candidates)
+        out[i], theta_f = _modified_newton(
+            model, th[i], moduli[i], f_ext, u, kin, res, tol, k, theta_f, weights
+        )
+    return out
+
+
+def _best_start(
+    model: SvkBeam, modulus: FloatArray, f_ext: FloatArray, candidates: list
+) -> tuple[FloatArray, object, FloatArray]:
+    """The candidate with the smallest residual among those without inversion."""
+    asm = model._asm
+    best = None
+    for c in candidates:
+        kin = asm.kinematics(c, modulus)
+        if not np.all(kin.det > 0):
+            continue
+        res = asm.forces(kin) - f_ext
+        norm = float(np.linalg.norm(res))
+        if not np.isfinite(norm):
+            continue
+        if best is None or norm < best[0]:
+            best = (norm, np.array(c), kin, res)
+    if best is None:  # let the solver report it, as step() would
+        c = np.array(candidates[0])
+        kin = asm.kinematics(c, modulus)
+        return c, kin, asm.forces(kin) - f_ext
+    return best[1], best[2], best[3]
+
+
+def _modified_newton(
+    model: SvkBeam,
+    theta: FloatArray,
+    modulus: FloatArray,
+    f_ext: FloatArray,
+    u: FloatArray,
+    kin: object,
+    res: FloatArray,
+    tol: float,
+    k: int,
+    theta_f: FloatArray,
+    weights: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """Chord iterations with the factored tangent, refactoring when they are slow.
+
+    Returns the converged state and the theta of the factorization now held.
+    """
+    asm = model._asm
+    stats = model.batch_stats
+    norm = float(np.linalg.norm(res))
+    first = norm
+    refactor = False
+    modified = full = in_row = 0
+    while True:
+        if refactor:
+            model._factor(kin, modulus, k)  # type: ignore[arg-type]
+            stats.factorizations += 1
+            theta_f = theta
+            scale = 1.0
+            full += 1
+            in_row = 0
+        else:
+            in_row += 1
+            scale = float(np.exp(weights @ np.log(theta / theta_f)))
+            modified += 1
+        du = model._solver.solve(-res) / scale
+        model._cost[1] += 1
+        model._cost[2] += 1
+        if not np.all(np.isfinite(du)):
+            raise ModelFailure("non-finite Newton update", step=k)
+        for _ in range(9):
+            u_new = u + du
+            kin_new = asm.kinematics(u_new, modulus)
+            if np.all(kin_new.det > 0):
+                break
+            du = 0.5 * du
+        else:
+            raise ModelFailure(
+                "inverted element (det F <= 0) in every backtrack", step=k
+            )
+        res_new = asm.forces(kin_new) - f_ext
+        norm_new = float(np.linalg.norm(res_new))
+        if not np.isfinite(norm_new):
+            raise ModelFailure("non-finite residual in a batched step", step=k)
+        if norm_new <= tol:
+            stats.modified += modified
+            return u_new, theta_f
+        if full >= model.max_iterations:
+            stats.modified += modified
+            raise ModelFailure(
+                f"batched Newton did not converge ({full} full, {modified} modified "
+                f"iterations): |r| = {norm_new:.3e} > tol {tol:.3e} "
+                f"(first |r| = {first:.3e})",
+                step=k,
+            )
+        if norm_new > norm and not refactor:
+            refactor = True  # the chord step made it worse: discard it, refactor
+            continue
+        refactor = norm_new > SLOW * norm or in_row >= MAX_MODIFIED
+        u, kin, res, norm = u_new, kin_new, res_new, norm_new
