@@ -12,7 +12,8 @@ sum_i alpha I*_i = 0 and sum_i alpha I*_i I*_i^T = I_p: ``"simplex"``
 
 0. random walk (optional): U^-1 <- U^-1 + L_xi^-1 Q L_xi^-T, Q = q^2 I_p;
 1. C = chol(U^-1) (lower), L <- L C, x_i = x + L I*_i;
-2. advance each x_i one load step with the model (r forward solves);
+2. advance each x_i one load step with the model (r forward solves, batched
+   through the model's ``step_many`` when it has one);
 3. x <- sum_i alpha x_i, L <- alpha X I*^T, U <- I;
 4. with an observation y: Z_i = y - h(x_i), zbar = sum_i alpha Z_i,
    G = alpha I* Z^T (p, m), U <- I + G R^-1 G^T,
@@ -30,11 +31,11 @@ import numpy as np
 import scipy.linalg
 
 from idbench import Diverged, Estimate, ForwardModel, Observation, Prior
+from idbench_filters._batch import advance_many
 from idbench_filters._common import (
     FloatArray,
     RunState,
     Settings,
-    advance,
     check_choice,
     check_estimate,
     check_positive,
@@ -124,9 +125,8 @@ class RoUkf(Settings):
             # sigma points as rows (r, n): each state handed to the model is
             # contiguous (a strided column view makes the solves ~20% slower)
             X = self._x[None, :] + (L @ I).T
-            for i in range(r):
-                theta_i = to_theta(X[i, nu:], self.transform)
-                X[i, :nu] = advance(model, theta_i, k, X[i, :nu])
+            thetas = np.stack([to_theta(X[i, nu:], self.transform) for i in range(r)])
+            X[:, :nu] = advance_many(model, thetas, k, X[:, :nu])
             x = alpha * X.sum(axis=0)
             L = alpha * X.T @ I.T
             uinv = np.eye(I.shape[0])

@@ -12,16 +12,21 @@ clips its eigenvalues from below, S = diag(sqrt(max(w, eps w_max))) V^T with
 P = V diag(w) V^T and S^T S ~ P (filterpy takes the rows of S), so a
 rank-deficient P (the displacements start exactly known) still samples.
 The process noise is zero: u_k is a function of theta and the warm start.
+The sigma points are advanced in one call of the model's ``step_many`` when it
+has one (shared factorizations; see :class:`idbench.BatchModel`), else one
+``step`` each, as filterpy's own ``fx`` loop would.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
 from idbench import Diverged, Estimate, ForwardModel, Observation, Prior, Skipped
+from idbench_filters._batch import advance_many
 from idbench_filters._common import (
     FloatArray,
     RunState,
@@ -36,6 +41,24 @@ from idbench_filters._common import (
 )
 
 EIG_FLOOR = 1e-14  # relative eigenvalue floor of the sampled square root
+
+
+class _BatchedUkf(UnscentedKalmanFilter):  # type: ignore[misc]
+    """filterpy's UKF with the sigma points advanced in one call.
+
+    ``fx_many(sigmas (2n + 1, n), dt) -> (2n + 1, n)`` replaces filterpy's loop
+    of ``fx`` over the sigma points (``compute_process_sigmas``); everything
+    else, the unscented transform and the update included, is filterpy's.
+    """
+
+    def __init__(self, fx_many: Any, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self._fx_many = fx_many
+
+    def compute_process_sigmas(self, dt: float, fx: Any = None, **fx_args: Any) -> None:
+        """Sigma points of (x, P), advanced together through ``fx_many``."""
+        sigmas = self.points_fn.sigma_points(self.x, self.P)
+        self.sigmas_f = np.asarray(self._fx_many(sigmas, dt), dtype=float)
 
 
 def clipped_sqrt(P: FloatArray) -> FloatArray:
@@ -114,7 +137,8 @@ class Ukf(Settings):
             kappa=self.kappa,
             sqrt_method=clipped_sqrt,
         )
-        ukf = UnscentedKalmanFilter(
+        ukf = _BatchedUkf(
+            fx_many=self._fx_many,
             dim_x=n,
             dim_z=len(model.observe(u0)),
             dt=1.0,
@@ -142,6 +166,14 @@ class Ukf(Settings):
         theta = to_theta(x[nu:], self.transform)
         u = advance(self._run.model, theta, self._k, x[:nu])
         return np.concatenate([u, x[nu:]])
+
+    def _fx_many(self, sigmas: FloatArray, dt: float) -> FloatArray:
+        assert self._run is not None
+        nu = self._nu
+        thetas = np.stack([to_theta(x[nu:], self.transform) for x in sigmas])
+        out = np.array(sigmas, dtype=float)
+        out[:, :nu] = advance_many(self._run.model, thetas, self._k, out[:, :nu])
+        return out
 
     def _hx(self, x: FloatArray) -> FloatArray:
         assert self._run is not None
