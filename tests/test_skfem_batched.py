@@ -75,10 +75,10 @@ def test_nearby_sigma_points_share_one_factorization():
     k = 3
     start = _path(model, [E_TRUE], k - 1)[-1]
     thetas = E_TRUE * (1 + 1e-6 * np.arange(9.0))[:, None]
-    before = model.batch_stats.factorizations
+    before = model.factorizations
     c0 = model.cost()
     model.step_many(thetas, k, np.tile(start, (9, 1)))
-    factors = model.batch_stats.factorizations - before
+    factors = model.factorizations - before
     its_one = (model.cost() - c0).newton_its  # counted as Newton iterations too
     model.step(thetas[0], k, start)
     newton = model.last_residuals

@@ -13,20 +13,23 @@ s K(u_f; theta_f) with the scalar s = prod_r (theta_r / theta_{f,r})^{w_r}
 (w_r the volume fraction of region r; exact for one region at u = u_f).
 :func:`step_many` advances r parameter/state pairs to load step k:
 
-1. the *anchor*, the pair whose theta is most central, is solved by the model's
-   own Newton (:meth:`SvkBeam._newton`), from the better (smaller residual) of
-   its given state and a secant prediction from the anchor of the previous
-   call when that was at step k - 1;
+1. the *anchor*, the pair whose theta is nearest the median, starts from the
+   secant prediction state_a + (u - state) of the previous call's anchor when
+   that call was at step k - 1 (else from its given state) and is solved by
+   chord iterations (below) with the factorization the previous call left, if
+   nothing has refactored since; else by the model's own Newton
+   (:meth:`SvkBeam._newton`);
 2. the sensitivity S = du/dtheta = -K^-1 [g_1 ... g_p] at the anchor's
    solution u_a costs p back-substitutions with the factorization in hand;
-3. every other pair i starts from the best of its given state, the prediction
-   u_a + S (theta_i - theta_a) and the secant one state_i + (u_a - state_a),
-   and iterates modified Newton u <- u - K_f^-1 r(u) / s_i with the last
-   factorization K_f, testing the *true* residual r(u) = f_int(u; theta_i) -
-   f_ext against the same tolerance as :meth:`SvkBeam.step`. When an
-   iteration reduces |r| by less than ``SLOW`` (or increases it) the tangent
-   is refactored at the current iterate (a full Newton step), which then
-   serves the later pairs.
+3. every other pair i starts from the prediction u_a + S (theta_i - theta_a)
+   (its given state if that inverts an element) and iterates.
+
+The chord (modified Newton) iteration is u <- u - K_f^-1 r(u) / s_i with the
+last factorization K_f, testing the *true* residual r(u) = f_int(u; theta_i)
+- f_ext against the same tolerance as :meth:`SvkBeam.step`. When an iteration
+reduces |r| by less than a factor ``SLOW``, or after ``MAX_MODIFIED`` in a
+row, the tangent is refactored at the current iterate (a full Newton step);
+that factorization then serves the later pairs and the next call.
 
 Each result therefore meets the convergence test of ``step`` on the same
 load: it equals ``step(theta_i, k, state_i)`` to the Newton tolerance, not
@@ -50,8 +53,14 @@ if TYPE_CHECKING:
 
 FloatArray = NDArray[np.float64]
 
-SLOW = 0.25
-"""Refactor when a modified-Newton iteration reduces |r| by less than this factor."""
+SLOW = 0.1
+"""Refactor when a chord iteration reduces |r| by less than this factor.
+
+A chord iteration costs a residual and a back-substitution, about a quarter of
+a Newton iteration at 500 nodes (kernel and factorization); at a rate slower
+than 0.1 a refactorization pays for itself. Measured on the RO-UKF path
+(benchmarks/filters.py): 0.25 and 0.05 cost more.
+"""
 
 MAX_MODIFIED = 6
 """Modified-Newton iterations in a row before the tangent is refactored."""
@@ -65,8 +74,6 @@ class BatchStats:
     ----------
     calls, pairs
         Calls of :func:`step_many` and parameter/state pairs advanced.
-    factorizations
-        Numeric factorizations of the tangent, anchors' Newton included.
     modified
         Modified-Newton iterations (residual + back-substitution, no factor).
     converged_at_prediction
@@ -75,19 +82,29 @@ class BatchStats:
 
     calls: int = 0
     pairs: int = 0
-    factorizations: int = 0
     modified: int = 0
     converged_at_prediction: int = 0
 
 
 @dataclass
 class _Anchor:
-    """The anchor of the previous call, for the secant prediction."""
+    """What the previous call leaves for the next one.
+
+    Attributes
+    ----------
+    k, start, final
+        Its load step and its anchor's start and solution (secant prediction).
+    theta_f, factorizations
+        The parameters of the factorization the solver holds, and the model's
+        count of factorizations then: the next call reuses the factorization
+        only if nothing else has refactored since.
+    """
 
     k: int
-    theta: FloatArray
     start: FloatArray
     final: FloatArray
+    theta_f: FloatArray
+    factorizations: int
 
 
 def _central(log_thetas: FloatArray) -> int:
@@ -144,32 +161,41 @@ def step_many(
     weights = np.bincount(model._regions, weights=asm.volumes, minlength=p)
     weights = weights / weights.sum()
 
-    # 1. the anchor, by the model's Newton, from the better of two starts
+    # 1. the anchor: from a secant prediction when the previous call was at
+    # step k - 1, by chord iterations with the factorization that call left
+    # (if nothing refactored since), else by the model's Newton
     a = _central(log_th)
-    start = X[a]
     prev = model._batch_anchor
+    start = X[a]
     if prev is not None and prev.k == k - 1:
-        start = _best_start(
-            model, moduli[a], f_ext, [X[a], X[a] + (prev.final - prev.start)]
-        )[0]
-    its0 = model._cost[1]
-    u_a, _ = model._newton(moduli[a], f_ext, np.array(start), k)
-    stats.factorizations += model._cost[1] - its0
+        start = X[a] + (prev.final - prev.start)
+    held = prev is not None and prev.factorizations == model.factorizations
+    u_a = None
+    if held:
+        assert prev is not None
+        kin = asm.kinematics(start, moduli[a])
+        if np.all(kin.det > 0):
+            res = asm.forces(kin) - f_ext
+            u_a, theta_f = _modified_newton(
+                model, th[a], moduli[a], f_ext, start, kin, res, tol, k,
+                prev.theta_f, weights,
+            )  # fmt: skip
+    if u_a is None:
+        f0 = model.factorizations
+        u_a, _ = model._newton(moduli[a], f_ext, np.array(start), k)
+        if r > 1 and model.factorizations == f0:  # converged at once: factor for S
+            model._factor(asm.kinematics(u_a, moduli[a]), moduli[a], k)
+        theta_f = th[a]
     out[a] = u_a
-    model._batch_anchor = _Anchor(k, th[a].copy(), X[a].copy(), u_a.copy())
-    factored = model._cost[1] > its0  # the solver holds K at an iterate of u_a
-    theta_f = th[a]
 
-    # 2. sensitivity du/dtheta at the anchor (one solve per parameter)
+    # 2. sensitivity du/dtheta at the anchor (one solve per parameter) with
+    # the factorization in hand: only a predictor, so it need not be exact
     S = None
     if r > 1:
-        if not factored:
-            model._factor(asm.kinematics(u_a, moduli[a]), moduli[a], k)
-            stats.factorizations += 1
-            factored = True
         kin_unit = asm.kinematics(u_a, np.ones(asm.n_elements))
         g = asm.region_forces(kin_unit, model._regions, p)
-        S = -model._solver.solve(g).reshape(n, p)
+        scale = float(np.exp(weights @ np.log(th[a] / theta_f)))
+        S = -model._solver.solve(g).reshape(n, p) / scale
         model._cost[2] += p
 
     # 3. the others: prediction, then modified Newton with the shared factor
@@ -179,43 +205,21 @@ def step_many(
         assert S is not None
         pred = u_a + S @ (th[i] - th[a])
         kin = asm.kinematics(pred, moduli[i])
-        if np.all(kin.det > 0):
-            res = asm.forces(kin) - f_ext
-            if float(np.linalg.norm(res)) <= tol:
-                stats.converged_at_prediction += 1
-                out[i] = pred
-                continue
-        candidates = [pred, X[i]]
-        if not np.array_equal(X[i], X[a]):
-            candidates.append(X[i] + (u_a - X[a]))
-        u, kin, res = _best_start(model, moduli[i], f_ext, candidates)
-        out[i], theta_f = _modified_newton(
-            model, th[i], moduli[i], f_ext, u, kin, res, tol, k, theta_f, weights
-        )
-    return out
-
-
-def _best_start(
-    model: SvkBeam, modulus: FloatArray, f_ext: FloatArray, candidates: list
-) -> tuple[FloatArray, object, FloatArray]:
-    """The candidate with the smallest residual among those without inversion."""
-    asm = model._asm
-    best = None
-    for c in candidates:
-        kin = asm.kinematics(c, modulus)
         if not np.all(kin.det > 0):
-            continue
+            pred = X[i]
+            kin = asm.kinematics(pred, moduli[i])
         res = asm.forces(kin) - f_ext
-        norm = float(np.linalg.norm(res))
-        if not np.isfinite(norm):
+        if float(np.linalg.norm(res)) <= tol:
+            stats.converged_at_prediction += 1
+            out[i] = pred
             continue
-        if best is None or norm < best[0]:
-            best = (norm, np.array(c), kin, res)
-    if best is None:  # let the solver report it, as step() would
-        c = np.array(candidates[0])
-        kin = asm.kinematics(c, modulus)
-        return c, kin, asm.forces(kin) - f_ext
-    return best[1], best[2], best[3]
+        out[i], theta_f = _modified_newton(
+            model, th[i], moduli[i], f_ext, pred, kin, res, tol, k, theta_f, weights
+        )
+    model._batch_anchor = _Anchor(
+        k, X[a].copy(), u_a.copy(), theta_f.copy(), model.factorizations
+    )
+    return out
 
 
 def _modified_newton(
@@ -244,7 +248,6 @@ def _modified_newton(
     while True:
         if refactor:
             model._factor(kin, modulus, k)  # type: ignore[arg-type]
-            stats.factorizations += 1
             theta_f = theta
             scale = 1.0
             full += 1

@@ -178,6 +178,9 @@ class SvkBeam:
 
     # -- batched steps (idbench.BatchModel) -----------------------------------
 
+    factorizations: int = 0
+    """Numeric factorizations of the tangent so far (all methods)."""
+
     _batch_anchor: batched._Anchor | None = None
     _batch_stats: batched.BatchStats | None = None
 
@@ -321,6 +324,7 @@ class SvkBeam:
         return self._load_weights * (np.asarray(traction) @ self._load_dir)
 
     def _factor(self, kin: Kinematics, modulus: FloatArray, k: int) -> None:
+        self.factorizations += 1
         data = self._asm.tangent_data(kin, modulus, self._pattern)
         try:
             self._solver.factor(data)
