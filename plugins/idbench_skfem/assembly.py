@@ -175,10 +175,14 @@ class Assembler:
     # -- kinematics and forces -------------------------------------------------
 
     def element_displacements(self, state: FloatArray) -> FloatArray:
-        """Nodal displacements per element (T, 4, 3) from the free state (n,)."""
-        u = self._u_full
-        u[self.free_dofs] = state
-        return u.reshape(-1, 3)[self.tets]
+        """Nodal displacements per element (..., T, 4, 3) from free states (..., n)."""
+        if state.ndim == 1:
+            u = self._u_full
+            u[self.free_dofs] = state
+            return u.reshape(-1, 3)[self.tets]
+        full = np.zeros((*state.shape[:-1], 3 * self.n_nodes))
+        full[..., self.free_dofs] = state
+        return full.reshape(*state.shape[:-1], -1, 3)[..., self.tets, :]
 
     def kinematics(self, state: FloatArray, modulus: FloatArray) -> Kinematics:
         """Deformation gradient, second Piola-Kirchhoff stress and det F.
@@ -186,38 +190,46 @@ class Assembler:
         Parameters
         ----------
         state
-            Free displacements (n,).
+            Free displacements (n,), or a batch (r, n).
         modulus
-            Young's modulus per element (T,).
+            Young's modulus per element (T,), or per state (r, T).
+
+        Returns
+        -------
+        Kinematics
+            F and S (T, 3, 3) and det F (T,), or (r, T, 3, 3) and (r, T).
         """
-        H = np.matmul(self.element_displacements(state).transpose(0, 2, 1), self.grads)
-        Ht = H.transpose(0, 2, 1)
+        H = np.matmul(self.element_displacements(state).swapaxes(-1, -2), self.grads)
+        Ht = H.swapaxes(-1, -2)
         E = np.matmul(Ht, H)
         E += H
         E += Ht
         E *= 0.5
-        tr = E[:, 0, 0] + E[:, 1, 1] + E[:, 2, 2]
+        tr = E[..., 0, 0] + E[..., 1, 1] + E[..., 2, 2]
         S = (2.0 * self.mu) * E
         idx = np.arange(3)
-        S[:, idx, idx] += (self.lam * tr)[:, None]
-        S *= modulus[:, None, None]
+        S[..., idx, idx] += (self.lam * tr)[..., None]
+        S *= modulus[..., None, None]
         F = H
-        F[:, idx, idx] += 1.0
+        F[..., idx, idx] += 1.0
         det = (
-            F[:, 0, 0] * (F[:, 1, 1] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 1])
-            - F[:, 0, 1] * (F[:, 1, 0] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 0])
-            + F[:, 0, 2] * (F[:, 1, 0] * F[:, 2, 1] - F[:, 1, 1] * F[:, 2, 0])
+            F[..., 0, 0] * (F[..., 1, 1] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 1])
+            - F[..., 0, 1] * (F[..., 1, 0] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 0])
+            + F[..., 0, 2] * (F[..., 1, 0] * F[..., 2, 1] - F[..., 1, 1] * F[..., 2, 0])
         )
         return Kinematics(F, S, det)
 
     def element_forces(self, kin: Kinematics) -> FloatArray:
-        """Element internal forces (T, 4, 3): V P_iJ G_aJ."""
+        """Element internal forces (..., T, 4, 3): V P_iJ G_aJ."""
         P = np.matmul(kin.F, kin.S * self.volumes[:, None, None])
-        return np.matmul(self.grads, P.transpose(0, 2, 1))
+        return np.matmul(self.grads, P.swapaxes(-1, -2))
 
     def forces(self, kin: Kinematics) -> FloatArray:
-        """Assembled internal force on the free dofs (n,)."""
-        return self._force_scatter @ self.element_forces(kin).ravel()
+        """Assembled internal force on the free dofs, (n,) (or (r, n) for a batch)."""
+        fe = self.element_forces(kin)
+        if fe.ndim == 3:
+            return self._force_scatter @ fe.ravel()
+        return np.asarray(self._force_scatter @ fe.reshape(len(fe), -1).T).T
 
     def region_forces(
         self, kin_unit: Kinematics, regions: NDArray[np.int64], p: int
