@@ -51,6 +51,7 @@ from numpy.typing import NDArray
 from idbench import ModelFailure
 
 if TYPE_CHECKING:
+    from idbench_skfem.assembly import Kinematics
     from idbench_skfem.model import SvkBeam
 
 FloatArray = NDArray[np.float64]
@@ -83,7 +84,7 @@ class BatchStats:
     modified
         Modified-Newton iterations (residual + back-substitution, no factor).
     converged_at_prediction
-        Pairs whose best prediction already met the tolerance.
+        Pairs whose prediction from the anchor already met the tolerance.
     """
 
     calls: int = 0
@@ -173,13 +174,16 @@ def step_many(
     a = _central(log_th)
     prev = model._batch_anchor
     start = X[a]
+    kin = None
     if prev is not None and prev.k == k - 1:
-        start = X[a] + (prev.final - prev.start)
-    held = prev is not None and prev.factorizations == model.factorizations
+        kin = asm.kinematics(X[a] + (prev.final - prev.start), moduli[a])
+        if np.all(kin.det > 0):
+            start = X[a] + (prev.final - prev.start)
+        else:
+            kin = None
     u_a = None
-    if held:
-        assert prev is not None
-        kin = asm.kinematics(start, moduli[a])
+    if prev is not None and prev.factorizations == model.factorizations:
+        kin = asm.kinematics(start, moduli[a]) if kin is None else kin
         if np.all(kin.det > 0):
             res = asm.forces(kin) - f_ext
             u_a, theta_f = _modified_newton(
@@ -257,7 +261,7 @@ def _modified_newton(
     modulus: FloatArray,
     f_ext: FloatArray,
     u: FloatArray,
-    kin: object,
+    kin: Kinematics,
     res: FloatArray,
     tol: float,
     k: int,
@@ -271,12 +275,14 @@ def _modified_newton(
     asm = model._asm
     stats = model.batch_stats
     norm = float(np.linalg.norm(res))
+    if norm <= tol:
+        return u, theta_f
     first = norm
     refactor = False
     modified = full = in_row = 0
     while True:
         if refactor:
-            model._factor(kin, modulus, k)  # type: ignore[arg-type]
+            model._factor(kin, modulus, k)
             theta_f = theta
             scale = 1.0
             full += 1
