@@ -189,7 +189,10 @@ class SvkBeam:
 
         ``thetas`` (r, p), ``states`` (r, n) -> states (r, n); row i equals
         ``step(thetas[i], k, states[i])`` to the Newton tolerance. See
-        :mod:`idbench_skfem.batched`.
+        :mod:`idbench_skfem.batched`. In :meth:`cost`, each pair counts as a
+        forward solve and each chord (modified Newton) iteration as a Newton
+        iteration and a linear solve; :attr:`factorizations` counts the
+        factorizations they share.
 
         Raises
         ------
