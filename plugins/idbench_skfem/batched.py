@@ -13,9 +13,10 @@ s K(u_f; theta_f) with the scalar s = prod_r (theta_r / theta_{f,r})^{w_r}
 (w_r the volume fraction of region r; exact for one region at u = u_f).
 :func:`step_many` advances r parameter/state pairs to load step k:
 
-1. the *anchor*, the pair whose theta is nearest the median, starts from the
-   secant prediction state_a + (u - state) of the previous call's anchor when
-   that call was at step k - 1 (else from its given state) and is solved by
+1. the *anchor*, the pair whose theta is nearest the median, starts from
+   state_a + d, d the increment (u - state) of the previous call's anchor
+   when that call was at step k - 1, extrapolated linearly from the two
+   previous increments when there are two (else from its given state) and is solved by
    chord iterations (below) with the factorization the previous call left, if
    nothing has refactored since; else by the model's own Newton
    (:meth:`SvkBeam._newton`);
@@ -100,11 +101,14 @@ class _Anchor:
     Attributes
     ----------
     k, start, final
-        Its load step and its anchor's start and solution (secant prediction).
+        Its load step and its anchor's start and solution (the increment
+        predicts the next anchor's).
     theta_f, factorizations
         The parameters of the factorization the solver holds, and the model's
         count of factorizations then: the next call reuses the factorization
         only if nothing else has refactored since.
+    increment
+        The previous call's anchor increment, if that call was at step k - 1.
     """
 
     k: int
@@ -112,6 +116,7 @@ class _Anchor:
     final: FloatArray
     theta_f: FloatArray
     factorizations: int
+    increment: FloatArray | None = None
 
 
 def _central(log_thetas: FloatArray) -> int:
@@ -168,17 +173,20 @@ def step_many(
     weights = np.bincount(model._regions, weights=asm.volumes, minlength=p)
     weights = weights / weights.sum()
 
-    # 1. the anchor: from a secant prediction when the previous call was at
-    # step k - 1, by chord iterations with the factorization that call left
+    # 1. the anchor: from the extrapolated increment when the previous call was
+    # at step k - 1, by chord iterations with the factorization that call left
     # (if nothing refactored since), else by the model's Newton
     a = _central(log_th)
     prev = model._batch_anchor
     start = X[a]
     kin = None
     if prev is not None and prev.k == k - 1:
-        kin = asm.kinematics(X[a] + (prev.final - prev.start), moduli[a])
+        incr = prev.final - prev.start
+        if prev.increment is not None:
+            incr = 2.0 * incr - prev.increment
+        kin = asm.kinematics(X[a] + incr, moduli[a])
         if np.all(kin.det > 0):
-            start = X[a] + (prev.final - prev.start)
+            start = X[a] + incr
         else:
             kin = None
     u_a = None
@@ -215,36 +223,47 @@ def step_many(
         assert S is not None
         preds = u_a + (th[others] - th[a]) @ S.T
         mods = np.stack([moduli[i] for i in others])
-        ok, norms = _residual_norms(model, preds, mods, f_ext)
+        ok, norms, residuals = _residuals(model, preds, mods, f_ext)
         for j, i in enumerate(others):
             if ok[j] and norms[j] <= tol:
                 stats.converged_at_prediction += 1
                 out[i] = preds[j]
                 continue
-            pred = preds[j] if ok[j] else X[i]
-            kin = asm.kinematics(pred, moduli[i])
-            res = asm.forces(kin) - f_ext
+            kin = None
+            if ok[j]:
+                pred, res = preds[j], residuals[j]
+            else:
+                pred = X[i]
+                kin = asm.kinematics(pred, moduli[i])
+                res = asm.forces(kin) - f_ext
             out[i], theta_f = _modified_newton(
                 model, th[i], moduli[i], f_ext, pred, kin, res, tol, k, theta_f,
                 weights,
             )  # fmt: skip
     model._batch_anchor = _Anchor(
-        k, X[a].copy(), u_a.copy(), theta_f.copy(), model.factorizations
+        k,
+        X[a].copy(),
+        u_a.copy(),
+        theta_f.copy(),
+        model.factorizations,
+        None if prev is None or prev.k != k - 1 else prev.final - prev.start,
     )
     return out
 
 
-def _residual_norms(
+def _residuals(
     model: SvkBeam, states: FloatArray, moduli: FloatArray, f_ext: FloatArray
-) -> tuple[NDArray[np.bool_], FloatArray]:
-    """Whether det F > 0 everywhere, and |f_int - f_ext|, for each row (r,).
+) -> tuple[NDArray[np.bool_], FloatArray, FloatArray]:
+    """Residuals f_int - f_ext of each row (r, n), their norms (r,), det F > 0 (r,).
 
-    Vectorised over rows in chunks of about ``BATCH_ELEMENTS`` elements.
+    Vectorised over rows in chunks of about ``BATCH_ELEMENTS`` elements; rows
+    with an inverted element get an infinite norm.
     """
     asm = model._asm
     r = len(states)
     ok = np.zeros(r, dtype=bool)
     norms = np.full(r, np.inf)
+    residuals = np.empty_like(states)
     step = max(1, BATCH_ELEMENTS // asm.n_elements)
     for lo in range(0, r, step):
         kin = asm.kinematics(states[lo : lo + step], moduli[lo : lo + step])
@@ -252,7 +271,8 @@ def _residual_norms(
         res = asm.forces(kin) - f_ext
         ok[lo : lo + step] = good
         norms[lo : lo + step] = np.where(good, np.linalg.norm(res, axis=1), np.inf)
-    return ok, norms
+        residuals[lo : lo + step] = res
+    return ok, norms, residuals
 
 
 def _modified_newton(
@@ -261,7 +281,7 @@ def _modified_newton(
     modulus: FloatArray,
     f_ext: FloatArray,
     u: FloatArray,
-    kin: Kinematics,
+    kin: Kinematics | None,
     res: FloatArray,
     tol: float,
     k: int,
@@ -270,7 +290,9 @@ def _modified_newton(
 ) -> tuple[FloatArray, FloatArray]:
     """Chord iterations with the factored tangent, refactoring when they are slow.
 
-    Returns the converged state and the theta of the factorization now held.
+    ``kin`` and ``res`` are the kinematics (None: computed when needed) and the
+    residual at the start ``u``. Returns the converged state and the theta of
+    the factorization now held.
     """
     asm = model._asm
     stats = model.batch_stats
@@ -282,6 +304,8 @@ def _modified_newton(
     modified = full = in_row = 0
     while True:
         if refactor:
+            if kin is None:
+                kin = asm.kinematics(u, modulus)
             model._factor(kin, modulus, k)
             theta_f = theta
             scale = 1.0
