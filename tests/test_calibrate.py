@@ -20,6 +20,7 @@ from idbench.config import ConfigError
 STRETCH, BEND = 250.0, 8.9
 
 
+
 def synthetic(angles=(0.0, 10.0, 45.0, 90.0), steps=4) -> Calibration:
     rng = np.random.default_rng(3)
     rows = []

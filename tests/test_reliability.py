@@ -36,6 +36,7 @@ TRUTH, MODEL, STEPS = "12x3x3", "4x1x1", 5
 BUILTIN_ESTIMATORS = {"ro-ukf", "ukf", "rls", "lms", "batch-ls"}
 
 
+
 def tiny(**overrides: Any) -> CompareConfig:
     base: dict[str, Any] = {
         "truth_mesh": TRUTH,
