@@ -168,3 +168,19 @@ def test_full_ukf_with_and_without_step_many_agree():
         np.testing.assert_allclose(a.std, b.std, rtol=1e-6)
     # and far from the prior: the estimate moved
     assert abs(batched[-1].mean[0] / E_TRUE - 1) < 0.05
+
+
+def test_a_run_does_not_depend_on_the_runs_before_it():
+    reg = idbench.build_registry()
+    spec = ModelSpec(mesh="6x2x2", scenario=reg.scenario("bend-y"), n_steps=6)
+    model = reg.model("svk-beam")(spec)
+    obs = _observations(model)
+    prior = Prior((2500.0,), (2500.0,))
+    first = _run(RoUkf(), model, prior, obs)
+    c0 = model.cost()
+    second = _run(RoUkf(), model, prior, obs)
+    fresh = reg.model("svk-beam")(spec)
+    third = _run(RoUkf(), fresh, prior, obs)
+    for a, b, c in zip(first, second, third, strict=True):
+        assert np.array_equal(a.mean, b.mean) and np.array_equal(a.mean, c.mean)
+    assert (model.cost() - c0) == fresh.cost()

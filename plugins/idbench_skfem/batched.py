@@ -13,13 +13,15 @@ s K(u_f; theta_f) with the scalar s = prod_r (theta_r / theta_{f,r})^{w_r}
 (w_r the volume fraction of region r; exact for one region at u = u_f).
 :func:`step_many` advances r parameter/state pairs to load step k:
 
-1. the *anchor*, the pair whose theta is nearest the median, starts from
-   state_a + d, d the increment (u - state) of the previous call's anchor
-   when that call was at step k - 1, extrapolated linearly from the two
-   previous increments when there are two (else from its given state) and is solved by
-   chord iterations (below) with the factorization the previous call left, if
-   nothing has refactored since; else by the model's own Newton
-   (:meth:`SvkBeam._newton`);
+1. the *anchor*, the pair whose theta is nearest the median: if the
+   previous call was at step k - 1, it starts from state_a + d, d the
+   increment (u - state) of the previous call's anchor, extrapolated linearly
+   from the two previous increments when there are two, and is solved by
+   chord iterations (below) with the factorization the previous call left,
+   if nothing has refactored since; otherwise the model's own Newton
+   (:meth:`SvkBeam._newton`) solves it from its given state. Nothing carries
+   over a restart of the load path, so a filter run's results do not depend
+   on what ran before it on the same model;
 2. the sensitivity S = du/dtheta = -K^-1 [g_1 ... g_p] at the anchor's
    solution u_a costs p back-substitutions with the factorization in hand;
 3. every other pair i starts from the prediction u_a + S (theta_i - theta_a)
@@ -173,14 +175,18 @@ def step_many(
     weights = np.bincount(model._regions, weights=asm.volumes, minlength=p)
     weights = weights / weights.sum()
 
-    # 1. the anchor: from the extrapolated increment when the previous call was
-    # at step k - 1, by chord iterations with the factorization that call left
-    # (if nothing refactored since), else by the model's Newton
+    # 1. the anchor: when the previous call was at step k - 1, from the
+    # extrapolated increment by chord iterations with the factorization that
+    # call left (if nothing refactored since), else by the model's Newton.
+    # Nothing is reused across a restart of the path (k not following), so a
+    # run's results do not depend on the runs before it on the same model.
     a = _central(log_th)
     prev = model._batch_anchor
+    if prev is not None and prev.k != k - 1:
+        prev = None  # not the previous step of the same path: start afresh
     start = X[a]
     kin = None
-    if prev is not None and prev.k == k - 1:
+    if prev is not None:
         incr = prev.final - prev.start
         if prev.increment is not None:
             incr = 2.0 * incr - prev.increment
@@ -246,7 +252,7 @@ def step_many(
         u_a.copy(),
         theta_f.copy(),
         model.factorizations,
-        None if prev is None or prev.k != k - 1 else prev.final - prev.start,
+        None if prev is None else prev.final - prev.start,
     )
     return out
 
