@@ -123,6 +123,32 @@ def advance(
     return np.asarray(new, dtype=float)
 
 
+def advance_many(
+    model: ForwardModel, thetas: FloatArray, k: int, states: FloatArray
+) -> FloatArray:
+    """Advance r parameter/state pairs one load step: (r, p), (r, n) -> (r, n).
+
+    Calls ``model.step_many`` (see :class:`idbench.BatchModel`) when the model
+    has it; a row whose batched result is non-finite, or every row if the
+    batched call raises :class:`~idbench.ModelFailure` (or the model has no
+    ``step_many``), goes through :func:`advance` (``step`` with its sub-step
+    retry), exactly as without batching.
+    """
+    step_many = getattr(model, "step_many", None)
+    if step_many is not None:
+        try:
+            new = np.array(step_many(thetas, k, states), dtype=float)
+        except ModelFailure:
+            new = None
+        if new is not None and new.shape == np.shape(states):
+            for i in np.flatnonzero(~np.all(np.isfinite(new), axis=1)):
+                new[i] = advance(model, thetas[i], k, states[i])
+            return new
+    return np.stack(
+        [advance(model, thetas[i], k, states[i]) for i in range(len(thetas))]
+    )
+
+
 def observation_jacobian(
     model: ForwardModel,
     xi: FloatArray,

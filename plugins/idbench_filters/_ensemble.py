@@ -27,12 +27,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from idbench import ForwardModel, ModelFailure, Observation, Prior
+from idbench import ForwardModel, Observation, Prior
 from idbench_filters._common import (
     FloatArray,
     Settings,
     Step,
-    advance,
+    advance_many,
     check_choice,
     check_positive,
     noise_var,
@@ -68,31 +68,6 @@ def draw_prior(
         c = np.linalg.cholesky(z.T @ z / (n_members - 1))
         z = np.linalg.solve(c, z.T).T
     return mean[None, :] + z @ np.linalg.cholesky(cov).T
-
-
-def forecast(
-    model: ForwardModel, thetas: FloatArray, k: int, states: FloatArray
-) -> FloatArray:
-    """Advance every member one load step: (N, p), (N, n_u) -> (N, n_u).
-
-    Uses ``model.step_many(thetas, k, states)`` when the model has it; a member
-    whose batched result is non-finite, or all of them if the batched call
-    raises :class:`~idbench.ModelFailure`, is redone one by one with the
-    sub-step retry of :func:`~idbench_filters._common.advance`.
-    """
-    step_many = getattr(model, "step_many", None)
-    if step_many is not None:
-        try:
-            new = np.array(step_many(thetas, k, states), dtype=float)
-        except ModelFailure:
-            new = None
-        if new is not None and new.shape == states.shape:
-            for i in np.flatnonzero(~np.all(np.isfinite(new), axis=1)):
-                new[i] = advance(model, thetas[i], k, states[i])
-            return new
-    return np.stack(
-        [advance(model, thetas[i], k, states[i]) for i in range(states.shape[0])]
-    )
 
 
 @dataclass
@@ -177,7 +152,7 @@ class EnsembleFilter(Settings):
         nu = self._nu
         X = self._X.copy()
         thetas = np.stack([to_theta(x, self.transform) for x in X[:, nu:]])
-        X[:, :nu] = forecast(model, thetas, k, X[:, :nu])
+        X[:, :nu] = advance_many(model, thetas, k, X[:, :nu])
         if observation is not None:
             y = np.asarray(observation.values, dtype=float)
             HX = np.stack([model.observe(x) for x in X[:, :nu]]).astype(float)

@@ -106,11 +106,10 @@ class BatchLs(Settings):
 
     def _simulate(self, xi: FloatArray, n: int) -> list[FloatArray]:
         """States at steps 1..n with theta(xi) (the last path is cached)."""
-        assert self._run is not None
         key = np.asarray(xi, dtype=float).tobytes()
         if self._cache is not None and self._cache[:2] == (key, n):
             return self._cache[2]
-        model = self._run.model
+        model = self.run.model
         theta = to_theta(xi, self.transform)
         u = np.asarray(model.reset(), dtype=float)
         states = []
@@ -121,16 +120,14 @@ class BatchLs(Settings):
         return states
 
     def _residuals(self, xi: FloatArray, n: int) -> FloatArray:
-        assert self._run is not None
         states = self._simulate(xi, n)
-        observe = self._run.model.observe
+        observe = self.run.model.observe
         return np.concatenate(
             [(y - observe(states[k - 1])) / s for k, y, s in self._obs]
         )
 
     def _jacobian(self, xi: FloatArray, n: int) -> FloatArray:
-        assert self._run is not None
-        model = self._run.model
+        model = self.run.model
         states = self._simulate(xi, n)
         theta, scale = to_theta(xi, self.transform), dtheta_dxi(xi, self.transform)
         rows = [
@@ -141,11 +138,10 @@ class BatchLs(Settings):
 
     def _fit(self, k: int) -> FloatArray:
         """Fit xi to all observations so far, simulating steps 1..k."""
-        assert self._run is not None
         lo, hi = self._bounds
         span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
         x0 = np.clip(self._xi, lo + 1e-9 * span, hi - 1e-9 * span)
-        jac = self._jacobian if hasattr(self._run.model, "sensitivity") else "2-point"
+        jac = self._jacobian if hasattr(self.run.model, "sensitivity") else "2-point"
         try:
             res = least_squares(
                 self._residuals,
@@ -166,7 +162,7 @@ class BatchLs(Settings):
             cov = np.linalg.inv(res.jac.T @ res.jac)
         except np.linalg.LinAlgError:
             cov = np.full((xi.size, xi.size), np.inf)
-        check_estimate(self._run.model, xi, k, self.transform)
+        check_estimate(self.run.model, xi, k, self.transform)
         self._xi, self._cov = xi, cov
         return self._simulate(xi, k)[-1]
 
