@@ -79,7 +79,8 @@ class _Parser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> NoReturn:
-        raise UsageError(f"{self.prog}: {message}")
+        where = "" if self.prog == "idbench" else f"{self.prog}: "
+        raise UsageError(f"{where}{message}")
 
 
 _REGISTRY: list[Any] = []
@@ -363,15 +364,39 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--mesh", required=True, help="the model's discretisation")
     s.add_argument("--scenario", required=True, help="one of %(scenarios)s")
     _add_model_arguments(s)
+    _add_shorthands(s)
     s.add_argument("--steps", type=_number("steps", int), default=20, help="load steps")
     s.add_argument(
         "--out", type=_path("out"), required=True, help="output .xdmf file"
     )
-    for name, entry in sorted(registry().commands.items()):
+    _add_plugin_commands(sub)
+    return parser
+
+
+BUILTIN_COMMANDS = ("plugins", "compare", "report", "info", "simulate")
+
+
+def _add_plugin_commands(sub: Any) -> None:
+    """Subcommands contributed by plugins; a broken one is reported, not fatal."""
+    reg = registry()
+    for name, entry in sorted(reg.commands.items()):
         command = entry.obj
+        try:
+            if name in BUILTIN_COMMANDS:
+                raise ValueError(f"command {name!r} is one of idbench's own")
+            command.configure(_Parser(prog=f"idbench {name}"))  # a dry run
+        except Exception as exc:
+            _disable(entry.plugin, f"command {name!r} unusable: {exc!r}")
+            continue
         q = sub.add_parser(name, help=f"{command.help} (plugin {entry.plugin})")
         command.configure(q)
-    return parser
+
+
+def _disable(plugin: str, message: str) -> None:
+    """Record a plugin's broken contribution in the registry (``idbench plugins``)."""
+    log.warning("plugin %r: %s", plugin, message)
+    errors = registry().errors
+    errors[plugin] = f"{errors[plugin]}; {message}" if plugin in errors else message
 
 
 def _add_model_arguments(parser: argparse.ArgumentParser) -> None:
@@ -406,13 +431,30 @@ def _add_shorthands(parser: argparse.ArgumentParser) -> None:
             if option in seen:
                 continue
             seen.add(option)
-            parser.add_argument(
-                f"--{option}",
-                dest=f"shorthand:{setting}",
-                type=_value,
-                help=f"{text}: sets the {model} setting {setting!r} "
-                f"(same as --model-option {setting}=VALUE)",
-            )
+            try:
+                _shorthand(parser, model, option, setting, text)
+            except (argparse.ArgumentError, ValueError, TypeError) as exc:
+                _disable(entry.plugin, f"shorthand --{option} unusable: {exc}")
+
+
+def _shorthand(
+    parser: argparse.ArgumentParser, model: str, option: str, setting: str, text: str
+) -> None:
+    """Add ``--option``: a model setting or (``true.NAME``) a true value."""
+    if setting.startswith("true."):
+        meaning = f"{text} (same as --true {setting[5:]}=VALUE)"
+    else:
+        meaning = (
+            f"{text}: sets the {model} setting {setting!r} "
+            f"(same as --model-option {setting}=VALUE)"
+        )
+    parser.add_argument(
+        f"--{option}",
+        dest=f"shorthand:{setting}",
+        metavar="VALUE",
+        type=_value,
+        help=meaning,
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -503,6 +545,10 @@ def cmd_plugins(args: argparse.Namespace) -> int:
 
     pm = get_plugin_manager()
     reg = build_registry(pm)
+    for plugin, message in registry().errors.items():  # incl. unusable commands
+        reg.errors.setdefault(plugin, message)
+        if message not in reg.errors[plugin]:
+            reg.errors[plugin] += f"; {message}"
     rows: list[dict[str, Any]] = []
     names = [pm.get_name(p) for p in pm.get_plugins()]
     for name in sorted(n for n in names if n) + sorted(set(reg.errors) - set(names)):
@@ -557,6 +603,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
     prior = args.prior
     if prior is not None and len(prior) != 2:
         raise UsageError(f"--prior {args.prior_text!r}: need MEAN,STD")
+    if args.jobs < 1:
+        raise UsageError(f"--jobs {args.jobs}: must be a whole number >= 1")
+    options = _model_options(args)  # may move a shorthand into args.true
     config = build_config(
         quick=args.quick,
         toml=toml,
@@ -574,7 +623,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         prior=prior,
         timeout=args.timeout,
         model=args.model,
-        shorthand_settings=_model_options(args) or None,
+        shorthand_settings=options or None,
     )
     the_plan = plan(config, Session(reg))
     if args.dry_run:
@@ -628,13 +677,20 @@ def _shorthand_settings(reg: Any) -> dict[str, str]:
 
 
 def _model_options(args: argparse.Namespace) -> dict[str, Any]:
-    """``--model-option`` values and the models' shorthand options, merged."""
+    """``--model-option`` values and the models' shorthand options, merged.
+
+    A shorthand whose target is ``true.NAME`` goes to ``args.true`` instead.
+    """
     given: dict[str, Any] = {}
     for item in getattr(args, "model_options", None) or ():
         given.update(item)
     for key, value in vars(args).items():
         if key.startswith("shorthand:") and value is not None:
-            given[key.split(":", 1)[1]] = value
+            target = key.split(":", 1)[1]
+            if target.startswith("true."):
+                args.true = {**(args.true or {}), target.removeprefix("true."): value}
+            else:
+                given[target] = value
     return given
 
 
@@ -705,7 +761,6 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     import meshio
     import numpy as np
 
-    from idbench.config import CompareConfig
     from idbench.interfaces import ModelSpec
     from idbench.session import model_settings, true_values
     from idbench.truth import simulate_path
@@ -715,8 +770,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if args.steps < 1:
         raise UsageError(f"--steps {args.steps}: must be >= 1")
     reg = registry()
-    model_name = CompareConfig(model=args.model).resolve(reg).model
-    assert model_name is not None
+    try:
+        model_name = args.model or reg.default_model()
+    except KeyError as exc:
+        raise UsageError(str(exc.args[0])) from None
+    if model_name not in reg.models:
+        raise UsageError(
+            f"unknown model {model_name!r}; allowed: {', '.join(sorted(reg.models))}"
+        )
     settings = model_settings(reg, model_name, _model_options(args))
     try:
         scenario = reg.scenario(args.scenario)

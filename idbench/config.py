@@ -319,8 +319,8 @@ def normalise(
     Dashes in keys become underscores; list axes accept a list or a scalar;
     ``[estimators.NAME]`` tables become ``estimator_settings``, ``[model.NAME]``
     tables ``model_settings``; a key in ``shorthands`` (a model's shorthand
-    option -> its setting) goes to ``shorthand_settings``, which
-    :func:`build_config` hands to the chosen model.
+    option -> its setting, or ``true.NAME``) goes to ``shorthand_settings``,
+    which :func:`build_config` hands to the chosen model (or to ``true``).
     """
     shorthands = {k.replace("-", "_"): v for k, v in (shorthands or {}).items()}
     out: dict[str, Any] = {}
@@ -337,7 +337,11 @@ def normalise(
             out[target] = {str(n): dict(v) for n, v in value.items()}
             continue
         if k in shorthands:
-            out.setdefault("shorthand_settings", {})[shorthands[k]] = value
+            target = shorthands[k]
+            if target.startswith("true."):
+                out.setdefault("true", {})[target.removeprefix("true.")] = value
+            else:
+                out.setdefault("shorthand_settings", {})[target] = value
             continue
         if k not in FIELDS:
             allowed = FIELDS | set(shorthands)
@@ -390,7 +394,7 @@ def build_config(
     toml = dict(toml or {})
     given = {k: v for k, v in cli.items() if v is not None}
     fields = {**toml, **given}
-    for table in ("estimator_settings", "model_settings", "shorthand_settings"):
+    for table in ("estimator_settings", "model_settings", "shorthand_settings", "true"):
         if table in toml and table in given:
             fields[table] = {**toml[table], **given[table]}
     short = fields.pop("shorthand_settings", {})

@@ -29,7 +29,7 @@ from typing import Any
 from idbench.harness import execute
 from idbench.interfaces import FloatArray
 from idbench.runspec import RunSpec
-from idbench.scoring import base_row
+from idbench.scoring import base_row, empty_parameter_columns
 from idbench.session import Session
 
 log = logging.getLogger(__name__)
@@ -60,9 +60,12 @@ def worker_session() -> Session:
 
 
 def run_in_worker(spec: RunSpec) -> RunResult:
-    """Execute ``spec`` with this thread's session (a Dask task)."""
-    with one_blas_thread():
-        return execute(spec, worker_session())
+    """Execute ``spec`` with this thread's session (a Dask task).
+
+    BLAS threads are the worker's (start it with ``OMP_NUM_THREADS=1``): a
+    process-wide limit set here would race between the worker's threads.
+    """
+    return execute(spec, worker_session())
 
 
 def one_blas_thread() -> Any:
@@ -78,9 +81,10 @@ def one_blas_thread() -> Any:
 
 
 def worker_lost(spec: RunSpec, why: str) -> RunResult:
-    """The row of a run whose worker was lost."""
+    """The row of a run whose worker was lost (the same columns as any row)."""
     row = base_row(spec)
-    row.update(status="failed", error=why)
+    row.update(empty_parameter_columns(spec), status="failed", error=why)
+    row["wall_s"] = float("nan")
     return row, []
 
 
@@ -150,6 +154,7 @@ def _die_with_parent(parent: int) -> None:
 def _worker_main(conn: Connection, parent: int) -> None:
     """A worker's loop: receive (spec, E_ref hint), send back events and results."""
     _die_with_parent(parent)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us on Ctrl-C
     session = worker_session()
     while True:
         try:
@@ -161,7 +166,7 @@ def _worker_main(conn: Connection, parent: int) -> None:
         spec, hint = message
         if hint is not None:
             session.remember_reference(spec, hint)
-        result = execute(spec, session, started=lambda: conn.send(("started",)))
+        result = execute(spec, session, phase=lambda name: conn.send(("phase", name)))
         conn.send(("done", result, session.known_reference(spec)))
 
 
@@ -235,8 +240,9 @@ class _Pool:
                 message = w.conn.recv()
             except (EOFError, OSError):
                 return self._died(w, queue)
-            if message[0] == "started":
-                if self.timeout is not None:
+            if message[0] == "phase":  # the timeout covers the estimator only
+                w.deadline = None
+                if message[1] == "estimator" and self.timeout is not None:
                     w.deadline = time.monotonic() + self.timeout + GRACE_S
                 return None
             w.spec = None
@@ -291,6 +297,8 @@ def _execute_processes(
     share its ``key``, so each is fitted once per sweep, not once per worker.
     """
     queue = list(queue)
+    if not queue:
+        return
     known: dict[Any, FloatArray] = {}
     saved = {k: os.environ.get(k) for k in THREAD_ENV}
     os.environ.update(single_thread_env())
@@ -306,6 +314,8 @@ def _execute_processes(
                     except OSError:  # it died between the check and now
                         w.spec = None
                         queue.insert(0, spec)
+            if not pool.busy():  # every hand-over failed: try again
+                continue
             pool.wait()
             for w in pool.busy():
                 news = pool.attend(w, queue)

@@ -101,12 +101,15 @@ def _noting_sigint() -> Iterator[None]:
         yield
         return
     previous = signal.getsignal(signal.SIGINT)
+    if previous == signal.SIG_IGN:  # a worker: its parent handles Ctrl-C
+        yield
+        return
 
     def note(signum: int, frame: Any) -> None:
         _SIGINT["received"] = True
         if callable(previous):
             previous(signum, frame)
-        elif previous != signal.SIG_IGN:
+        else:
             raise KeyboardInterrupt
 
     signal.signal(signal.SIGINT, note)
@@ -167,14 +170,14 @@ def _checked(who: str, est: Any, p: int, k: int) -> tuple[FloatArray, FloatArray
 
 
 def execute(
-    spec: RunSpec, session: Session, started: Callable[[], None] | None = None
+    spec: RunSpec, session: Session, phase: Callable[[str], None] | None = None
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """Run one identification and score it.
 
     Never raises for a problem of the run itself: the status column says
     ``ok``, ``diverged``, ``failed`` or ``skipped`` and ``error`` says why.
-    ``started`` is called when the estimator's own work (what ``timeout``
-    limits) begins.
+    ``phase("estimator")`` is called when the estimator's own work (what
+    ``timeout`` limits) begins, ``phase("scoring")`` when it ends.
 
     Returns
     -------
@@ -186,7 +189,7 @@ def execute(
     t_start = time.perf_counter()
     try:
         with _noting_sigint():
-            _run(spec, session, row, traces, started)
+            _run(spec, session, row, traces, phase)
     except RunTimeout as exc:
         row.update(status="failed", error=str(exc))
     except Skipped as exc:
@@ -202,7 +205,7 @@ def execute(
         )
     except (KeyboardInterrupt, SystemExit):
         raise
-    except (ConfigError, KeyError) as exc:
+    except ConfigError as exc:
         row.update(status="failed", error=f"{type(exc).__name__}: {exc}")
     except Exception as exc:
         row.update(
@@ -210,6 +213,8 @@ def execute(
             error=f"{type(exc).__name__}: {exc}",
             traceback=traceback.format_exc(),
         )
+    if _SIGINT["received"]:  # a Ctrl-C that plugin code caught and turned
+        raise KeyboardInterrupt  # into something else still stops the sweep
     row["wall_s"] = time.perf_counter() - t_start
     return row, traces
 
@@ -219,7 +224,7 @@ def _run(
     session: Session,
     row: dict[str, Any],
     traces: list[dict[str, Any]],
-    started: Callable[[], None] | None = None,
+    phase: Callable[[str], None] | None = None,
 ) -> None:
     model = session.model(spec, spec.mesh)
     metrics_model = session.model(spec, spec.mesh, role="metrics")
@@ -244,8 +249,8 @@ def _run(
     truth = session.truth(spec)
     stream = session.observations(spec)
     direct = session.direct(spec)
-    if started is not None:
-        started()
+    if phase is not None:
+        phase("estimator")
     with _deadline(spec.timeout):  # the estimator's own work, not shared inputs
         t_start = time.perf_counter()
         with _blame(who, "start()"):
@@ -254,6 +259,8 @@ def _run(
             spec, estimator, who, stream, truth, direct, traces,
             (model, metrics_model), t_start,
         )  # fmt: skip
+    if phase is not None:
+        phase("scoring")
     if spec.estimator == spec.setup.reference and not spec.settings:
         # this run *is* the reference fit on its data: no need to fit it again
         if session.known_reference(spec) is None:

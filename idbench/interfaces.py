@@ -348,9 +348,10 @@ class ModelDefaults:
     quick
         Overrides for ``--quick`` (e.g. ``{"truth_mesh": ..., "meshes": [...]}``).
     shorthands
-        Extra ``idbench compare`` options that set one of the model's settings:
-        option name (without ``--``) -> (setting name, help text), e.g.
-        ``{"nu": ("nu", "Poisson ratio")}``.
+        Extra ``idbench compare`` options that set one of the model's settings,
+        or (target ``"true.NAME"``) the true value of parameter NAME: option
+        name (without ``--``) -> (target, help text), e.g.
+        ``{"nu": ("nu", "Poisson ratio"), "E-true": ("true.E", "true E (Pa)")}``.
     primary
         Whether this is the model ``idbench compare`` uses when none is named
         and several are registered.

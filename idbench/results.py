@@ -97,9 +97,9 @@ class ResultStore:
             traces = self.parts / f"{run_id}.traces.parquet"
             if not traces.exists():
                 continue
-            try:
-                pq.read_metadata(p)
-                pq.read_metadata(traces)
+            try:  # the whole table: a footer can be intact over damaged pages
+                pq.read_table(p)
+                pq.read_table(traces)
             except Exception as exc:
                 self._quarantine(run_id, exc)
                 continue

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import typing
 from typing import Any
 
 import numpy as np
@@ -51,9 +52,27 @@ def model_settings(registry: Registry, model: str, given: dict[str, Any]) -> Any
                 f"allowed: {', '.join(allowed)}"
             )
     try:
-        return cls(**given)
+        return cls(**_typed(cls, given))
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"model {model!r}: {exc}") from None
+
+
+def _typed(cls: type, given: dict[str, Any]) -> dict[str, Any]:
+    """``given`` with whole numbers made floats where the field is a float.
+
+    So that ``nu=0`` and ``nu=0.0`` are one setting (one run id, one noise seed).
+    """
+    try:
+        hints = typing.get_type_hints(cls)
+    except Exception:  # unresolvable annotations: leave the values as given
+        return dict(given)
+    out = dict(given)
+    for name, value in given.items():
+        hint = hints.get(name)
+        floaty = hint is float or float in typing.get_args(hint)
+        if floaty and isinstance(value, int) and not isinstance(value, bool):
+            out[name] = float(value)
+    return out
 
 
 def settings_items(settings: Any) -> tuple[tuple[str, Any], ...]:
@@ -145,7 +164,9 @@ class Session:
     def truth(self, spec: RunSpec, scenario: str | None = None) -> Truth:
         """The truth of ``scenario`` (default: the run's), from the disk cache."""
         scenario = scenario or spec.scenario
-        key = spec.setup.truth_key(scenario)
+        # the states depend on the set-up only (cached on disk), the probed
+        # observations also on the markers: one Truth per truth model
+        key = spec.model_key(spec.setup.truth_mesh, scenario, "truth")
         if key not in self._truths:
             model = self.model(spec, spec.setup.truth_mesh, scenario, role="truth")
             self._truths[key] = simulate_truth(model, self.theta_true(spec))

@@ -104,18 +104,25 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         nodes[mesh] = int(getattr(model, "n_nodes", 0))
     solves = 0
     for spec in runs:
-        try:
-            est = reg.estimator(spec.estimator)(**dict(spec.settings))
-        except Exception as exc:  # the run will fail and say so; plan on
-            log.warning("estimator %r cannot be built: %s", spec.estimator, exc)
-            est = None
         model = session.model(spec, spec.mesh)
-        guess = getattr(est, "estimate_solves", None)
-        n_state = model.reset().size
-        p = model.parameters.p
-        steps = config.steps
-        solves += int(guess(n_state, p, steps)) if guess else 2 * steps
+        solves += _guess_solves(reg, spec, model.reset().size, model.parameters.p)
     return Plan(config, runs, nodes, solves)
+
+
+def _guess_solves(reg: Registry, spec: RunSpec, n_state: int, p: int) -> int:
+    """The estimator's own guess of a run's forward solves, else 2 a step.
+
+    A plugin that cannot say (or fails, or exits) is planned with the default;
+    the run itself will fail and say why.
+    """
+    steps = spec.setup.steps
+    try:
+        est = reg.estimator(spec.estimator)(**dict(spec.settings))
+        guess = getattr(est, "estimate_solves", None)
+        return int(guess(n_state, p, steps)) if guess else 2 * steps
+    except (Exception, SystemExit) as exc:
+        log.warning("estimator %r cannot estimate its cost: %r", spec.estimator, exc)
+        return 2 * steps
 
 
 def runs_of(config: CompareConfig, registry: Registry | None = None) -> list[RunSpec]:

@@ -530,3 +530,41 @@ def test_config_errors_name_the_key_and_hide_private_fields():
     with pytest.raises(ConfigError) as info:
         compare(tiny(estimator_settings={"ro-ukf": {"colour": 1}}))
     assert "_run" not in str(info.value) and "sigma_points" in str(info.value)
+
+
+def test_timeout_counts_the_estimator_not_the_scoring(install, tmp_path):
+    """A worker is killed only when the estimator's own work overruns."""
+    install("bad-ests", BAD_ESTIMATORS)
+    # lms is quick; the reference fit and transfer solves after it are not timed
+    cfg = tiny(estimators=("lms",), timeout=1.0, steps=5, meshes=("6x2x2",))
+    runs, _ = compare(cfg, tmp_path / "out")
+    assert list(runs["status"]) == ["ok"], runs["error"].tolist()
+
+
+def test_worker_lost_rows_have_every_column(install, tmp_path):
+    install("bad-ests", BAD_ESTIMATORS)
+    runs, _ = compare(tiny(estimators=("dies", "rls")), tmp_path / "out", jobs=2)
+    lost = runs.set_index("estimator").loc["dies"]
+    assert {"E_final", "E_ref", "wall_s"} <= set(lost.index)
+
+
+def test_a_plugin_command_or_shorthand_that_clashes_is_reported(tmp_path, capsys,
+                                                                 install):  # fmt: skip
+    install("clash", """
+    import idbench
+
+
+    def configure(parser):
+        raise RuntimeError("cannot configure")
+
+
+    @idbench.hookimpl
+    def register_commands(register):
+        register("plugins", idbench.Command("shadows", lambda p: None, lambda a: 0))
+        register("broken-cmd", idbench.Command("breaks", configure, lambda a: 0))
+    """)
+    assert main(["plugins", "--json"]) == 0
+    rows = {r["name"]: r for r in json.loads(capsys.readouterr().out)}
+    assert "one of idbench's own" in rows["clash"]["error"]
+    assert "cannot configure" in rows["clash"]["error"]
+    assert main(["compare", *TINY, "--estimators", "rls", "--dry-run"]) == 0

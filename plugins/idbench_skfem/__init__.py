@@ -40,7 +40,7 @@ BEAM_DEFAULTS = idbench.ModelDefaults(
     prior=(2500.0, 2500.0),
     quick={"truth_mesh": "40x5x5", "meshes": ("14x3x3", "20x4x4")},
     shorthands={
-        "E-true": ("E", "true Young's modulus (Pa)"),
+        "E-true": ("true.E", "true Young's modulus (Pa)"),
         "nu": ("nu", "Poisson ratio"),
     },
     primary=True,

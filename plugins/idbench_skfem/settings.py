@@ -12,6 +12,8 @@ from numpy.typing import NDArray
 from idbench import Scenario
 
 PARAMETER_KINDS = ("E", "E_regions")
+DEFAULT_E = 5000.0
+"""Default true Young's modulus (Pa) of the beam (DESIGN.md section 7)."""
 SOLVERS = ("pardiso", "scipy")
 
 
@@ -19,11 +21,12 @@ SOLVERS = ("pardiso", "scipy")
 class BeamSettings:
     """Settings of the ``svk-beam`` model (``--model-option NAME=VALUE``).
 
+    The true modulus is not a setting: it is a true value, ``--true E=5000``
+    (or ``--E-true``); its default is :data:`DEFAULT_E` (times ``true_factors``
+    for each ``E_region``).
+
     Attributes
     ----------
-    E
-        True Young's modulus (Pa): the default true value of ``E`` (and, times
-        ``true_factors``, of each ``E_region``).
     nu
         Poisson's ratio, in (-1, 0.5).
     parameters
@@ -48,7 +51,6 @@ class BeamSettings:
         installed).
     """
 
-    E: float = 5000.0
     nu: float = 0.45
     parameters: str = "E"
     regions: int | None = None
@@ -62,8 +64,6 @@ class BeamSettings:
     solver: str | None = None
 
     def __post_init__(self) -> None:
-        if not _number(self.E) or not self.E > 0:
-            raise ValueError(f"E {self.E!r}: must be a number > 0 (Pa)")
         if not _number(self.nu) or not -1.0 < self.nu < 0.5:
             raise ValueError(f"nu {self.nu!r}: must be a number in (-1, 0.5)")
         if self.parameters not in PARAMETER_KINDS:
@@ -103,22 +103,22 @@ class BeamSettings:
     def identity(self) -> list[Any]:
         """What of these settings identifies the data (and seeds the noise).
 
-        ``E`` is left out (the true values are part of the run's identity
-        anyway); the layout ``[nu, parameters, options, grid]`` keeps noise
-        draws, and so results, equal to those of idbench 0.1.
+        The layout ``[nu, parameters, options, grid]`` keeps noise draws, and so
+        results, equal to those of idbench 0.1 (the true values come before it
+        in the run's data key).
         """
         options = [[k, v] for k, v in sorted(self.options().items())]
         return [self.nu, self.parameters, options, list(self.grid)]
 
     def true_values(self, p: int) -> tuple[float, ...]:
-        """Default true value of each of ``p`` parameters: E x true_factors."""
+        """Default true value of each of ``p`` parameters: DEFAULT_E x true_factors."""
         factors = np.ones(p) if self.true_factors is None else self.true_factors
         if len(factors) != p:
             raise ValueError(
                 f"true_factors {self.true_factors!r}: need one factor per parameter "
                 f"({p})"
             )
-        return tuple(float(self.E * f) for f in factors)
+        return tuple(float(DEFAULT_E * f) for f in factors)
 
 
 @dataclass(frozen=True)
