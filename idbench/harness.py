@@ -32,7 +32,7 @@ from idbench.interfaces import (
     Skipped,
 )
 from idbench.runspec import RunSpec
-from idbench.session import Session
+from idbench.session import Session, estimator_arguments
 from idbench.truth import Truth
 
 log = logging.getLogger(__name__)
@@ -235,7 +235,7 @@ def _run(
     )
     with _blame(who, "its constructor"):
         try:
-            estimator = cls(**dict(spec.settings))
+            estimator = cls(**estimator_arguments(cls, spec.settings, spec.seed))
         except TypeError as exc:
             allowed = ", ".join(public_settings(cls))
             raise ConfigError(

@@ -5,6 +5,8 @@ resolved settings, the truth, the true values, the prior) times the per-run
 axes (scenario, mesh, estimator and its settings, sparsity, seed). The run id,
 the noise seed, the truth key, the reference-fit key and the resume check all
 derive from a :class:`RunSpec`; nothing copies its fields by hand.
+The noise draws derive from :meth:`RunSpec.noise_key` (common random numbers
+across estimators, meshes and sparsity levels).
 """
 
 from __future__ import annotations
@@ -103,16 +105,25 @@ class RunSpec:
         return Sparsity(self.obs_every, self.obs_points, self.noise)
 
     def data_key(self) -> list[Any]:
-        """What the observation stream depends on (not estimator or model mesh).
-
-        Its hash seeds the noise: the layout (model, scenario, truth, steps,
-        true values, the settings' identity, sparsity, seed) is kept stable so
-        that noise draws, and so results, do not change between versions.
-        """
+        """What the observation stream depends on (not estimator or model mesh)."""
         s = self.setup
         return [
             s.model, self.scenario, s.truth_mesh, s.steps, s._true_key(),
             *s.identity, self.obs_every, self.obs_points, self.noise, self.seed,
+        ]  # fmt: skip
+
+    def noise_key(self) -> list[Any]:
+        """What the standard-normal noise draws depend on; its hash seeds them.
+
+        Common random numbers: the draws are shared by every estimator, model
+        mesh, noise level and observation spacing of a sweep (scaled by the
+        noise sigma, selected by the spacing), so comparisons across them are
+        paired. The markers stay in the key: they set the observation size.
+        """
+        s = self.setup
+        return [
+            s.model, self.scenario, s.truth_mesh, s.steps, s._true_key(),
+            *s.identity, self.obs_points, self.seed,
         ]  # fmt: skip
 
     def reference_key(self) -> str:

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from idbench.config import ConfigError, public_settings, suggest
+from idbench.files import stable_hash
 from idbench.interfaces import (
     FloatArray,
     ForwardModel,
@@ -54,6 +55,24 @@ def model_settings(registry: Registry, model: str, given: dict[str, Any]) -> Any
         return cls(**given)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"model {model!r}: {exc}") from None
+
+
+def estimator_arguments(cls: type, settings: Any, seed: int) -> dict[str, Any]:
+    """Keyword arguments for an estimator class: its settings, plus the run's seed.
+
+    An estimator with a ``seed`` setting (its own random draws) gets the run's
+    seed unless the user set one, so seeds differ between the runs of a sweep
+    and repeat with them. The seed is not added to the settings themselves:
+    the run id (and resuming) stays as it was.
+    """
+    kwargs = dict(settings)
+    try:
+        seeded = "seed" in public_settings(cls)
+    except TypeError:  # not a dataclass: no settings we can see
+        seeded = False
+    if seeded and "seed" not in kwargs:
+        kwargs["seed"] = int(seed)
+    return kwargs
 
 
 def settings_items(settings: Any) -> tuple[tuple[str, Any], ...]:
@@ -152,13 +171,18 @@ class Session:
         return self._truths[key]
 
     def observations(self, spec: RunSpec) -> list[Observation | None]:
-        """The noisy, sparse observation stream of a run (seeded from its data)."""
-        from idbench.files import stable_hash
+        """The noisy, sparse observation stream of a run.
 
+        Standard normals are drawn once per :meth:`RunSpec.noise_key` (the
+        same for every estimator, mesh, noise level and spacing of a sweep),
+        scaled by the run's noise sigma; the spacing only selects steps.
+        """
         truth = self.truth(spec)
-        seq = np.random.SeedSequence([spec.seed, int(stable_hash(spec.data_key()), 16)])
+        seq = np.random.SeedSequence(
+            [spec.seed, int(stable_hash(spec.noise_key()), 16)]
+        )
         rng = np.random.default_rng(seq)
-        noise = rng.normal(0.0, 1.0, truth.observations.shape) * spec.noise
+        noise = rng.standard_normal(truth.observations.shape) * spec.noise
         stream: list[Observation | None] = []
         for k in range(1, spec.setup.steps + 1):
             if spec.sparsity.observed(k):
@@ -188,7 +212,8 @@ class Session:
             model = self.model(spec, spec.mesh, role="ref")
             p = model.parameters.p
             try:
-                est = self.registry.estimator(spec.setup.reference)()
+                cls = self.registry.estimator(spec.setup.reference)
+                est = cls(**estimator_arguments(cls, {}, spec.seed))
                 est.start(model, self.prior(model, spec))
                 e = None
                 for k, obs in enumerate(self.observations(spec), start=1):
