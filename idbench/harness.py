@@ -295,9 +295,13 @@ def _estimate(
         else:
             shadow = metrics_model.step(mean, k, shadow)
             state = shadow
+        innovation = getattr(est, "innovation", None)
+        if innovation is None:
+            innovation = getattr(estimator, "innovation", None)
         trace = scoring.step_row(
-            spec, k, obs, est, mean, std, metrics_model.grid(state), truth, direct
-        )
+            spec, k, obs, est, mean, std, metrics_model.grid(state), truth, direct,
+            innovation,
+        )  # fmt: skip
         trace.update(
             n_solves=est.cost.forward_solves - solves_before,
             newton_its=est.cost.newton_its - newton_before,

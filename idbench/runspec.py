@@ -78,7 +78,9 @@ class RunSpec:
     """One run: the shared set-up and the run's own axes; small and picklable.
 
     ``timeout`` is how long the run may take, not what it computes: it is left
-    out of every key.
+    out of every key. ``posterior`` (the reference posterior's settings as
+    items, None: no posterior) adds columns to the run's row but does not
+    change its estimate: it is left out of the run id too.
     """
 
     setup: Setup
@@ -91,12 +93,14 @@ class RunSpec:
     obs_points: int
     noise: float
     timeout: float | None = None
+    posterior: Items | None = None
 
     @property
     def run_id(self) -> str:
         """Deterministic hash of the run description (timeout excluded)."""
         fields = dataclasses.asdict(self)
         fields.pop("timeout")
+        fields.pop("posterior")
         return stable_hash(fields)
 
     @property
@@ -144,6 +148,9 @@ def expand(config: CompareConfig, setup: Setup) -> list[RunSpec]:
     """The runs of a resolved comparison, in a stable order."""
     assert config.is_resolved(), "resolve the config first"
     runs = []
+    posterior = (
+        tuple(sorted(config.posterior_settings.items())) if config.posterior else None
+    )
     for scenario in config.scenarios or ():
         for mesh in config.meshes or ():
             for sp in config.sparsities():
@@ -162,6 +169,7 @@ def expand(config: CompareConfig, setup: Setup) -> list[RunSpec]:
                                 obs_points=sp.obs_points,
                                 noise=float(sp.noise),
                                 timeout=config.timeout,
+                                posterior=posterior,
                             )
                         )
     return runs

@@ -24,6 +24,7 @@ from idbench.interfaces import (
     Prior,
 )
 from idbench.plugins import Registry, build_registry
+from idbench.posterior import Posterior, PosteriorSettings, reference_posterior
 from idbench.runspec import RunSpec
 from idbench.truth import Truth, simulate_path, simulate_truth
 
@@ -135,6 +136,7 @@ class Session:
         self._truths: dict[str, Truth] = {}
         self._refs: dict[str, FloatArray] = {}
         self._direct: dict[str, FloatArray] = {}
+        self._posteriors: dict[str, Posterior | None] = {}
 
     def model(
         self, spec: RunSpec, mesh: str, scenario: str | None = None, role: str = "est"
@@ -225,6 +227,30 @@ class Session:
                 log.warning("reference fit failed for %s: %s", spec.mesh, exc)
                 self._refs[key] = np.full(p, np.nan)
         return self._refs[key]
+
+    def posterior(self, spec: RunSpec) -> Posterior | None:
+        """The reference posterior of the run's data on its model mesh (cached).
+
+        Keyed like the reference fit (and by the posterior settings), so every
+        estimator on the same data and mesh shares one. None if the run asks
+        for none (``spec.posterior`` is None) or it could not be computed (the
+        budget ran out, the model could not be solved anywhere): logged.
+        """
+        if spec.posterior is None:
+            return None
+        key = stable_hash([spec.reference_key(), list(spec.posterior)])
+        if key not in self._posteriors:
+            model = self.model(spec, spec.mesh, role="posterior")
+            settings = PosteriorSettings(**dict(spec.posterior))
+            try:
+                post: Posterior | None = reference_posterior(
+                    model, self.prior(model, spec), self.observations(spec), settings
+                )
+            except ValueError as exc:
+                log.warning("reference posterior failed for %s: %s", spec.mesh, exc)
+                post = None
+            self._posteriors[key] = post
+        return self._posteriors[key]
 
     def direct(self, spec: RunSpec, scenario: str | None = None) -> FloatArray:
         """Shape-error point displacements (K, G, d) of the model run with the truth."""

@@ -99,3 +99,134 @@ def test_run_seed_reaches_the_ensemble_filter(registry, tmp_path):
     )  # fmt: skip
     same, _ = compare(fixed, tmp_path / "c", registry=registry)
     assert same["k_final"].nunique() == 1
+
+
+# --- uncertainty columns --------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def scored(tmp_path_factory):
+    pm = idbench.get_plugin_manager(autoload=False)
+    pm.register(SpringPlugin(), name="springs")
+    reg = idbench.build_registry(pm)
+    config = chain(
+        meshes=("5", "40"), estimators=("rls", "ro-ukf", "etkf", "batch-ls"),
+        seeds=2, obs_every=(2,), noise=(1e-3,), posterior=True,
+        posterior_settings={"points": 61},
+    )  # fmt: skip
+    runs, traces = compare(config, tmp_path_factory.mktemp("u"), registry=reg)
+    pm.unregister(name="springs")
+    assert (runs["status"] == "ok").all(), runs["error"].tolist()
+    return runs, traces
+
+
+def test_coverage_nees_crps_columns_follow_the_final_estimate(scored):
+    runs, _ = scored
+    z_true = (runs["k_final"] - runs["k_true"]) / runs["k_std_final"]
+    z_ref = (runs["k_final"] - runs["k_ref"]) / runs["k_std_final"]
+    np.testing.assert_allclose(runs["nees_true"], z_true**2, rtol=1e-12)
+    np.testing.assert_allclose(runs["nees_ref"], z_ref**2, rtol=1e-12, atol=1e-12)
+    for level, z in ((68, 0.994458), (95, 1.959964)):
+        np.testing.assert_array_equal(
+            runs[f"k_cover{level}_true"], (z_true.abs() <= z).astype(float)
+        )
+        np.testing.assert_array_equal(
+            runs[f"k_cover{level}_ref"], (z_ref.abs() <= z).astype(float)
+        )
+    # the 5-node chain is stiffer: confidently wrong about k_true, right about
+    # its own best constant; the truth's own chain covers k_true
+    coarse, same = runs[runs["mesh"] == "5"], runs[runs["mesh"] == "40"]
+    assert (coarse["k_cover95_true"] == 0).all()
+    assert (coarse["k_cover95_ref"] == 1).all()
+    assert same["k_cover95_true"].mean() >= 0.75  # 7 of 8 (one z = 2.0x)
+    assert (runs["k_crps"] > 0).all()
+    assert (coarse["k_crps"] > 5 * same["k_crps"].max()).all()
+
+
+def test_reference_posterior_columns(scored):
+    runs, _ = scored
+    assert runs["posterior_converged"].all()
+    # linear-Gaussian in 1/k: the posterior is close to the batch fit, N(k_ref, std)
+    ls = runs[runs["estimator"] == "batch-ls"]
+    np.testing.assert_allclose(ls["k_post_mean"], ls["k_ref"], rtol=2e-3)
+    np.testing.assert_allclose(ls["k_post_std"], ls["k_std_final"], rtol=0.05)
+    # one posterior per data set and mesh, shared by every estimator
+    per = runs.groupby(["mesh", "seed"])["k_post_mean"].nunique()
+    assert (per == 1).all()
+    w1 = runs["w1_posterior"]
+    assert np.isfinite(w1).all()
+    assert (w1 >= 0.99 * (runs["k_final"] - runs["k_post_mean"]).abs()).all()
+    assert (ls["w1_posterior"] < 0.1 * ls["k_post_std"]).all()
+
+
+def test_nis_on_observed_steps_of_filters_that_expose_an_innovation(scored):
+    runs, traces = scored
+    est = traces["run_id"].map(runs.set_index("run_id")["estimator"])
+    filt = traces[est.isin(["ro-ukf", "etkf"])]
+    assert np.isfinite(filt.loc[filt["observed"], "nis"]).all()
+    assert filt.loc[~filt["observed"], "nis"].isna().all()
+    assert traces.loc[est.isin(["rls", "batch-ls"]), "nis"].isna().all()
+    # consistent on the truth's own chain: mean NIS near m = 2 (2 markers x 1)
+    same = filt[filt["run_id"].isin(runs.loc[runs["mesh"] == "40", "run_id"])]
+    assert 0.3 < same.loc[same["observed"], "nis"].mean() < 6
+
+
+def test_a_posterior_that_did_not_converge_gives_no_distance(registry, monkeypatch):
+    import dataclasses
+
+    import idbench.session
+
+    real = idbench.session.reference_posterior
+
+    def unconverged(*args, **kw):
+        return dataclasses.replace(real(*args, **kw), converged=False)
+
+    monkeypatch.setattr(idbench.session, "reference_posterior", unconverged)
+    config = chain(posterior=True, posterior_settings={"points": 31})
+    runs, _ = compare(config, registry=registry)
+    assert runs["status"].tolist() == ["ok"]
+    assert not runs["posterior_converged"].iloc[0]
+    assert runs["w1_posterior"].isna().all()
+    assert np.isfinite(runs["k_post_mean"]).all()
+
+
+def test_without_posterior_no_posterior_columns(registry):
+    runs, _ = compare(chain(), registry=registry)
+    assert "posterior_converged" not in runs and "k_post_mean" not in runs
+    assert {"k_cover68_true", "k_cover95_ref", "nees_true", "k_crps"} <= set(runs)
+
+
+# --- bad input ------------------------------------------------------------------
+
+BEAM = [
+    "compare", "--truth-mesh", "20x3x3", "--meshes", "6x2x2", "--steps", "6",
+    "--seeds", "1", "--dry-run",
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("toml", "expected"),
+    [
+        ("[estimators.enkf]\nmembers = 1\n", "members = 1"),
+        ("[estimators.etkf]\ninflation = 0.5\n", "inflation = 0.5"),
+        (
+            "posterior = true\n[posterior_settings]\nmax_solves = 100\n",
+            "max_solves = 100",
+        ),
+        ("[posterior_settings]\npoints = 5\n", "points = 5"),
+        ("[posterior_settings]\npoint = 51\n", "did you mean 'points'"),
+    ],
+)
+def test_bad_uncertainty_settings_exit_2_with_one_line(
+    toml, expected, tmp_path, capsys
+):
+    from idbench.cli import main
+
+    path = tmp_path / "x.toml"
+    path.write_text(toml)
+    assert main([*BEAM, "--estimators", "enkf,etkf", "--config", str(path)]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert "Traceback" not in captured.err + captured.out
+    assert len(err.splitlines()) == 1 and err.startswith("idbench: error:"), err
+    assert expected in err, err
