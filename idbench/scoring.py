@@ -94,14 +94,14 @@ def step_row(
 
 
 def _nis(innovation: Any) -> float:
-    """NIS of an estimator's innovation pair, NaN if there is none or it is malformed."""
+    """NIS of an estimator's innovation pair; NaN if none or malformed."""
     if innovation is None:
         return np.nan
     try:
         residual, cov = innovation
         return metrics.nis(residual, cov)
     except (TypeError, ValueError) as exc:
-        log.warning("innovation %r is not (residual, covariance): %s", type(innovation), exc)
+        log.warning("innovation is not (residual, covariance): %s", exc)
         return np.nan
 
 
