@@ -230,3 +230,16 @@ def test_bad_uncertainty_settings_exit_2_with_one_line(
     assert "Traceback" not in captured.err + captured.out
     assert len(err.splitlines()) == 1 and err.startswith("idbench: error:"), err
     assert expected in err, err
+
+
+def test_summary_shows_coverage_as_a_fraction_over_seeds_and_mean_nees(scored):
+    from idbench.summary import summarise, summary_text
+
+    runs, _ = scored
+    summary = summarise(runs).set_index(["mesh", "estimator"])
+    by = runs.groupby(["mesh", "estimator"])
+    for col in ("k_cover68_true", "k_cover95_true", "k_cover95_ref", "nees_true"):
+        np.testing.assert_allclose(summary[col], by[col].mean()[summary.index])
+    assert set(summary["k_cover68_true"]) <= {0.0, 0.5, 1.0}  # two seeds
+    text = summary_text(runs)
+    assert "k 95% covers true" in text and "NEES vs true (mean)" in text
