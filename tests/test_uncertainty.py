@@ -243,3 +243,13 @@ def test_summary_shows_coverage_as_a_fraction_over_seeds_and_mean_nees(scored):
     assert set(summary["k_cover68_true"]) <= {0.0, 0.5, 1.0}  # two seeds
     text = summary_text(runs)
     assert "k 95% covers true" in text and "NEES vs true (mean)" in text
+
+
+def test_results_of_an_older_version_without_posterior_settings_resume(tmp_path):
+    from idbench.results import ResultsError, ResultStore
+
+    old = {"seeds": 3, "noise": [1e-4]}  # a manifest written before #15
+    ResultStore(tmp_path, old, {})
+    ResultStore(tmp_path, {**old, "posterior": False, "posterior_settings": {}}, {})
+    with pytest.raises(ResultsError, match="other settings"):
+        ResultStore(tmp_path, {**old, "posterior": True, "posterior_settings": {}}, {})
