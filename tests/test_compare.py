@@ -169,8 +169,8 @@ def test_cli_prints_summary(cli_run, capsys, tmp_path):
 def test_quick_dry_run_prints_run_count(capsys):
     assert main(["compare", "--quick", "--dry-run"]) == 0
     out = capsys.readouterr().out
-    n_estimators = len(idbench.build_registry().estimators)  # 2 quick meshes each
-    assert out.startswith(f"{2 * n_estimators} runs;"), out
+    n = 2 * len(idbench.build_registry().estimators)  # quick: 2 meshes, 1 seed
+    assert out.startswith(f"{n} runs;"), out
     assert "forward solves" in out
 
 
