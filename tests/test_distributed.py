@@ -22,6 +22,10 @@ from idbench.sweep import compare
 distributed = pytest.importorskip("distributed")
 
 TIMING = {"wall_s", "wall_s_step"}
+LOOSE = {"nees_ref": 1e-3}
+"""Columns that amplify differences at the Newton tolerance: NEES against the
+reference squares (E_final - E_ref) / std, a difference of two nearly equal
+values that each match to 1e-9."""
 
 
 def tiny(seeds: int = 2) -> CompareConfig:
@@ -62,7 +66,7 @@ def assert_same(a: pd.DataFrame, b: pd.DataFrame, keys: list[str]) -> None:
             np.testing.assert_allclose(
                 a[col].to_numpy(float),
                 b[col].to_numpy(float),
-                rtol=1e-9,
+                rtol=LOOSE.get(col, 1e-9),
                 atol=0,
                 equal_nan=True,
                 err_msg=col,
