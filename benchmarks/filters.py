@@ -1,19 +1,23 @@
-"""Timing of the estimators on the scikit-fem beam.
+"""Timing of the estimators on the scikit-fem beam, with and without step_many.
 
-Prints, for a ~500-node model (default ``bend-y``, K = 20, noise 1e-4, an
-observation every step):
+Prints, on the bend-y path (K = 20, noise 1e-4, an observation every step):
 
-- the RO-UKF's wall time per step divided by (p + 1) x one forward solve
-  (target <= 1.1: the filter itself adds almost nothing), where one forward
-  solve is the mean wall time of ``model.step`` along the same path with E_true
-  (warm start from the previous step, as the filter does);
-- the share of the RO-UKF's time spent outside ``model.step``;
-- its steps per second (target >= 60 on one core);
-- the full UKF's wall time and forward solves per step as multiples of the
-  RO-UKF's on a ~240-node model (capped at a few steps: 2n + 1 solves each).
+- for the RO-UKF (simplex) at each ``--meshes`` size with p = 1, and at the
+  first size with p = 4 regions: one forward solve (mean wall time of
+  ``model.step`` along the path with E_true, warm started as the filter is),
+  the filter's wall time a step with the sigma points batched through
+  ``model.step_many`` and looped through ``model.step`` (the model without
+  ``step_many``), each as a multiple of one forward solve (targets: <= 1.3 for
+  p = 1, <= 2 for p = 4), steps per second, and tangent factorizations a step;
+- the full UKF's wall time a step over its first ``--ukf-steps`` steps,
+  batched and looped, at each ``--ukf-meshes`` size (target 10x).
 
-Run ``python benchmarks/filters.py`` (``--quick`` for small meshes). Set
-OMP_NUM_THREADS / MKL_NUM_THREADS = 1 for the one-core figures.
+All figures are best of ``--repeat`` runs interleaved in the same process, so
+their ratios hold on a loaded machine; absolute times do not. Run
+``python benchmarks/filters.py`` (``--quick`` for small meshes). Set
+OMP_NUM_THREADS / MKL_NUM_THREADS / OPENBLAS_NUM_THREADS = 1 for one-core
+figures (on a shared 2-core machine the threaded eigh of the full UKF's
+covariance is several times slower than the single-threaded one).
 """
 
 from __future__ import annotations
@@ -28,128 +32,114 @@ from idbench import ModelSpec, Observation, Prior
 from idbench_filters import RoUkf, Ukf
 
 E_TRUE = 5000.0
-PRIOR = Prior((2500.0,), (2500.0,))
 
 
-class Timed:
-    """Proxy that times ``step`` calls of a forward model."""
+class Looped:
+    """The model without ``step_many``: estimators loop over ``step``."""
 
     def __init__(self, model):
         self._model = model
-        self.step_seconds = 0.0
 
     def __getattr__(self, name):
+        if name == "step_many":
+            raise AttributeError(name)
         return getattr(self._model, name)
 
-    def step(self, theta, k, state, *, substeps=1):
-        t = time.perf_counter()
-        try:
-            return self._model.step(theta, k, state, substeps=substeps)
-        finally:
-            self.step_seconds += time.perf_counter() - t
 
-
-def build(mesh: str, scenario: str, n_steps: int):
+def build(mesh: str, scenario: str, n_steps: int, p: int = 1):
     reg = idbench.build_registry()
-    spec = ModelSpec(mesh=mesh, scenario=reg.scenario(scenario), n_steps=n_steps)
+    kw = {"settings": {"parameters": "E_regions", "regions": p}} if p > 1 else {}
+    spec = ModelSpec(mesh=mesh, scenario=reg.scenario(scenario), n_steps=n_steps, **kw)
     return reg.model("svk-beam")(spec)
 
 
 def truth_path(model, noise: float, seed: int = 0):
     """Observations with E_true plus noise, and the mean time of one step."""
     rng = np.random.default_rng(seed)
-    its0 = model.cost().newton_its
+    theta = np.full(model.parameters.p, E_TRUE)
     u = model.reset()
     obs, seconds = {}, []
     for k in range(1, model.n_steps + 1):
         t = time.perf_counter()
-        u = model.step(np.array([E_TRUE]), k, u)
+        u = model.step(theta, k, u)
         seconds.append(time.perf_counter() - t)
         y = model.observe(u) + noise * rng.normal(size=model.observe(u).shape)
         obs[k] = Observation(values=y, noise_std=noise, step=k)
-    its = (model.cost().newton_its - its0) / model.n_steps
-    return obs, float(np.mean(seconds)), its
+    return obs, float(np.mean(seconds))
 
 
-def time_filter(est, model, obs, n_steps: int, repeats: int = 1):
-    """Best-of-``repeats`` (wall seconds a step, step seconds a step, solves a step)."""
-    best = None
-    for _ in range(repeats):
-        timed = Timed(model)
-        est.start(timed, PRIOR)
-        t = time.perf_counter()
-        for k in range(1, n_steps + 1):
-            e = est.update(k, obs.get(k))
-        wall = (time.perf_counter() - t) / n_steps
-        row = (wall, timed.step_seconds / n_steps, e.cost.forward_solves / n_steps)
-        if best is None or row[0] < best[0]:
-            best = row
-    return best, e
+def time_filter(est, model, obs, n_steps: int):
+    """Wall seconds a step, tangent factorizations a step and the last estimate."""
+    p = model.parameters.p
+    f0 = model.factorizations
+    est.start(model, Prior((2500.0,) * p, (2500.0,) * p))
+    t = time.perf_counter()
+    for k in range(1, n_steps + 1):
+        e = est.update(k, obs.get(k))
+    wall = (time.perf_counter() - t) / n_steps
+    return wall, (model.factorizations - f0) / n_steps, e
+
+
+def ro_ukf_rows(mesh, p, args):
+    model = build(mesh, args.scenario, args.steps, p)
+    obs, t_solve = truth_path(model, args.noise)
+    best = {"batched": (np.inf,), "looped": (np.inf,)}
+    for _ in range(args.repeat):  # interleaved: machine load drifts
+        t_solve = min(t_solve, truth_path(model, args.noise)[1])
+        for name, m in (("batched", model), ("looped", Looped(model))):
+            row = time_filter(RoUkf(), m, obs, args.steps)
+            if row[0] < best[name][0]:
+                best[name] = row
+    print(
+        f"RO-UKF simplex, {mesh!r} ({model.n_nodes} nodes, {model.n_state} dofs), "
+        f"p = {p}: one forward solve {1e3 * t_solve:.2f} ms"
+    )
+    for name in ("batched", "looped"):
+        wall, fac, e = best[name]
+        print(
+            f"  {name:8s} {1e3 * wall:8.2f} ms a step = {wall / t_solve:5.2f} x solve"
+            f"  {1 / wall:6.1f} Hz  {fac:5.1f} factorizations a step"
+            f"  E = {e.mean[0]:.2f}"
+        )
+    speed = best["looped"][0] / best["batched"][0]
+    print(f"  step_many speed-up {speed:.2f}x")
+
+
+def ukf_rows(mesh, args):
+    model = build(mesh, args.scenario, args.steps)
+    obs, _ = truth_path(model, args.noise)
+    ukf = Ukf(max_solves=10**6)
+    wall_b, _, eb = time_filter(ukf, model, obs, args.ukf_steps)
+    wall_l, _, el = time_filter(ukf, Looped(model), obs, args.ukf_steps)
+    diff = abs(eb.mean[0] / el.mean[0] - 1)
+    print(
+        f"Full UKF on {mesh!r} ({model.n_nodes} nodes, {2 * model.n_state + 3} "
+        f"sigma points), first {args.ukf_steps} steps: batched {wall_b:.3f} s a "
+        f"step, looped {wall_l:.3f} s a step, speed-up {wall_l / wall_b:.1f}x "
+        f"(E differs by {diff:.1e})"
+    )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--mesh", default="500")
-    parser.add_argument("--ukf-mesh", default="240")
+    parser.add_argument("--meshes", nargs="*", default=["20x4x4", "30x5x5"])
+    parser.add_argument("--ukf-meshes", nargs="*", default=["9x2x2", "14x3x3"])
     parser.add_argument("--scenario", default="bend-y")
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--ukf-steps", type=int, default=2)
+    parser.add_argument("--regions", type=int, default=4)
+    parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--noise", type=float, default=1e-4)
     parser.add_argument("--quick", action="store_true", help="small meshes")
     args = parser.parse_args()
     if args.quick:
-        args.mesh, args.ukf_mesh, args.steps = "10x2x2", "6x1x1", 10
-
-    model = build(args.mesh, args.scenario, args.steps)
-    obs, t_solve, its_truth = truth_path(model, args.noise)
-    p = model.parameters.p
-    # interleave reference solves and filter runs (machine load drifts); best of 3
-    best = None
-    for _ in range(3):
-        _, t, _ = truth_path(model, args.noise)
-        t_solve = min(t_solve, t)
-        row, e = time_filter(RoUkf(), model, obs, args.steps)
-        if best is None or row[0] < best[0][0]:
-            best = (row, e)
-    (wall, in_step, solves), est = best
-    print(
-        f"RO-UKF (simplex) on {args.mesh!r}: {model.n_state} dofs, p = {p}, "
-        f"K = {args.steps}, scenario {args.scenario}"
-    )
-    print(f"  one forward solve (mean along the path)  {1e3 * t_solve:8.2f} ms")
-    print(
-        f"  RO-UKF wall per step                     {1e3 * wall:8.2f} ms "
-        f"({solves:.0f} solves)"
-    )
-    print(
-        f"  ratio wall / ((p+1) x solve)             {wall / ((p + 1) * t_solve):8.3f}"
-        "   (target <= 1.1)"
-    )
-    its_filter = est.cost.newton_its / est.cost.forward_solves
-    print(f"  Newton its per solve: path {its_truth:.2f}, RO-UKF {its_filter:.2f}")
-    print(f"  share outside model.step                 {1 - in_step / wall:8.3f}")
-    print(
-        f"  steps per second                         {1 / wall:8.1f}   (target >= 60)"
-    )
-    print(f"  final estimate E = {est.mean[0]:.1f} +- {est.std[0]:.1f}")
-
-    small = build(args.ukf_mesh, args.scenario, args.steps)
-    obs_s, _, _ = truth_path(small, args.noise)
-    (ro_wall, _, ro_solves), _ = time_filter(RoUkf(), small, obs_s, args.steps, 3)
-    ukf = Ukf(max_solves=10**6)
-    (uk_wall, _, uk_solves), _ = time_filter(ukf, small, obs_s, args.ukf_steps)
-    print(
-        f"Full UKF vs RO-UKF on {args.ukf_mesh!r}: {small.n_state} dofs "
-        f"(UKF over its first {args.ukf_steps} steps)"
-    )
-    print(
-        f"  solves per step  UKF {uk_solves:8.0f}  RO-UKF {ro_solves:4.0f}  "
-        f"x{uk_solves / ro_solves:.0f}"
-    )
-    print(
-        f"  wall per step    UKF {uk_wall:8.2f} s  RO-UKF {1e3 * ro_wall:.2f} ms  "
-        f"x{uk_wall / ro_wall:.0f}"
-    )
+        args.meshes, args.ukf_meshes, args.steps = ["10x2x2"], ["6x1x1"], 10
+    for i, mesh in enumerate(args.meshes):
+        ro_ukf_rows(mesh, 1, args)
+        if i == 0 and args.regions > 1:
+            ro_ukf_rows(mesh, args.regions, args)
+    for mesh in args.ukf_meshes:
+        ukf_rows(mesh, args)
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ from typing import Any
 
 from idbench.config import ConfigError
 from idbench.interfaces import (
+    BatchModel,
     Cost,
     Diverged,
     Estimate,
@@ -55,6 +56,7 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
+    "BatchModel",
     "Command",
     "CompareConfig",
     "ConfigError",

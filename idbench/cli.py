@@ -287,23 +287,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=_number("steps", int),
         help=f"load steps K (default: {d('steps')})",
     )
-    c.add_argument(
-        "--model",
-        help=f"registered model, one of %(models)s (default: {d('model')})",
-    )
-    c.add_argument(
-        "--model-option",
-        dest="model_options",
-        type=_assignments("model-option"),
-        action="append",
-        help="a setting of the model, NAME=VALUE (repeatable; 'idbench info MODEL' "
-        "lists them)",
-    )
-    c.add_argument(
-        "--true",
-        type=_assignments("true"),
-        help="true parameter values, NAME=VALUE[,...] (default: the model's)",
-    )
+    _add_model_arguments(c)
     _add_shorthands(c)
     c.add_argument(
         "--prior",
@@ -386,21 +370,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--mesh", required=True, help="the model's discretisation")
     s.add_argument("--scenario", required=True, help="one of %(scenarios)s")
-    s.add_argument(
-        "--model", help=f"registered model, one of %(models)s (default: {d('model')})"
-    )
-    s.add_argument(
-        "--model-option",
-        dest="model_options",
-        type=_assignments("model-option"),
-        action="append",
-        help="a setting of the model, NAME=VALUE (repeatable)",
-    )
-    s.add_argument(
-        "--true",
-        type=_assignments("true"),
-        help="parameter values, NAME=VALUE[,...] (default: the model's)",
-    )
+    _add_model_arguments(s)
     s.add_argument("--steps", type=_number("steps", int), default=20, help="load steps")
     s.add_argument(
         "--out", type=_path("out"), required=True, help="output .xdmf file"
@@ -410,6 +380,28 @@ def build_parser() -> argparse.ArgumentParser:
         q = sub.add_parser(name, help=f"{command.help} (plugin {entry.plugin})")
         command.configure(q)
     return parser
+
+
+def _add_model_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--model``, ``--model-option`` and ``--true`` (compare and simulate)."""
+    parser.add_argument(
+        "--model",
+        help="registered model, one of %(models)s "
+        f"(default: {_config_default('model')})",
+    )
+    parser.add_argument(
+        "--model-option",
+        dest="model_options",
+        type=_assignments("model-option"),
+        action="append",
+        help="a setting of the model, NAME=VALUE (repeatable; 'idbench info MODEL' "
+        "lists them)",
+    )
+    parser.add_argument(
+        "--true",
+        type=_assignments("true"),
+        help="true parameter values, NAME=VALUE[,...] (default: the model's)",
+    )
 
 
 def _add_shorthands(parser: argparse.ArgumentParser) -> None:

@@ -254,6 +254,10 @@ def _run(
             spec, estimator, who, stream, truth, direct, traces,
             (model, metrics_model), t_start,
         )  # fmt: skip
+    if spec.estimator == spec.setup.reference and not spec.settings:
+        # this run *is* the reference fit on its data: no need to fit it again
+        if session.known_reference(spec) is None:
+            session.remember_reference(spec, means[-1])
     row.update(scoring.final_columns(spec, session, means, stds, traces, est))
 
 

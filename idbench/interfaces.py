@@ -268,6 +268,29 @@ class SensitiveModel(ForwardModel, Protocol):
 
 
 @runtime_checkable
+class BatchModel(ForwardModel, Protocol):
+    """A forward model that can also advance several parameter/state pairs at once.
+
+    Optional: estimators that advance an ensemble (sigma points) call
+    ``step_many`` when the model has it and fall back to r calls of
+    :meth:`ForwardModel.step` otherwise (or when ``step_many`` raises
+    :class:`ModelFailure`). A model may keep caches between calls (e.g.
+    factorizations shared by nearby sigma points), but its results never
+    depend on the order of calls beyond the Newton tolerance. A model is never
+    shared between threads: use one per thread or process.
+    """
+
+    def step_many(self, thetas: FloatArray, k: int, states: FloatArray) -> FloatArray:
+        """Solve load step ``k`` for r pairs: thetas (r, p), states (r, n) -> (r, n).
+
+        Row i equals ``step(thetas[i], k, states[i])`` to the Newton tolerance
+        (each meets the same convergence test; not necessarily bitwise).
+        Raises :class:`ModelFailure` if any pair fails.
+        """
+        ...
+
+
+@runtime_checkable
 class Estimator(Protocol):
     """Identifies a model's parameters from a stream of observations.
 

@@ -305,6 +305,9 @@ def _compare(
         log.info("retrying %d run(s) that failed before", len(retry))
     done -= retry
     pending = [r for r in the_plan.runs if r.run_id not in done]
+    # the reference estimator's own runs first: each is its data's reference fit,
+    # which later runs on the same data then reuse instead of fitting again
+    pending.sort(key=lambda r: r.estimator != r.setup.reference or bool(r.settings))
     total = len(the_plan.runs)
     count = total - len(pending)
     if pending:

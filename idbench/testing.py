@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from idbench.interfaces import (
+    BatchModel,
     Cost,
     Estimate,
     FloatArray,
@@ -172,3 +173,65 @@ def check_estimator(
         assert np.all(np.isfinite(e.mean)), f"non-finite estimate at step {k}"
         assert e.cost.forward_solves >= solves, "cost must be cumulative"
         solves = e.cost.forward_solves
+
+
+def check_batch_model(
+    model: BatchModel,
+    thetas: FloatArray,
+    *,
+    steps: int = 2,
+    rtol: float = 1e-6,
+) -> None:
+    """Check that ``step_many`` equals r calls of ``step`` (see :class:`BatchModel`).
+
+    Along the first ``steps`` load steps of each row's own path (solved with
+    ``step``), ``step_many(thetas, k, states)`` from the states of step k - 1
+    must agree with ``step`` to ``rtol`` relative to the largest displacement
+    (the results are equal to the Newton tolerance, not bitwise), also with
+    the rows in reverse order and one row at a time; it must not modify its
+    inputs, and ``cost().forward_solves`` must grow by r a call.
+
+    Parameters
+    ----------
+    model
+        The model under test (with ``step_many``).
+    thetas
+        Valid parameter vectors, shape (r, p), r >= 2, preferably distinct.
+    steps
+        Load steps to run (<= ``model.n_steps``).
+    rtol
+        Tolerance relative to the largest entry of the ``step`` results.
+    """
+    assert isinstance(model, BatchModel), "model lacks step_many (BatchModel)"
+    thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
+    r, p = thetas.shape
+    assert p == model.parameters.p, "thetas must have shape (r, p)"
+    assert r >= 2, "give at least two rows"
+    steps = min(steps, model.n_steps)
+    paths = [[model.reset()] for _ in range(r)]
+    for i in range(r):
+        for k in range(1, steps + 1):
+            paths[i].append(model.step(thetas[i], k, paths[i][-1]))
+    for k in range(1, steps + 1):
+        before = np.stack([paths[i][k - 1] for i in range(r)])
+        ref = np.stack([paths[i][k] for i in range(r)])
+        scale = max(float(np.abs(ref).max()), np.finfo(float).tiny)
+        X, th = before.copy(), thetas.copy()
+        c0 = model.cost()
+        got = np.asarray(model.step_many(th, k, X))
+        solves = model.cost().forward_solves - c0.forward_solves
+        assert solves == r, f"step_many counted {solves} forward solves, not r = {r}"
+        assert np.array_equal(X, before) and np.array_equal(th, thetas), (
+            "step_many modified its inputs"
+        )
+        assert got.shape == ref.shape, "step_many must return shape (r, n)"
+        err = np.abs(got - ref).max() / scale
+        assert err <= rtol, f"step_many differs from step by {err:.2e} at step {k}"
+        rev = np.asarray(model.step_many(th[::-1], k, X[::-1]))[::-1]
+        err = np.abs(rev - ref).max() / scale
+        assert err <= rtol, f"step_many depends on the row order ({err:.2e})"
+        one = np.stack(
+            [model.step_many(th[i : i + 1], k, X[i : i + 1])[0] for i in range(r)]
+        )
+        err = np.abs(one - ref).max() / scale
+        assert err <= rtol, f"step_many of single rows differs by {err:.2e}"

@@ -576,3 +576,29 @@ def test_a_worker_uses_the_reference_another_worker_fitted(tmp_path):
     row, _ = execute(spec, fresh)
     assert row["E_ref"] == 1234.5  # not refitted
     assert fresh.known_reference(spec)[0] == 1234.5
+
+
+def test_the_reference_estimators_own_run_is_its_datas_reference_fit(
+    tmp_path, monkeypatch
+):
+    """Each data set's reference value is fitted once: by the reference
+    estimator's own run (scheduled first), not again for the other runs."""
+    from idbench_filters.batch_ls import BatchLs
+
+    fits = []
+    begin = BatchLs.begin
+
+    def counted(self, model, prior):
+        fits.append(1)
+        return begin(self, model, prior)
+
+    monkeypatch.setattr(BatchLs, "begin", counted)
+    cfg = tiny(estimators=("rls", "batch-ls"), seeds=2)
+    runs, _ = compare(cfg, tmp_path / "out")
+    assert (runs["status"] == "ok").all()
+    assert len(fits) == 2  # one per seed: the batch-ls runs themselves
+    by = runs.set_index(["estimator", "seed"])
+    for seed in (0, 1):
+        fitted = by.loc[("batch-ls", seed), "E_final"]
+        assert by.loc[("batch-ls", seed), "E_ref"] == fitted
+        assert by.loc[("rls", seed), "E_ref"] == fitted

@@ -281,6 +281,7 @@ def test_timeout_stops_a_hang_in_compiled_code(install, tmp_path):
         (["--obs-every", "2,2"], "obs_every (2, 2) has duplicates"),
         (["--seeds", "1000000000000"], "more than the limit of 100,000"),
         (["--meshes", "199x99x99"], "more than the limit of 300,000"),
+        (["--timeout", "1e308"], "timeout 1e+308: must be a number in (0, "),
     ],
 )
 def test_bad_sweeps_are_refused_before_allocating(argv, words, capsys):

@@ -7,7 +7,7 @@ import pytest
 from toymodels import LinearToy, SensitiveLinearToy
 
 import idbench
-from idbench.testing import check_estimator, check_model
+from idbench.testing import check_batch_model, check_estimator, check_model
 
 
 @pytest.fixture(scope="module")
@@ -79,3 +79,26 @@ def test_bad_probes_and_sizes_are_caught():
     model.n_nodes = 0
     with pytest.raises(AssertionError, match="n_nodes"):
         check_optional_members(model, state)
+
+
+def test_wrong_step_many_is_caught():
+    model = LinearToy(p=1)
+
+    def step_many(thetas, k, states):
+        model._solves += len(thetas)
+        return np.stack([(k / model.n_steps) * model.A @ t for t in thetas])
+
+    model.step_many = step_many
+    check_batch_model(model, np.array([[1.0], [2.0]]))  # the exact one passes
+    model.step_many = lambda thetas, k, states: 1.001 * step_many(thetas, k, states)
+    with pytest.raises(AssertionError, match="differs from step"):
+        check_batch_model(model, np.array([[1.0], [2.0]]))
+
+
+def test_step_many_that_miscounts_is_caught():
+    model = LinearToy(p=1)
+    model.step_many = lambda thetas, k, states: np.stack(
+        [(k / model.n_steps) * model.A @ t for t in thetas]
+    )
+    with pytest.raises(AssertionError, match="forward solves"):
+        check_batch_model(model, np.array([[1.0], [2.0]]))

@@ -1,15 +1,12 @@
-r"""Shared pieces of the estimators: parameter transform, guarded solves, checks.
+"""What every estimator here shares: the run scaffolding, guarded solves, checks.
 
-Every estimator works on an unconstrained parameter vector xi (p,). With the
-``"log"`` transform, xi = log(theta) and the Gaussian prior (mean E0, std s) in
-natural units becomes the log-normal with the same mean and variance:
-
-.. math::
-
-    \mu_\xi = \ln E_0, \qquad \sigma_\xi^2 = \ln(1 + s^2 / E_0^2).
-
-Estimates are reported as E = exp(mean xi) (the posterior median) with
-E_std = E * std(xi). With ``"identity"``, xi = theta.
+:class:`Settings` is the base of every estimator (as DAPPER's ``da_method``
+wrapper): it owns ``start`` and ``update`` and does, once for all, the run
+check, the step check, the cost bookkeeping, the turning of a failed linear
+solve into :class:`~idbench.Diverged` and the final finite/bounds check, so
+each estimator writes only its maths in ``begin`` and ``assimilate``. The
+parameter transforms (xi = ln theta or theta) are objects in
+:mod:`idbench_filters.transforms`.
 """
 
 from __future__ import annotations
@@ -30,10 +27,11 @@ from idbench import (
     Observation,
     Prior,
 )
+from idbench_filters.transforms import TRANSFORMS
+from idbench_filters.transforms import prior_xi as _prior_xi
 
 FloatArray = NDArray[np.float64]
 
-TRANSFORMS = ("log", "identity")
 RETRY_SUBSTEPS = 4
 
 
@@ -58,57 +56,36 @@ def check_positive(name: str, value: float, *, allow_zero: bool = False) -> None
 
 
 def to_xi(theta: FloatArray, transform: str) -> FloatArray:
-    """Natural parameters (p,) -> xi (p,)."""
-    theta = np.asarray(theta, dtype=float)
-    if transform == "log":
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.log(theta)
-    return theta.copy()
+    """Natural parameters (p,) -> xi (p,), in the named transform."""
+    return TRANSFORMS[transform].to_xi(theta)
 
 
 def to_theta(xi: FloatArray, transform: str) -> FloatArray:
-    """Xi (p,) -> natural parameters (p,)."""
-    xi = np.asarray(xi, dtype=float)
-    if transform == "log":
-        with np.errstate(over="ignore"):
-            return np.exp(xi)
-    return xi.copy()
+    """Xi (p,) -> natural parameters (p,), in the named transform."""
+    return TRANSFORMS[transform].to_theta(xi)
 
 
 def dtheta_dxi(xi: FloatArray, transform: str) -> FloatArray:
-    """Diagonal of d theta / d xi, shape (p,): theta for log, ones for identity."""
-    return to_theta(xi, transform) if transform == "log" else np.ones_like(xi)
+    """Diagonal of d theta / d xi, shape (p,), in the named transform."""
+    return TRANSFORMS[transform].dtheta_dxi(xi)
 
 
 def prior_xi(prior: Prior, p: int, transform: str) -> tuple[FloatArray, FloatArray]:
-    """Prior mean (p,) and covariance (p, p) of xi.
-
-    Raises ValueError if the prior has the wrong length, or a non-positive mean
-    under the log transform.
-    """
-    mean = np.asarray(prior.mean, dtype=float)
-    std = np.asarray(prior.std, dtype=float)
-    if mean.shape != (p,):
-        raise ValueError(f"prior has {mean.size} entries but the model has p = {p}")
-    if transform == "log":
-        if np.any(mean <= 0):
-            raise ValueError(
-                f"the log transform needs a positive prior mean, got {mean}"
-            )
-        return np.log(mean), np.diag(np.log1p(std**2 / mean**2))
-    return mean.copy(), np.diag(std**2)
+    """Prior mean (p,) and covariance (p, p) of xi (see :mod:`.transforms`)."""
+    return _prior_xi(prior, p, TRANSFORMS[transform])
 
 
 def report(
     xi: FloatArray, cov_xi: FloatArray | None, transform: str
 ) -> tuple[FloatArray, FloatArray]:
     """Natural-unit mean and std (p,) from xi and its covariance (NaN std if None)."""
-    theta = to_theta(xi, transform)
+    t = TRANSFORMS[transform]
+    theta = t.to_theta(xi)
     if cov_xi is None:
         return theta, np.full_like(theta, np.nan)
     with np.errstate(invalid="ignore"):
         std_xi = np.sqrt(np.diag(cov_xi))
-    return theta, (theta * std_xi if transform == "log" else std_xi)
+    return theta, t.std(theta, std_xi)
 
 
 def noise_var(observation: Observation, sigma_floor: float) -> float:
@@ -144,6 +121,32 @@ def advance(
             f"forward solve gave a non-finite state at theta={theta}", step=k
         )
     return np.asarray(new, dtype=float)
+
+
+def advance_many(
+    model: ForwardModel, thetas: FloatArray, k: int, states: FloatArray
+) -> FloatArray:
+    """Advance r parameter/state pairs one load step: (r, p), (r, n) -> (r, n).
+
+    Calls ``model.step_many`` (see :class:`idbench.BatchModel`) when the model
+    has it; a row whose batched result is non-finite, or every row if the
+    batched call raises :class:`~idbench.ModelFailure` (or the model has no
+    ``step_many``), goes through :func:`advance` (``step`` with its sub-step
+    retry), exactly as without batching.
+    """
+    step_many = getattr(model, "step_many", None)
+    if step_many is not None:
+        try:
+            new = np.array(step_many(thetas, k, states), dtype=float)
+        except ModelFailure:
+            new = None
+        if new is not None and new.shape == np.shape(states):
+            for i in np.flatnonzero(~np.all(np.isfinite(new), axis=1)):
+                new[i] = advance(model, thetas[i], k, states[i])
+            return new
+    return np.stack(
+        [advance(model, thetas[i], k, states[i]) for i in range(len(thetas))]
+    )
 
 
 def observation_jacobian(
@@ -228,9 +231,34 @@ class RunState:
         )
 
 
+@dataclass(frozen=True)
+class Step:
+    """What an estimator's :meth:`Settings.assimilate` returns for one step.
+
+    Attributes
+    ----------
+    xi
+        Parameter estimate in the transformed space, (p,).
+    cov
+        Its covariance (p, p), or None if the estimator has none.
+    state
+        The estimator's own model state at this step, or None.
+    finite
+        Further arrays that must be finite (covariances, ensembles).
+    """
+
+    xi: FloatArray
+    cov: FloatArray | None = None
+    state: FloatArray | None = None
+    finite: tuple[FloatArray, ...] = ()
+
+
 @dataclass
 class Settings:
-    """The settings every estimator here starts with, checked once.
+    """The base of every estimator here: shared settings and the run scaffolding.
+
+    Subclasses implement ``begin(model, prior)`` (set up the run's state) and
+    ``assimilate(k, observation) -> Step`` (advance to step k, assimilate).
 
     Attributes
     ----------
@@ -245,5 +273,42 @@ class Settings:
     _run: RunState | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        check_choice("transform", self.transform, TRANSFORMS)
+        check_choice("transform", self.transform, tuple(TRANSFORMS))
         check_positive("sigma_floor", self.sigma_floor)
+
+    @property
+    def run(self) -> RunState:
+        """The current run (RuntimeError before :meth:`start`)."""
+        if self._run is None:
+            raise RuntimeError("call start() before update()")
+        return self._run
+
+    def start(self, model: ForwardModel, prior: Prior) -> None:
+        """Begin a run on ``model`` from ``prior`` (cost counted from here)."""
+        self._run = RunState(model, model.cost())
+        self.begin(model, prior)
+
+    def update(self, k: int, observation: Observation | None) -> Estimate:
+        """Advance to load step ``k`` and assimilate ``observation`` if any.
+
+        Raises
+        ------
+        Diverged
+            A linear solve failed, or the estimate is non-finite or out of bounds.
+        """
+        run = self.run
+        check_step(k, observation, run.model.n_steps)
+        try:
+            step = self.assimilate(k, observation)
+        except np.linalg.LinAlgError as exc:
+            raise Diverged(f"linear algebra failed: {exc}", step=k) from exc
+        check_estimate(run.model, step.xi, k, self.transform, *step.finite)
+        return run.estimate(step.xi, step.cov, self.transform, step.state)
+
+    def begin(self, model: ForwardModel, prior: Prior) -> None:
+        """Set up the run's own state (the estimator's part of :meth:`start`)."""
+        raise NotImplementedError
+
+    def assimilate(self, k: int, observation: Observation | None) -> Step:
+        """Advance to step ``k``, assimilate ``observation``; the new estimate."""
+        raise NotImplementedError

@@ -27,16 +27,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from idbench import Diverged, Estimate, ForwardModel, ModelFailure, Observation, Prior
+from idbench import ForwardModel, Observation, Prior
 from idbench_filters._common import (
     FloatArray,
-    RunState,
     Settings,
-    advance,
+    Step,
+    advance_many,
     check_choice,
-    check_estimate,
     check_positive,
-    check_step,
     noise_var,
     prior_xi,
     to_theta,
@@ -70,31 +68,6 @@ def draw_prior(
         c = np.linalg.cholesky(z.T @ z / (n_members - 1))
         z = np.linalg.solve(c, z.T).T
     return mean[None, :] + z @ np.linalg.cholesky(cov).T
-
-
-def forecast(
-    model: ForwardModel, thetas: FloatArray, k: int, states: FloatArray
-) -> FloatArray:
-    """Advance every member one load step: (N, p), (N, n_u) -> (N, n_u).
-
-    Uses ``model.step_many(thetas, k, states)`` when the model has it; a member
-    whose batched result is non-finite, or all of them if the batched call
-    raises :class:`~idbench.ModelFailure`, is redone one by one with the
-    sub-step retry of :func:`~idbench_filters._common.advance`.
-    """
-    step_many = getattr(model, "step_many", None)
-    if step_many is not None:
-        try:
-            new = np.array(step_many(thetas, k, states), dtype=float)
-        except ModelFailure:
-            new = None
-        if new is not None and new.shape == states.shape:
-            for i in np.flatnonzero(~np.all(np.isfinite(new), axis=1)):
-                new[i] = advance(model, thetas[i], k, states[i])
-            return new
-    return np.stack(
-        [advance(model, thetas[i], k, states[i]) for i in range(states.shape[0])]
-    )
 
 
 @dataclass
@@ -144,7 +117,7 @@ class EnsembleFilter(Settings):
             raise ValueError(f"seed = {self.seed!r} is not allowed; it must be >= 0")
         self.innovation: tuple[FloatArray, FloatArray] | None = None
 
-    def start(self, model: ForwardModel, prior: Prior) -> None:
+    def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run: u_i = reset(), xi_i drawn from the prior (see ``init``)."""
         p = model.parameters.p
         n_members = self.members if self.members is not None else 2 * p + 2
@@ -155,13 +128,11 @@ class EnsembleFilter(Settings):
         self._nu = u0.size
         self._X = np.hstack([np.tile(u0, (n_members, 1)), xi])
         self.innovation = None
-        self._run = RunState(model, model.cost())
 
     @property
     def solves_per_step(self) -> int:
         """Forward solves a step: N."""
-        if self._run is None:
-            raise RuntimeError("call start() first")
+        self.run  # noqa: B018 (RuntimeError before start())
         return int(self._X.shape[0])
 
     @property
@@ -175,32 +146,24 @@ class EnsembleFilter(Settings):
         """Analysis ensemble (N, n) from the forecast X, HX (N, m), y and R = r I."""
         raise NotImplementedError
 
-    def update(self, k: int, observation: Observation | None) -> Estimate:
+    def assimilate(self, k: int, observation: Observation | None) -> Step:
         """Forecast every member to step k, then assimilate the observation."""
-        run = self._run
-        if run is None:
-            raise RuntimeError("call start() before update()")
-        model = run.model
-        check_step(k, observation, model.n_steps)
+        model = self.run.model
         nu = self._nu
         X = self._X.copy()
         thetas = np.stack([to_theta(x, self.transform) for x in X[:, nu:]])
-        X[:, :nu] = forecast(model, thetas, k, X[:, :nu])
-        try:
-            if observation is not None:
-                y = np.asarray(observation.values, dtype=float)
-                HX = np.stack([model.observe(x) for x in X[:, :nu]]).astype(float)
-                r = noise_var(observation, self.sigma_floor)
-                s = np.atleast_2d(np.cov(HX, rowvar=False)) + r * np.eye(y.size)
-                self.innovation = (y - HX.mean(axis=0), s)
-                X = self.analysis(X, HX, y, r)
-                if self.inflation > 1:
-                    xbar = X.mean(axis=0)
-                    X = xbar + self.inflation * (X - xbar)
-        except np.linalg.LinAlgError as exc:
-            raise Diverged(f"linear algebra failed: {exc}", step=k) from exc
+        X[:, :nu] = advance_many(model, thetas, k, X[:, :nu])
+        if observation is not None:
+            y = np.asarray(observation.values, dtype=float)
+            HX = np.stack([model.observe(x) for x in X[:, :nu]]).astype(float)
+            r = noise_var(observation, self.sigma_floor)
+            s = np.atleast_2d(np.cov(HX, rowvar=False)) + r * np.eye(y.size)
+            self.innovation = (y - HX.mean(axis=0), s)
+            X = self.analysis(X, HX, y, r)
+            if self.inflation > 1:
+                xbar = X.mean(axis=0)
+                X = xbar + self.inflation * (X - xbar)
         xbar = X.mean(axis=0)
         cov_xi = np.atleast_2d(np.cov(X[:, nu:], rowvar=False))
-        check_estimate(model, xbar[nu:], k, self.transform, cov_xi, X)
         self._X = X
-        return run.estimate(xbar[nu:], cov_xi, self.transform, xbar[:nu])
+        return Step(xbar[nu:], cov_xi, xbar[:nu], finite=(cov_xi, X))

@@ -29,16 +29,15 @@ from typing import ClassVar
 import numpy as np
 from scipy.optimize import least_squares
 
-from idbench import Diverged, Estimate, ForwardModel, Observation, Prior
+from idbench import Diverged, ForwardModel, Observation, Prior
 from idbench_filters._common import (
     FloatArray,
-    RunState,
     Settings,
+    Step,
     advance,
     check_choice,
     check_estimate,
     check_positive,
-    check_step,
     dtheta_dxi,
     noise_var,
     prior_xi,
@@ -94,7 +93,7 @@ class BatchLs(Settings):
                 "it must be an integer >= 1"
             )
 
-    def start(self, model: ForwardModel, prior: Prior) -> None:
+    def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run: no observations yet; report the prior until the first fit."""
         self._mu, self._P = prior_xi(prior, model.parameters.p, self.transform)
         self._xi, self._cov = self._mu.copy(), self._P.copy()
@@ -104,15 +103,13 @@ class BatchLs(Settings):
         lo = to_xi(np.asarray(spec.lower, dtype=float), self.transform)
         hi = to_xi(np.asarray(spec.upper, dtype=float), self.transform)
         self._bounds = (np.where(np.isfinite(lo), lo, -np.inf), hi)
-        self._run = RunState(model, model.cost())
 
     def _simulate(self, xi: FloatArray, n: int) -> list[FloatArray]:
         """States at steps 1..n with theta(xi) (the last path is cached)."""
-        assert self._run is not None
         key = np.asarray(xi, dtype=float).tobytes()
         if self._cache is not None and self._cache[:2] == (key, n):
             return self._cache[2]
-        model = self._run.model
+        model = self.run.model
         theta = to_theta(xi, self.transform)
         u = np.asarray(model.reset(), dtype=float)
         states = []
@@ -123,16 +120,14 @@ class BatchLs(Settings):
         return states
 
     def _residuals(self, xi: FloatArray, n: int) -> FloatArray:
-        assert self._run is not None
         states = self._simulate(xi, n)
-        observe = self._run.model.observe
+        observe = self.run.model.observe
         return np.concatenate(
             [(y - observe(states[k - 1])) / s for k, y, s in self._obs]
         )
 
     def _jacobian(self, xi: FloatArray, n: int) -> FloatArray:
-        assert self._run is not None
-        model = self._run.model
+        model = self.run.model
         states = self._simulate(xi, n)
         theta, scale = to_theta(xi, self.transform), dtheta_dxi(xi, self.transform)
         rows = [
@@ -143,11 +138,10 @@ class BatchLs(Settings):
 
     def _fit(self, k: int) -> FloatArray:
         """Fit xi to all observations so far, simulating steps 1..k."""
-        assert self._run is not None
         lo, hi = self._bounds
         span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
         x0 = np.clip(self._xi, lo + 1e-9 * span, hi - 1e-9 * span)
-        jac = self._jacobian if hasattr(self._run.model, "sensitivity") else "2-point"
+        jac = self._jacobian if hasattr(self.run.model, "sensitivity") else "2-point"
         try:
             res = least_squares(
                 self._residuals,
@@ -168,16 +162,13 @@ class BatchLs(Settings):
             cov = np.linalg.inv(res.jac.T @ res.jac)
         except np.linalg.LinAlgError:
             cov = np.full((xi.size, xi.size), np.inf)
-        check_estimate(self._run.model, xi, k, self.transform)
+        check_estimate(self.run.model, xi, k, self.transform)
         self._xi, self._cov = xi, cov
         return self._simulate(xi, k)[-1]
 
-    def update(self, k: int, observation: Observation | None) -> Estimate:
+    def assimilate(self, k: int, observation: Observation | None) -> Step:
         """Record the observation; fit at step K ("end") or at each observation."""
-        run = self._run
-        if run is None:
-            raise RuntimeError("call start() before update()")
-        check_step(k, observation, run.model.n_steps)
+        run = self.run
         if observation is not None:
             y = np.asarray(observation.values, dtype=float)
             self._obs.append((k, y, np.sqrt(noise_var(observation, self.sigma_floor))))
@@ -185,4 +176,4 @@ class BatchLs(Settings):
             k == run.model.n_steps if self.refit == "end" else observation is not None
         )
         state = self._fit(k) if fit_now else None
-        return run.estimate(self._xi, self._cov, self.transform, state)
+        return Step(self._xi, self._cov, state)

@@ -19,14 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from idbench import Estimate, ForwardModel, Observation, Prior
+from idbench import ForwardModel, Observation, Prior
 from idbench_filters._common import (
-    RunState,
     Settings,
+    Step,
     advance,
-    check_estimate,
     check_positive,
-    check_step,
     observation_jacobian,
     prior_xi,
     to_theta,
@@ -65,19 +63,14 @@ class Lms(Settings):
         check_positive("eps", self.eps, allow_zero=True)
         check_positive("fd_step", self.fd_step)
 
-    def start(self, model: ForwardModel, prior: Prior) -> None:
+    def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run from the prior mean; state = reset()."""
         self._xi, _ = prior_xi(prior, model.parameters.p, self.transform)
         self._u = np.asarray(model.reset(), dtype=float)
-        self._run = RunState(model, model.cost())
 
-    def update(self, k: int, observation: Observation | None) -> Estimate:
+    def assimilate(self, k: int, observation: Observation | None) -> Step:
         """Advance the own state one step, then one gradient step if observed."""
-        run = self._run
-        if run is None:
-            raise RuntimeError("call start() before update()")
-        model = run.model
-        check_step(k, observation, model.n_steps)
+        model = self.run.model
         xi = self._xi
         u_prev = self._u
         u = advance(model, to_theta(xi, self.transform), k, u_prev)
@@ -87,6 +80,5 @@ class Lms(Settings):
             )
             e = np.asarray(observation.values, dtype=float) - model.observe(u)
             xi = xi + self.mu * (J.T @ e) / (self.eps + float(np.sum(J * J)))
-        check_estimate(model, xi, k, self.transform, u)
         self._xi, self._u = xi, u
-        return run.estimate(xi, None, self.transform, u)
+        return Step(xi, None, u, finite=(u,))

@@ -23,14 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from idbench import Diverged, Estimate, ForwardModel, Observation, Prior
+from idbench import ForwardModel, Observation, Prior
 from idbench_filters._common import (
-    RunState,
     Settings,
+    Step,
     advance,
-    check_estimate,
     check_positive,
-    check_step,
     noise_var,
     observation_jacobian,
     prior_xi,
@@ -65,19 +63,14 @@ class Rls(Settings):
             )
         check_positive("fd_step", self.fd_step)
 
-    def start(self, model: ForwardModel, prior: Prior) -> None:
+    def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run from the prior; state = reset()."""
         self._xi, self._P = prior_xi(prior, model.parameters.p, self.transform)
         self._u = np.asarray(model.reset(), dtype=float)
-        self._run = RunState(model, model.cost())
 
-    def update(self, k: int, observation: Observation | None) -> Estimate:
+    def assimilate(self, k: int, observation: Observation | None) -> Step:
         """Advance the own state one step, then one RLS update if observed."""
-        run = self._run
-        if run is None:
-            raise RuntimeError("call start() before update()")
-        model = run.model
-        check_step(k, observation, model.n_steps)
+        model = self.run.model
         xi, P = self._xi, self._P
         u_prev = self._u
         u = advance(model, to_theta(xi, self.transform), k, u_prev)
@@ -87,15 +80,11 @@ class Rls(Settings):
             )
             e = np.asarray(observation.values, dtype=float) - model.observe(u)
             R = noise_var(observation, self.sigma_floor)
-            try:
-                Pm = P / self.forgetting
-                S = J @ Pm @ J.T + R * np.eye(J.shape[0])
-                K = np.linalg.solve(S, J @ Pm).T  # (p, m); S symmetric
-                xi = xi + K @ e
-                P = Pm - K @ S @ K.T
-                P = 0.5 * (P + P.T)
-            except np.linalg.LinAlgError as exc:
-                raise Diverged(f"linear algebra failed: {exc}", step=k) from exc
-        check_estimate(model, xi, k, self.transform, P)
+            Pm = P / self.forgetting
+            S = J @ Pm @ J.T + R * np.eye(J.shape[0])
+            K = np.linalg.solve(S, J @ Pm).T  # (p, m); S symmetric
+            xi = xi + K @ e
+            P = Pm - K @ S @ K.T
+            P = 0.5 * (P + P.T)
         self._xi, self._P, self._u = xi, P, u
-        return run.estimate(xi, P, self.transform, u)
+        return Step(xi, P, u, finite=(P,))

@@ -12,7 +12,8 @@ sum_i alpha I*_i = 0 and sum_i alpha I*_i I*_i^T = I_p: ``"simplex"``
 
 0. random walk (optional): U^-1 <- U^-1 + L_xi^-1 Q L_xi^-T, Q = q^2 I_p;
 1. C = chol(U^-1) (lower), L <- L C, x_i = x + L I*_i;
-2. advance each x_i one load step with the model (r forward solves);
+2. advance each x_i one load step with the model (r forward solves, batched
+   through the model's ``step_many`` when it has one);
 3. x <- sum_i alpha x_i, L <- alpha X I*^T, U <- I;
 4. with an observation y: Z_i = y - h(x_i), zbar = sum_i alpha Z_i,
    G = alpha I* Z^T (p, m), U <- I + G R^-1 G^T,
@@ -39,16 +40,14 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from idbench import Diverged, Estimate, ForwardModel, Observation, Prior
+from idbench import ForwardModel, Observation, Prior
 from idbench_filters._common import (
     FloatArray,
-    RunState,
     Settings,
-    advance,
+    Step,
+    advance_many,
     check_choice,
-    check_estimate,
     check_positive,
-    check_step,
     noise_var,
     prior_xi,
     to_theta,
@@ -101,7 +100,7 @@ class RoUkf(Settings):
         check_positive("model_error", self.model_error, allow_zero=True)
         self.innovation: tuple[FloatArray, FloatArray] | None = None
 
-    def start(self, model: ForwardModel, prior: Prior) -> None:
+    def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run: x = [reset(); mu_xi], L = [0; I_p], U = P_xi^-1."""
         p = model.parameters.p
         mu, p_xi = prior_xi(prior, p, self.transform)
@@ -111,61 +110,49 @@ class RoUkf(Settings):
         self._L = np.vstack([np.zeros((self._nu, p)), np.eye(p)])
         self._Uinv = p_xi.copy()  # U^-1, kept as the inverse: that is what is sampled
         self._I = sigma_directions(p, self.sigma_points)
-        self._run = RunState(model, model.cost())
         self.innovation = None
 
     @property
     def solves_per_step(self) -> int:
         """Forward solves a step: r = p + 1 (simplex) or 2p + 1 (star)."""
-        if self._run is None:
-            raise RuntimeError("call start() first")
+        self.run  # noqa: B018 (RuntimeError before start())
         return int(self._I.shape[1])
 
-    def update(self, k: int, observation: Observation | None) -> Estimate:
+    def assimilate(self, k: int, observation: Observation | None) -> Step:
         """Forecast to step k with r sigma points, then assimilate the observation."""
-        run = self._run
-        if run is None:
-            raise RuntimeError("call start() before update()")
-        model = run.model
-        check_step(k, observation, model.n_steps)
+        model = self.run.model
         nu = self._nu
         I = self._I  # noqa: E741
         r = I.shape[1]
         alpha = 1.0 / r
-        try:
-            uinv = self._Uinv
-            if self.param_noise > 0:
-                m = np.linalg.solve(self._L[nu:], self.param_noise * np.eye(I.shape[0]))
-                uinv = uinv + m @ m.T
-            c = np.linalg.cholesky(0.5 * (uinv + uinv.T))
-            L = self._L @ c
-            # sigma points as rows (r, n): each state handed to the model is
-            # contiguous (a strided column view makes the solves ~20% slower)
-            X = self._x[None, :] + (L @ I).T
-            for i in range(r):
-                theta_i = to_theta(X[i, nu:], self.transform)
-                X[i, :nu] = advance(model, theta_i, k, X[i, :nu])
-            x = alpha * X.sum(axis=0)
-            L = alpha * X.T @ I.T
-            uinv = np.eye(I.shape[0])
-            if observation is not None:
-                y = np.asarray(observation.values, dtype=float)
-                hx = np.stack([model.observe(X[i, :nu]) for i in range(r)], axis=1)
-                Z = y[:, None] - hx  # (m, r)
-                zbar = Z @ np.full(r, alpha)
-                G = alpha * I @ Z.T  # (p, m)
-                r = noise_var(observation, self.sigma_floor) + self.model_error**2
-                dz = Z - zbar[:, None]
-                s = alpha * dz @ dz.T + r * np.eye(y.size)
-                self.innovation = (zbar, s)
-                rinv = 1.0 / r
-                U = np.eye(I.shape[0]) + rinv * (G @ G.T)
-                x = x - L @ np.linalg.solve(U, rinv * (G @ zbar))
-                uinv = np.linalg.inv(U)
-                uinv = 0.5 * (uinv + uinv.T)
-        except np.linalg.LinAlgError as exc:
-            raise Diverged(f"linear algebra failed: {exc}", step=k) from exc
+        uinv = self._Uinv
+        if self.param_noise > 0:
+            m = np.linalg.solve(self._L[nu:], self.param_noise * np.eye(I.shape[0]))
+            uinv = uinv + m @ m.T
+        c = np.linalg.cholesky(0.5 * (uinv + uinv.T))
+        L = self._L @ c
+        # sigma points as rows (r, n): each state handed to the model is
+        # contiguous (a strided column view makes the solves ~20% slower)
+        X = self._x[None, :] + (L @ I).T
+        thetas = np.stack([to_theta(X[i, nu:], self.transform) for i in range(r)])
+        X[:, :nu] = advance_many(model, thetas, k, X[:, :nu])
+        x = alpha * X.sum(axis=0)
+        L = alpha * X.T @ I.T
+        uinv = np.eye(I.shape[0])
+        if observation is not None:
+            y = np.asarray(observation.values, dtype=float)
+            hx = np.stack([model.observe(X[i, :nu]) for i in range(r)], axis=1)
+            Z = y[:, None] - hx  # (m, r)
+            zbar = Z @ np.full(r, alpha)
+            G = alpha * I @ Z.T  # (p, m)
+            var = noise_var(observation, self.sigma_floor) + self.model_error**2
+            dz = Z - zbar[:, None]
+            self.innovation = (zbar, alpha * dz @ dz.T + var * np.eye(y.size))
+            rinv = 1.0 / var
+            U = np.eye(I.shape[0]) + rinv * (G @ G.T)
+            x = x - L @ np.linalg.solve(U, rinv * (G @ zbar))
+            uinv = np.linalg.inv(U)
+            uinv = 0.5 * (uinv + uinv.T)
         p_xi = L[nu:] @ uinv @ L[nu:].T
-        check_estimate(model, x[nu:], k, self.transform, p_xi, x[:nu])
         self._x, self._L, self._Uinv = x, L, uinv
-        return run.estimate(x[nu:], p_xi, self.transform, x[:nu])
+        return Step(x[nu:], p_xi, x[:nu], finite=(p_xi, x[:nu]))

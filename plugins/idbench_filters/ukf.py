@@ -12,30 +12,51 @@ clips its eigenvalues from below, S = diag(sqrt(max(w, eps w_max))) V^T with
 P = V diag(w) V^T and S^T S ~ P (filterpy takes the rows of S), so a
 rank-deficient P (the displacements start exactly known) still samples.
 The process noise is zero: u_k is a function of theta and the warm start.
+The sigma points are advanced in one call of the model's ``step_many`` when it
+has one (shared factorizations; see :class:`idbench.BatchModel`), else one
+``step`` each, as filterpy's own ``fx`` loop would.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
-from idbench import Diverged, Estimate, ForwardModel, Observation, Prior, Skipped
+from idbench import ForwardModel, Observation, Prior, Skipped
 from idbench_filters._common import (
     FloatArray,
-    RunState,
     Settings,
+    Step,
     advance,
-    check_estimate,
+    advance_many,
     check_positive,
-    check_step,
     noise_var,
     prior_xi,
     to_theta,
 )
 
 EIG_FLOOR = 1e-14  # relative eigenvalue floor of the sampled square root
+
+
+class _BatchedUkf(UnscentedKalmanFilter):  # type: ignore[misc]
+    """filterpy's UKF with the sigma points advanced in one call.
+
+    ``fx_many(sigmas (2n + 1, n), dt) -> (2n + 1, n)`` replaces filterpy's loop
+    of ``fx`` over the sigma points (``compute_process_sigmas``); everything
+    else, the unscented transform and the update included, is filterpy's.
+    """
+
+    def __init__(self, fx_many: Any, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self._fx_many = fx_many
+
+    def compute_process_sigmas(self, dt: float, fx: Any = None, **fx_args: Any) -> None:
+        """Sigma points of (x, P), advanced together through ``fx_many``."""
+        sigmas = self.points_fn.sigma_points(self.x, self.P)
+        self.sigmas_f = np.asarray(self._fx_many(sigmas, dt), dtype=float)
 
 
 def clipped_sqrt(P: FloatArray) -> FloatArray:
@@ -91,7 +112,7 @@ class Ukf(Settings):
                 f"kappa = {self.kappa!r} is not allowed; it must be finite"
             )
 
-    def start(self, model: ForwardModel, prior: Prior) -> None:
+    def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run; raise Skipped if 2n + 1 solves a step exceed ``max_solves``."""
         p = model.parameters.p
         mu, p_xi = prior_xi(prior, p, self.transform)
@@ -114,7 +135,8 @@ class Ukf(Settings):
             kappa=self.kappa,
             sqrt_method=clipped_sqrt,
         )
-        ukf = UnscentedKalmanFilter(
+        ukf = _BatchedUkf(
+            fx_many=self._fx_many,
             dim_x=n,
             dim_z=len(model.observe(u0)),
             dt=1.0,
@@ -129,7 +151,6 @@ class Ukf(Settings):
         ukf.P = P
         ukf.Q = np.zeros((n, n))
         self._ukf = ukf
-        self._run = RunState(model, model.cost())
 
     @property
     def solves_per_step(self) -> int:
@@ -137,34 +158,31 @@ class Ukf(Settings):
         return int(self._ukf.points_fn.num_sigmas())
 
     def _fx(self, x: FloatArray, dt: float) -> FloatArray:
-        assert self._run is not None
         nu = self._nu
         theta = to_theta(x[nu:], self.transform)
-        u = advance(self._run.model, theta, self._k, x[:nu])
+        u = advance(self.run.model, theta, self._k, x[:nu])
         return np.concatenate([u, x[nu:]])
 
-    def _hx(self, x: FloatArray) -> FloatArray:
-        assert self._run is not None
-        return np.asarray(self._run.model.observe(x[: self._nu]), dtype=float)
+    def _fx_many(self, sigmas: FloatArray, dt: float) -> FloatArray:
+        nu = self._nu
+        thetas = np.stack([to_theta(x[nu:], self.transform) for x in sigmas])
+        out = np.array(sigmas, dtype=float)
+        out[:, :nu] = advance_many(self.run.model, thetas, self._k, out[:, :nu])
+        return out
 
-    def update(self, k: int, observation: Observation | None) -> Estimate:
+    def _hx(self, x: FloatArray) -> FloatArray:
+        return np.asarray(self.run.model.observe(x[: self._nu]), dtype=float)
+
+    def assimilate(self, k: int, observation: Observation | None) -> Step:
         """Predict to step k (2n + 1 solves), then update with the observation."""
-        run = self._run
-        if run is None:
-            raise RuntimeError("call start() before update()")
-        check_step(k, observation, run.model.n_steps)
         ukf = self._ukf
         self._k = k
-        try:
-            ukf.predict()
+        ukf.predict()
+        ukf.P = 0.5 * (ukf.P + ukf.P.T)
+        if observation is not None:
+            R = noise_var(observation, self.sigma_floor)
+            ukf.update(np.asarray(observation.values, dtype=float), R=R)
             ukf.P = 0.5 * (ukf.P + ukf.P.T)
-            if observation is not None:
-                R = noise_var(observation, self.sigma_floor)
-                ukf.update(np.asarray(observation.values, dtype=float), R=R)
-                ukf.P = 0.5 * (ukf.P + ukf.P.T)
-        except np.linalg.LinAlgError as exc:
-            raise Diverged(f"linear algebra failed: {exc}", step=k) from exc
         nu = self._nu
         x, P = ukf.x, ukf.P
-        check_estimate(run.model, x[nu:], k, self.transform, P, x)
-        return run.estimate(x[nu:], P[nu:, nu:], self.transform, x[:nu])
+        return Step(x[nu:], P[nu:, nu:], x[:nu], finite=(P, x))

@@ -17,8 +17,17 @@ With one quadrature point per element the shape-function gradients
     \quad Q_{ai} = F_{iJ} G_{aJ}.
 
 Both are linear in the element's Young's modulus, which is what makes the
-sensitivity du/dE = -K^-1 g(u) cheap. The sparsity pattern of the free-free
-tangent and the scatter from element matrices to its CSR data are built once.
+sensitivity du/dE = -K^-1 g(u) cheap. The tangent is symmetric, so only its
+node-pair blocks :math:`K_{ab}` with a <= b are computed (10 of 16, each 3 x 3,
+with :math:`Q_a = F G_a`):
+
+.. math::
+
+    K_{ab} = V E \left[\lambda Q_a \otimes Q_b + \mu Q_b \otimes Q_a
+             + \mu (G_a \cdot G_b) F F^T\right] + V (G_a S G_b) I.
+
+The sparsity pattern of the free-free tangent and the scatter from these
+blocks to its CSR data are built once.
 """
 
 from __future__ import annotations
@@ -70,7 +79,8 @@ class Pattern:
     indptr, indices
         CSR structure, n x n; only the upper triangle when ``upper``.
     scatter
-        Sparse (nnz, T * 144): CSR data = scatter @ element_matrices.ravel().
+        Sparse (nnz, 90 T): CSR data = scatter @ blocks.ravel(), blocks the
+        (10, 3, 3, T) of :meth:`Assembler.element_tangent_blocks`.
     upper
         Whether only the upper triangle (row <= col) is stored.
     """
@@ -144,6 +154,15 @@ class Assembler:
         self.element_dofs = self.full_to_free[
             (3 * tets[:, :, None] + np.arange(3)).reshape(-1, 12)
         ]
+        # V G_a . G_b of the node pairs a <= b (T, 10): constant, computed once
+        self._pair_a, self._pair_b = np.triu_indices(4)
+        gg = np.matmul(self.grads, self.grads.transpose(0, 2, 1))
+        self._gg_pairs_t = np.ascontiguousarray(
+            (gg[:, self._pair_a, self._pair_b] * self.volumes[:, None]).T
+        )  # (10, T)
+        self._grads_t = np.ascontiguousarray(self.grads.transpose(1, 2, 0))  # (4,3,T)
+        self._block_work = np.empty((10, 3, 3, self.n_elements))
+        self._blocks = np.empty((10, 3, 3, self.n_elements))
         ed = self.element_dofs.ravel()
         keep = ed >= 0
         self._force_scatter = sp.csr_matrix(
@@ -156,10 +175,14 @@ class Assembler:
     # -- kinematics and forces -------------------------------------------------
 
     def element_displacements(self, state: FloatArray) -> FloatArray:
-        """Nodal displacements per element (T, 4, 3) from the free state (n,)."""
-        u = self._u_full
-        u[self.free_dofs] = state
-        return u.reshape(-1, 3)[self.tets]
+        """Nodal displacements per element (..., T, 4, 3) from free states (..., n)."""
+        if state.ndim == 1:
+            u = self._u_full
+            u[self.free_dofs] = state
+            return u.reshape(-1, 3)[self.tets]
+        full = np.zeros((*state.shape[:-1], 3 * self.n_nodes))
+        full[..., self.free_dofs] = state
+        return full.reshape(*state.shape[:-1], -1, 3)[..., self.tets, :]
 
     def kinematics(self, state: FloatArray, modulus: FloatArray) -> Kinematics:
         """Deformation gradient, second Piola-Kirchhoff stress and det F.
@@ -167,38 +190,46 @@ class Assembler:
         Parameters
         ----------
         state
-            Free displacements (n,).
+            Free displacements (n,), or a batch (r, n).
         modulus
-            Young's modulus per element (T,).
+            Young's modulus per element (T,), or per state (r, T).
+
+        Returns
+        -------
+        Kinematics
+            F and S (T, 3, 3) and det F (T,), or (r, T, 3, 3) and (r, T).
         """
-        H = np.matmul(self.element_displacements(state).transpose(0, 2, 1), self.grads)
-        Ht = H.transpose(0, 2, 1)
+        H = np.matmul(self.element_displacements(state).swapaxes(-1, -2), self.grads)
+        Ht = H.swapaxes(-1, -2)
         E = np.matmul(Ht, H)
         E += H
         E += Ht
         E *= 0.5
-        tr = E[:, 0, 0] + E[:, 1, 1] + E[:, 2, 2]
+        tr = E[..., 0, 0] + E[..., 1, 1] + E[..., 2, 2]
         S = (2.0 * self.mu) * E
         idx = np.arange(3)
-        S[:, idx, idx] += (self.lam * tr)[:, None]
-        S *= modulus[:, None, None]
+        S[..., idx, idx] += (self.lam * tr)[..., None]
+        S *= modulus[..., None, None]
         F = H
-        F[:, idx, idx] += 1.0
+        F[..., idx, idx] += 1.0
         det = (
-            F[:, 0, 0] * (F[:, 1, 1] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 1])
-            - F[:, 0, 1] * (F[:, 1, 0] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 0])
-            + F[:, 0, 2] * (F[:, 1, 0] * F[:, 2, 1] - F[:, 1, 1] * F[:, 2, 0])
+            F[..., 0, 0] * (F[..., 1, 1] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 1])
+            - F[..., 0, 1] * (F[..., 1, 0] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 0])
+            + F[..., 0, 2] * (F[..., 1, 0] * F[..., 2, 1] - F[..., 1, 1] * F[..., 2, 0])
         )
         return Kinematics(F, S, det)
 
     def element_forces(self, kin: Kinematics) -> FloatArray:
-        """Element internal forces (T, 4, 3): V P_iJ G_aJ."""
+        """Element internal forces (..., T, 4, 3): V P_iJ G_aJ."""
         P = np.matmul(kin.F, kin.S * self.volumes[:, None, None])
-        return np.matmul(self.grads, P.transpose(0, 2, 1))
+        return np.matmul(self.grads, P.swapaxes(-1, -2))
 
     def forces(self, kin: Kinematics) -> FloatArray:
-        """Assembled internal force on the free dofs (n,)."""
-        return self._force_scatter @ self.element_forces(kin).ravel()
+        """Assembled internal force on the free dofs, (n,) (or (r, n) for a batch)."""
+        fe = self.element_forces(kin)
+        if fe.ndim == 3:
+            return self._force_scatter @ fe.ravel()
+        return np.asarray(self._force_scatter @ fe.reshape(len(fe), -1).T).T
 
     def region_forces(
         self, kin_unit: Kinematics, regions: NDArray[np.int64], p: int
@@ -212,60 +243,82 @@ class Assembler:
 
     # -- tangent ---------------------------------------------------------------
 
-    def element_tangents(self, kin: Kinematics, modulus: FloatArray) -> FloatArray:
-        """Element tangent matrices (T, 12, 12), dofs ordered (node, component).
+    def element_tangent_blocks(
+        self, kin: Kinematics, modulus: FloatArray, out: FloatArray | None = None
+    ) -> FloatArray:
+        """Node-pair blocks K_ab for a <= b, shape (10, 3, 3, T), elements last.
 
-        The material part is ``B^T s B`` with B (T, 7, 12) the variations of E
-        in orthonormal Voigt form (shears times sqrt 2) and of tr E, scaled by
-        sqrt(2 mu V E) and sqrt(|lambda| V E): one batched matmul. The
-        geometric part adds (G_a S G_b) V on i = k.
+        Pair j is ``(a, b) = numpy.triu_indices(4)[.][j]``; entry (j, i, k, t) is
+        K[3a + i, 3b + k] of element t. See the module docstring for the maths.
+        Elements last, so every numpy operation runs over a contiguous (T,)
+        axis, with the two (10, 3, 3, T) temporaries preallocated: about 5x
+        faster than a batched matmul of 12 x 12 element matrices.
+
+        Parameters
+        ----------
+        kin, modulus
+            Kinematics at the state and Young's modulus per element (T,).
+        out
+            Optional output array (10, 3, 3, T).
         """
-        G = self.grads
-        w = self.volumes * modulus
-        n = self.n_elements
-        Fs = kin.F * np.sqrt(2.0 * self.mu * w)[:, None, None]
-        # Q[t, J, L, a, i] = F_iJ G_aL, scaled by sqrt(2 mu V E)
-        Q = Fs.transpose(0, 2, 1)[:, :, None, None, :] * G.transpose(0, 2, 1)[
-            :, None, :, :, None
-        ]
-        B = np.empty((n, 7, 4, 3))  # column, node, component
-        for J in range(3):  # normal strains: F_iJ G_aJ
-            B[:, 1 + J] = Q[:, J, J]
-        for c, (J, L) in enumerate(((0, 1), (0, 2), (1, 2))):  # shears, times sqrt 2
-            np.add(Q[:, J, L], Q[:, L, J], out=B[:, 4 + c])
-        B[:, 4:7] *= np.sqrt(0.5)
-        np.sum(B[:, 1:4], axis=1, out=B[:, 0])  # trace
-        B[:, 0] *= np.sqrt(abs(self.lam) / (2.0 * self.mu))
-        B = B.reshape(n, 7, 12)
-        Bt = np.ascontiguousarray(B.transpose(0, 2, 1))  # matmul is 4x faster
-        if self.lam < 0:
-            B = B * np.array([-1.0, 1, 1, 1, 1, 1, 1])[:, None]
-        K = np.matmul(Bt, B)
-        GS = np.matmul(G, kin.S * self.volumes[:, None, None])
-        GSG = np.matmul(GS, G.transpose(0, 2, 1))
-        K5 = K.reshape(n, 4, 3, 4, 3)
+        ia, ib = self._pair_a, self._pair_b
+        Gt, vol = self._grads_t, self.volumes
+        Ft = np.ascontiguousarray(kin.F.transpose(1, 2, 0))  # (3, 3, T)
+        Q = Gt[:, None, 0] * Ft[None, :, 0]  # (4, 3, T): Q_ai = F_iJ G_aJ
+        Q += Gt[:, None, 1] * Ft[None, :, 1]
+        Q += Gt[:, None, 2] * Ft[None, :, 2]
+        Qw = Q * (vol * modulus)
+        K = np.empty((10, 3, 3, self.n_elements)) if out is None else out
+        tmp = self._block_work
+        np.multiply(Q[ia][:, :, None], (self.lam * Qw)[ib][:, None, :], out=K)
+        np.multiply(Q[ib][:, :, None], (self.mu * Qw)[ia][:, None, :], out=tmp)
+        K += tmp
+        FFt = (Ft[:, None] * Ft[None, :]).sum(axis=2)  # (3, 3, T)
+        gg = self._gg_pairs_t * (self.mu * modulus)  # (10, T)
+        np.multiply(gg[:, None, None], FFt[None], out=tmp)
+        K += tmp
+        SV = kin.S.transpose(1, 2, 0) * vol
+        GS = (Gt[:, :, None] * SV[None]).sum(axis=1)  # (4, 3, T): G_aJ S_JL V
+        GSG = (GS[ia] * Gt[ib]).sum(axis=1)  # (10, T)
         for i in range(3):
-            K5[:, :, i, :, i] += GSG
+            K[:, i, i] += GSG
         return K
 
     def pattern(self, upper: bool) -> Pattern:
         """Build (once) the CSR pattern and scatter of the free-free tangent."""
         if upper in self._patterns:
             return self._patterns[upper]
-        ed = self.element_dofs
-        rows = np.broadcast_to(ed[:, :, None], (self.n_elements, 12, 12)).ravel()
-        cols = np.broadcast_to(ed[:, None, :], (self.n_elements, 12, 12)).ravel()
-        keep = (rows >= 0) & (cols >= 0)
+        # entry (pair, i, k, t) of the blocks is K[3a + i, 3b + k] of element t
+        ed = self.element_dofs.reshape(-1, 4, 3).transpose(1, 2, 0)  # (4, 3, T)
+        shape = (10, 3, 3, self.n_elements)
+        rows = np.broadcast_to(ed[self._pair_a, :, None, :], shape).ravel()
+        cols = np.broadcast_to(ed[self._pair_b, None, :, :], shape).ravel()
+        off = np.broadcast_to((self._pair_a < self._pair_b)[:, None, None, None], shape)
+        off = off.ravel()
+        src = np.arange(rows.size)
         if upper:
-            keep &= rows <= cols
-        src = np.flatnonzero(keep)
-        key = rows[src] * self.n_free + cols[src]
+            # off-diagonal blocks: each entry once, at (min, max); diagonal
+            # blocks hold both (i, k) and (k, i): keep the upper one
+            keep = (rows >= 0) & (cols >= 0) & (off | (rows <= cols))
+            rows, cols = np.minimum(rows, cols), np.maximum(rows, cols)
+        else:
+            # off-diagonal blocks also fill their transpose
+            keep = (rows >= 0) & (cols >= 0)
+            mirror = keep & off
+            rows, cols = (
+                np.concatenate([rows, cols[mirror]]),
+                np.concatenate([cols, rows[mirror]]),
+            )
+            src = np.concatenate([src, src[mirror]])
+            keep = np.concatenate([keep, np.ones(int(mirror.sum()), dtype=bool)])
+        rows, cols, src = rows[keep], cols[keep], src[keep]
+        key = rows * self.n_free + cols
         uniq, pos = np.unique(key, return_inverse=True)
         r, c = np.divmod(uniq, self.n_free)
         indptr = np.zeros(self.n_free + 1, dtype=np.int64)
         np.cumsum(np.bincount(r, minlength=self.n_free), out=indptr[1:])
         scatter = sp.csr_matrix(
-            (np.ones(len(src)), (pos, src)), shape=(len(uniq), rows.size)
+            (np.ones(len(src)), (pos, src)), shape=(len(uniq), self.n_elements * 90)
         )
         pat = Pattern(indptr.astype(np.int32), c.astype(np.int32), scatter, upper)
         self._patterns[upper] = pat
@@ -275,4 +328,5 @@ class Assembler:
         self, kin: Kinematics, modulus: FloatArray, pattern: Pattern
     ) -> FloatArray:
         """CSR data of the free-free tangent in ``pattern``."""
-        return pattern.scatter @ self.element_tangents(kin, modulus).ravel()
+        blocks = self.element_tangent_blocks(kin, modulus, out=self._blocks)
+        return pattern.scatter @ blocks.ravel()

@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from idbench import Cost, ModelFailure, ModelSpec, ParameterSpec, Scenario
+from idbench_skfem import batched
 from idbench_skfem import mesh as meshes
 from idbench_skfem.assembly import Assembler, Kinematics
 from idbench_skfem.probes import grid_points, interpolation_matrix, marker_points
@@ -178,6 +179,38 @@ class SvkBeam:
             )
         return u
 
+    # -- batched steps (idbench.BatchModel) -----------------------------------
+
+    factorizations: int = 0
+    """Numeric factorizations of the tangent so far (all methods)."""
+
+    _batch_anchor: batched._Anchor | None = None
+    _batch_stats: batched.BatchStats | None = None
+
+    def step_many(self, thetas: FloatArray, k: int, states: FloatArray) -> FloatArray:
+        """Solve load step ``k`` for r parameter/state pairs, sharing factorizations.
+
+        ``thetas`` (r, p), ``states`` (r, n) -> states (r, n); row i equals
+        ``step(thetas[i], k, states[i])`` to the Newton tolerance. See
+        :mod:`idbench_skfem.batched`. In :meth:`cost`, each pair counts as a
+        forward solve and each chord (modified Newton) iteration as a Newton
+        iteration and a linear solve; :attr:`factorizations` counts the
+        factorizations they share.
+
+        Raises
+        ------
+        ModelFailure
+            If any pair fails (the caller may retry pairs with :meth:`step`).
+        """
+        return batched.step_many(self, thetas, k, states)
+
+    @property
+    def batch_stats(self) -> batched.BatchStats:
+        """Factorizations and iterations of :meth:`step_many` so far."""
+        if self._batch_stats is None:
+            self._batch_stats = batched.BatchStats()
+        return self._batch_stats
+
     def observe(self, state: FloatArray) -> FloatArray:
         """Marker displacements, shape (3M,), ``[p0x, p0y, p0z, p1x, ...]``."""
         return self._obs @ state
@@ -302,6 +335,7 @@ class SvkBeam:
         return self._load_weights * (np.asarray(traction) @ self._load_dir)
 
     def _factor(self, kin: Kinematics, modulus: FloatArray, k: int) -> None:
+        self.factorizations += 1
         data = self._asm.tangent_data(kin, modulus, self._pattern)
         try:
             self._solver.factor(data)

@@ -18,6 +18,8 @@ pypardiso is importable.
 from __future__ import annotations
 
 import ctypes
+import ctypes.util
+import importlib.metadata
 import logging
 import os
 from typing import Protocol
@@ -65,12 +67,46 @@ def pardiso_available() -> bool:
 _MKL: ctypes.CDLL | None = None
 
 
+def _mkl_rt_path() -> str | None:
+    """Path of MKL's runtime library, without importing pypardiso.
+
+    ``import pypardiso`` builds a solver at import time, which globs all of
+    site-packages for ``mkl_rt`` when ``find_library`` fails (about a second at
+    every process start). The same library is found from, in order:
+    ``PYPARDISO_MKL_RT`` (the variable pypardiso honours), the file list of the
+    installed ``mkl`` distribution, and ``ctypes.util.find_library``.
+    """
+    env = os.environ.get("PYPARDISO_MKL_RT")
+    if env:
+        return env
+    try:
+        files = importlib.metadata.files("mkl") or []
+    except importlib.metadata.PackageNotFoundError:
+        files = []
+    found = sorted(
+        (f for f in files if f.name.startswith(("libmkl_rt.so", "mkl_rt"))),
+        key=lambda f: len(f.name),
+    )
+    for f in found:
+        path = os.path.normpath(str(f.locate()))
+        if os.path.exists(path):
+            return path
+    return ctypes.util.find_library("mkl_rt")
+
+
 def _mkl() -> ctypes.CDLL:
     global _MKL
     if _MKL is None:
-        import pypardiso
+        path = _mkl_rt_path()
+        if path is not None:
+            try:
+                _MKL = ctypes.CDLL(path)
+            except OSError:
+                log.debug("could not load %s; asking pypardiso", path)
+        if _MKL is None:
+            import pypardiso  # slow: globs site-packages for mkl_rt
 
-        _MKL = pypardiso.PyPardisoSolver().libmkl  # pypardiso finds mkl_rt for us
+            _MKL = pypardiso.PyPardisoSolver().libmkl
     return _MKL
 
 
@@ -103,7 +139,10 @@ class PardisoSolver:
         ip = self._iparm
         ip[0] = 1  # user-set iparm
         ip[1] = 2  # METIS nested dissection
-        ip[7] = 2  # iterative refinement steps with perturbed pivots
+        # iterative refinement: 0 = two steps only when pivots were perturbed;
+        # always refining (2) made every solve 3-5x slower for the same
+        # residual (benchmarks: 0.55 -> 0.11 ms at 500 nodes, 13 -> 4.7 ms at 4k)
+        ip[7] = 0
         ip[9] = 8  # pivot perturbation 1e-8
         ip[10] = 0  # no scaling: keeps the analysis independent of the values
         ip[12] = 0  # no weighted matching (same reason)

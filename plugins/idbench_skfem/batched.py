@@ -1,0 +1,358 @@
+r"""Batched load steps of the SVK beam: one factorization for many sigma points.
+
+For St Venant-Kirchhoff (any energy linear in the moduli) the internal force
+and tangent of region-wise moduli theta are
+
+.. math::
+
+    f_{int}(u; \theta) = \sum_r \theta_r g_r(u), \qquad
+    K(u; \theta) = \sum_r \theta_r K_r(u),
+
+so near a state u_f where K(u_f; theta_f) is factored, K(u; theta) is about
+s K(u_f; theta_f) with the scalar s = prod_r (theta_r / theta_{f,r})^{w_r}
+(w_r the volume fraction of region r; exact for one region at u = u_f).
+:func:`step_many` advances r parameter/state pairs to load step k:
+
+1. the *anchor*, the pair whose theta is nearest the median: if the
+   previous call was at step k - 1, it starts from state_a + d, d the
+   increment (u - state) of the previous call's anchor, extrapolated linearly
+   from the two previous increments when there are two, and is solved by
+   chord iterations (below) with the factorization the previous call left,
+   if nothing has refactored since; otherwise the model's own Newton
+   (:meth:`SvkBeam._newton`) solves it from its given state. Nothing carries
+   over a restart of the load path, so a filter run's results do not depend
+   on what ran before it on the same model;
+2. the sensitivity S = du/dtheta = -K^-1 [g_1 ... g_p] at the anchor's
+   solution u_a costs p back-substitutions with the factorization in hand;
+3. every other pair i starts from the prediction u_a + S (theta_i - theta_a)
+   (its given state if that inverts an element); the residuals of all
+   predictions are evaluated together (vectorised over pairs), and only the
+   pairs whose prediction misses the tolerance iterate.
+
+The chord (modified Newton) iteration is u <- u - K_f^-1 r(u) / s_i with the
+last factorization K_f, testing the *true* residual r(u) = f_int(u; theta_i)
+- f_ext against the same tolerance as :meth:`SvkBeam.step`. When an iteration
+reduces |r| by less than a factor ``SLOW``, or after ``MAX_MODIFIED`` in a
+row, the tangent is refactored at the current iterate (a full Newton step);
+that factorization then serves the later pairs and the next call.
+
+Each result therefore meets the convergence test of ``step`` on the same
+load: it equals ``step(theta_i, k, state_i)`` to the Newton tolerance, not
+bitwise (a different iterate satisfies the same test). Backtracking keeps
+det F > 0 as in ``step``. Failures raise :class:`idbench.ModelFailure`, and
+the caller may fall back to ``step`` (with its sub-step retries).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from idbench import ModelFailure
+
+if TYPE_CHECKING:
+    from idbench_skfem.assembly import Kinematics
+    from idbench_skfem.model import SvkBeam
+
+FloatArray = NDArray[np.float64]
+
+SLOW = 0.1
+"""Refactor when a chord iteration reduces |r| by less than this factor.
+
+A chord iteration costs a residual and a back-substitution, about a quarter of
+a Newton iteration at 500 nodes (kernel and factorization); at a rate slower
+than 0.1 a refactorization pays for itself. Measured on the RO-UKF path
+(benchmarks/filters.py): 0.25 and 0.05 cost more.
+"""
+
+MAX_MODIFIED = 6
+"""Modified-Newton iterations in a row before the tangent is refactored."""
+
+
+BATCH_ELEMENTS = 50_000
+"""Elements (rows x tets) per vectorised residual evaluation of predictions."""
+
+
+@dataclass
+class BatchStats:
+    """Work of the batched steps, cumulative (for benchmarks and tests).
+
+    Attributes
+    ----------
+    calls, pairs
+        Calls of :func:`step_many` and parameter/state pairs advanced.
+    modified
+        Modified-Newton iterations (residual + back-substitution, no factor).
+    converged_at_prediction
+        Pairs whose prediction from the anchor already met the tolerance.
+    """
+
+    calls: int = 0
+    pairs: int = 0
+    modified: int = 0
+    converged_at_prediction: int = 0
+
+
+@dataclass
+class _Anchor:
+    """What the previous call leaves for the next one.
+
+    Attributes
+    ----------
+    k, start, final
+        Its load step and its anchor's start and solution (the increment
+        predicts the next anchor's).
+    theta_f, factorizations
+        The parameters of the factorization the solver holds, and the model's
+        count of factorizations then: the next call reuses the factorization
+        only if nothing else has refactored since.
+    increment
+        The previous call's anchor increment, if that call was at step k - 1.
+    """
+
+    k: int
+    start: FloatArray
+    final: FloatArray
+    theta_f: FloatArray
+    factorizations: int
+    increment: FloatArray | None = None
+
+
+def _central(log_thetas: FloatArray) -> int:
+    """Index of the row nearest (L1) to the median of the rows, the first if tied."""
+    d = np.abs(log_thetas - np.median(log_thetas, axis=0)).sum(axis=1)
+    return int(np.argmin(d))
+
+
+def step_many(
+    model: SvkBeam, thetas: FloatArray, k: int, states: FloatArray
+) -> FloatArray:
+    """Advance r parameter/state pairs to load step ``k``; see the module docstring.
+
+    Parameters
+    ----------
+    model
+        The beam (its caches, solver and cost counters are used and updated).
+    thetas
+        Parameters, shape (r, p).
+    k
+        Load step, 1..K.
+    states
+        Starting states, shape (r, n); not modified.
+
+    Returns
+    -------
+    numpy.ndarray
+        Converged states (r, n), row i equal to ``model.step(thetas[i], k,
+        states[i])`` to the Newton tolerance.
+    """
+    th = np.asarray(thetas, dtype=np.float64)
+    X = np.asarray(states, dtype=np.float64)
+    p, n = model.parameters.p, model.n_state
+    if th.ndim != 2 or th.shape[1] != p:
+        raise ValueError(f"thetas has shape {th.shape}, expected (r, {p})")
+    if X.shape != (len(th), n):
+        raise ValueError(f"states has shape {X.shape}, expected ({len(th)}, {n})")
+    if not 1 <= k <= model.n_steps:
+        raise ValueError(f"load step k = {k}: must be in 1..{model.n_steps}")
+    moduli = [model._modulus(t, k) for t in th]  # validates every theta
+    r = len(th)
+    out = np.empty((r, n))
+    if r == 0:
+        return out
+    stats = model.batch_stats
+    stats.calls += 1
+    stats.pairs += r
+    model._cost[0] += r
+    model._factored_key = None
+    asm = model._asm
+    f_ext = model._load(model.scenario.traction(k, model.n_steps))
+    tol = max(model.rtol * float(np.linalg.norm(f_ext)), model.atol)
+    log_th = np.log(th)
+    weights = np.bincount(model._regions, weights=asm.volumes, minlength=p)
+    weights = weights / weights.sum()
+
+    # 1. the anchor: when the previous call was at step k - 1, from the
+    # extrapolated increment by chord iterations with the factorization that
+    # call left (if nothing refactored since), else by the model's Newton.
+    # Nothing is reused across a restart of the path (k not following), so a
+    # run's results do not depend on the runs before it on the same model.
+    a = _central(log_th)
+    prev = model._batch_anchor
+    if prev is not None and prev.k != k - 1:
+        prev = None  # not the previous step of the same path: start afresh
+    start = X[a]
+    kin = None
+    if prev is not None:
+        incr = prev.final - prev.start
+        if prev.increment is not None:
+            incr = 2.0 * incr - prev.increment
+        kin = asm.kinematics(X[a] + incr, moduli[a])
+        if np.all(kin.det > 0):
+            start = X[a] + incr
+        else:
+            kin = None
+    u_a = None
+    if prev is not None and prev.factorizations == model.factorizations:
+        kin = asm.kinematics(start, moduli[a]) if kin is None else kin
+        if np.all(kin.det > 0):
+            res = asm.forces(kin) - f_ext
+            u_a, theta_f = _modified_newton(
+                model, th[a], moduli[a], f_ext, start, kin, res, tol, k,
+                prev.theta_f, weights,
+            )  # fmt: skip
+    if u_a is None:
+        f0 = model.factorizations
+        u_a, _ = model._newton(moduli[a], f_ext, np.array(start), k)
+        if r > 1 and model.factorizations == f0:  # converged at once: factor for S
+            model._factor(asm.kinematics(u_a, moduli[a]), moduli[a], k)
+        theta_f = th[a]
+    out[a] = u_a
+
+    # 2. sensitivity du/dtheta at the anchor (one solve per parameter) with
+    # the factorization in hand: only a predictor, so it need not be exact
+    S = None
+    if r > 1:
+        kin_unit = asm.kinematics(u_a, np.ones(asm.n_elements))
+        g = asm.region_forces(kin_unit, model._regions, p)
+        scale = float(np.exp(weights @ np.log(th[a] / theta_f)))
+        S = -model._solver.solve(g).reshape(n, p) / scale
+        model._cost[2] += p
+
+    # 3. the others: predictions, their residuals in batches (most sigma
+    # points of a full UKF already meet the tolerance there), then chords
+    others = np.flatnonzero(np.arange(r) != a)
+    if len(others):
+        assert S is not None
+        preds = u_a + (th[others] - th[a]) @ S.T
+        mods = np.stack([moduli[i] for i in others])
+        ok, norms, residuals = _residuals(model, preds, mods, f_ext)
+        for j, i in enumerate(others):
+            if ok[j] and norms[j] <= tol:
+                stats.converged_at_prediction += 1
+                out[i] = preds[j]
+                continue
+            kin = None
+            if ok[j]:
+                pred, res = preds[j], residuals[j]
+            else:
+                pred = X[i]
+                kin = asm.kinematics(pred, moduli[i])
+                res = asm.forces(kin) - f_ext
+            out[i], theta_f = _modified_newton(
+                model, th[i], moduli[i], f_ext, pred, kin, res, tol, k, theta_f,
+                weights,
+            )  # fmt: skip
+    model._batch_anchor = _Anchor(
+        k,
+        X[a].copy(),
+        u_a.copy(),
+        theta_f.copy(),
+        model.factorizations,
+        None if prev is None else prev.final - prev.start,
+    )
+    return out
+
+
+def _residuals(
+    model: SvkBeam, states: FloatArray, moduli: FloatArray, f_ext: FloatArray
+) -> tuple[NDArray[np.bool_], FloatArray, FloatArray]:
+    """Residuals f_int - f_ext of each row (r, n), their norms (r,), det F > 0 (r,).
+
+    Vectorised over rows in chunks of about ``BATCH_ELEMENTS`` elements; rows
+    with an inverted element get an infinite norm.
+    """
+    asm = model._asm
+    r = len(states)
+    ok = np.zeros(r, dtype=bool)
+    norms = np.full(r, np.inf)
+    residuals = np.empty_like(states)
+    step = max(1, BATCH_ELEMENTS // asm.n_elements)
+    for lo in range(0, r, step):
+        kin = asm.kinematics(states[lo : lo + step], moduli[lo : lo + step])
+        good = np.all(kin.det > 0, axis=1)
+        res = asm.forces(kin) - f_ext
+        ok[lo : lo + step] = good
+        norms[lo : lo + step] = np.where(good, np.linalg.norm(res, axis=1), np.inf)
+        residuals[lo : lo + step] = res
+    return ok, norms, residuals
+
+
+def _modified_newton(
+    model: SvkBeam,
+    theta: FloatArray,
+    modulus: FloatArray,
+    f_ext: FloatArray,
+    u: FloatArray,
+    kin: Kinematics | None,
+    res: FloatArray,
+    tol: float,
+    k: int,
+    theta_f: FloatArray,
+    weights: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """Chord iterations with the factored tangent, refactoring when they are slow.
+
+    ``kin`` and ``res`` are the kinematics (None: computed when needed) and the
+    residual at the start ``u``. Returns the converged state and the theta of
+    the factorization now held.
+    """
+    asm = model._asm
+    stats = model.batch_stats
+    norm = float(np.linalg.norm(res))
+    if norm <= tol:
+        return u, theta_f
+    first = norm
+    refactor = False
+    modified = full = in_row = 0
+    while True:
+        if refactor:
+            if kin is None:
+                kin = asm.kinematics(u, modulus)
+            model._factor(kin, modulus, k)
+            theta_f = theta
+            scale = 1.0
+            full += 1
+            in_row = 0
+        else:
+            in_row += 1
+            scale = float(np.exp(weights @ np.log(theta / theta_f)))
+            modified += 1
+        du = model._solver.solve(-res) / scale
+        model._cost[1] += 1
+        model._cost[2] += 1
+        if not np.all(np.isfinite(du)):
+            raise ModelFailure("non-finite Newton update", step=k)
+        for _ in range(9):
+            u_new = u + du
+            kin_new = asm.kinematics(u_new, modulus)
+            if np.all(kin_new.det > 0):
+                break
+            du = 0.5 * du
+        else:
+            raise ModelFailure(
+                "inverted element (det F <= 0) in every backtrack", step=k
+            )
+        res_new = asm.forces(kin_new) - f_ext
+        norm_new = float(np.linalg.norm(res_new))
+        if not np.isfinite(norm_new):
+            raise ModelFailure("non-finite residual in a batched step", step=k)
+        if norm_new <= tol:
+            stats.modified += modified
+            return u_new, theta_f
+        if full >= model.max_iterations:
+            stats.modified += modified
+            raise ModelFailure(
+                f"batched Newton did not converge ({full} full, {modified} modified "
+                f"iterations): |r| = {norm_new:.3e} > tol {tol:.3e} "
+                f"(first |r| = {first:.3e})",
+                step=k,
+            )
+        if norm_new > norm and not refactor:
+            refactor = True  # the chord step made it worse: discard it, refactor
+            continue
+        refactor = norm_new > SLOW * norm or in_row >= MAX_MODIFIED
+        u, kin, res, norm = u_new, kin_new, res_new, norm_new

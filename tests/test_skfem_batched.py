@@ -1,0 +1,187 @@
+"""Batched steps of the beam (step_many) and the filters that use them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from toymodels import LinearToy
+
+import idbench
+from idbench import ModelFailure, ModelSpec, Observation, Prior
+from idbench.testing import check_batch_model
+from idbench_filters import RoUkf, Ukf
+from idbench_filters._common import advance_many
+from idbench_skfem import mesh
+from idbench_skfem.model import SvkBeam
+from idbench_skfem.scenarios import SCENARIOS
+
+E_TRUE = 5000.0
+
+
+def _beam(spec="6x2x2", n_steps=6, **kw):
+    return SvkBeam(mesh.parse(spec), SCENARIOS[0], n_steps=n_steps, **kw)
+
+
+class NoBatch:
+    """The model without step_many: estimators must loop over step."""
+
+    def __init__(self, model):
+        self._model = model
+
+    def __getattr__(self, name):
+        if name == "step_many":
+            raise AttributeError(name)
+        return getattr(self._model, name)
+
+
+def _path(model, theta, steps):
+    states = [model.reset()]
+    for k in range(1, steps + 1):
+        states.append(model.step(np.asarray(theta, float), k, states[-1]))
+    return states
+
+
+def test_beam_conforms_to_batch_model():
+    model = _beam()
+    assert isinstance(model, idbench.BatchModel)
+    thetas = E_TRUE * np.array([[1.0], [0.5], [2.0], [1.01]])
+    check_batch_model(model, thetas, steps=3, rtol=1e-6)
+
+
+def test_regions_conform_to_batch_model():
+    model = _beam(parameters="E_regions", options={"regions": 2})
+    thetas = np.array([[5000.0, 5000.0], [3000.0, 8000.0], [5100.0, 4900.0]])
+    check_batch_model(model, thetas, steps=2, rtol=1e-6)
+
+
+@pytest.mark.parametrize("spread", [0.5, 0.02, 0.0])
+def test_every_row_meets_the_newton_tolerance(spread):
+    model = _beam()
+    rng = np.random.default_rng(3)
+    k = 4
+    start = _path(model, [E_TRUE], k - 1)[-1]
+    thetas = E_TRUE * np.exp(spread * rng.normal(size=(7, 1)))
+    states = start + 1e-7 * rng.normal(size=(7, model.n_state))
+    out = model.step_many(thetas, k, states)
+    tol = model.rtol * np.linalg.norm(model.external_force(k))
+    for i in range(7):
+        ref = model.step(thetas[i], k, states[i])
+        assert np.linalg.norm(model.residual(thetas[i], k, out[i])) <= tol
+        assert np.abs(out[i] - ref).max() <= 1e-6 * np.abs(ref).max()
+
+
+def test_nearby_sigma_points_share_one_factorization():
+    model = _beam()
+    k = 3
+    start = _path(model, [E_TRUE], k - 1)[-1]
+    thetas = E_TRUE * (1 + 1e-6 * np.arange(9.0))[:, None]
+    before = model.factorizations
+    c0 = model.cost()
+    model.step_many(thetas, k, np.tile(start, (9, 1)))
+    factors = model.factorizations - before
+    its_one = (model.cost() - c0).newton_its  # counted as Newton iterations too
+    model.step(thetas[0], k, start)
+    newton = model.last_residuals
+    assert factors == len(newton) - 1  # the anchor's Newton only
+    assert its_one >= factors
+    assert (model.cost() - c0).forward_solves == 10
+
+
+def test_step_many_rejects_bad_input():
+    model = _beam()
+    u = model.reset()
+    with pytest.raises(ValueError, match="thetas has shape"):
+        model.step_many(np.array([5000.0]), 1, u[None])
+    with pytest.raises(ValueError, match="states has shape"):
+        model.step_many(np.array([[5000.0]]), 1, u)
+    with pytest.raises(ModelFailure, match="positive"):
+        model.step_many(np.array([[5000.0], [-1.0]]), 1, np.stack([u, u]))
+
+
+def test_advance_many_falls_back_to_step_on_failure():
+    toy = LinearToy(p=1)
+    calls = []
+
+    def failing(thetas, k, states):
+        calls.append(k)
+        raise ModelFailure("no", step=k)
+
+    toy.step_many = failing
+    thetas = np.array([[1.0], [2.0]])
+    out = advance_many(toy, thetas, 2, np.zeros((2, 4)))
+    assert calls == [2]
+    np.testing.assert_allclose(out, [toy.A @ t * 2 / 6 for t in thetas])
+    assert [c[0] for c in toy.calls] == [2, 2]
+
+
+def _observations(model, every=2, noise=1e-4, seed=0):
+    rng = np.random.default_rng(seed)
+    obs, u = {}, model.reset()
+    for k in range(1, model.n_steps + 1):
+        u = model.step(np.array([E_TRUE] * model.parameters.p), k, u)
+        if k % every == 0:
+            y = model.observe(u) + noise * rng.normal(size=model.observe(u).shape)
+            obs[k] = Observation(values=y, noise_std=noise, step=k)
+    return obs
+
+
+def _run(est, model, prior, obs):
+    est.start(model, prior)
+    return [est.update(k, obs.get(k)) for k in range(1, model.n_steps + 1)]
+
+
+@pytest.mark.parametrize(
+    ("est", "parameters"),
+    [(RoUkf(), "E"), (RoUkf(sigma_points="star"), "E"), (RoUkf(), "E_regions")],
+    ids=["simplex", "star", "regions"],
+)
+def test_ro_ukf_with_and_without_step_many_agree(est, parameters):
+    reg = idbench.build_registry()
+    spec = ModelSpec(
+        mesh="8x2x2", scenario=reg.scenario("bend-y"), n_steps=8,
+        settings={"parameters": parameters},
+    )  # fmt: skip
+    model = reg.model("svk-beam")(spec)
+    p = model.parameters.p
+    obs = _observations(model)
+    prior = Prior((2500.0,) * p, (2500.0,) * p)
+    stats0 = model.batch_stats.pairs
+    batched = _run(est, model, prior, obs)
+    assert model.batch_stats.pairs - stats0 == 8 * est.solves_per_step
+    looped = _run(est, NoBatch(model), prior, obs)
+    for a, b in zip(batched, looped, strict=True):
+        np.testing.assert_allclose(a.mean, b.mean, rtol=1e-8)
+        np.testing.assert_allclose(a.std, b.std, rtol=1e-6)
+        assert a.cost.forward_solves == b.cost.forward_solves
+
+
+def test_full_ukf_with_and_without_step_many_agree():
+    reg = idbench.build_registry()
+    spec = ModelSpec(mesh="4x1x1", scenario=reg.scenario("bend-y"), n_steps=6)
+    model = reg.model("svk-beam")(spec)
+    obs = _observations(model, every=1)
+    prior = Prior((2500.0,), (2500.0,))
+    batched = _run(Ukf(), model, prior, obs)
+    assert model.batch_stats.calls == 6
+    looped = _run(Ukf(), NoBatch(model), prior, obs)
+    for a, b in zip(batched, looped, strict=True):
+        np.testing.assert_allclose(a.mean, b.mean, rtol=1e-8)
+        np.testing.assert_allclose(a.std, b.std, rtol=1e-6)
+    # and far from the prior: the estimate moved
+    assert abs(batched[-1].mean[0] / E_TRUE - 1) < 0.05
+
+
+def test_a_run_does_not_depend_on_the_runs_before_it():
+    reg = idbench.build_registry()
+    spec = ModelSpec(mesh="6x2x2", scenario=reg.scenario("bend-y"), n_steps=6)
+    model = reg.model("svk-beam")(spec)
+    obs = _observations(model)
+    prior = Prior((2500.0,), (2500.0,))
+    first = _run(RoUkf(), model, prior, obs)
+    c0 = model.cost()
+    second = _run(RoUkf(), model, prior, obs)
+    fresh = reg.model("svk-beam")(spec)
+    third = _run(RoUkf(), fresh, prior, obs)
+    for a, b, c in zip(first, second, third, strict=True):
+        assert np.array_equal(a.mean, b.mean) and np.array_equal(a.mean, c.mean)
+    assert (model.cost() - c0) == fresh.cost()
