@@ -22,10 +22,12 @@ from idbench.sweep import compare
 distributed = pytest.importorskip("distributed")
 
 TIMING = {"wall_s", "wall_s_step"}
-LOOSE = {"nees_ref": 1e-3}
-"""Columns that amplify differences at the Newton tolerance: NEES against the
-reference squares (E_final - E_ref) / std, a difference of two nearly equal
-values that each match to 1e-9."""
+LOOSE = {"E_ref": 1e-8, "nees_ref": 1e-3}
+"""Columns compared more loosely. E_ref: the reference fit of a data set can
+come out 1.2e-9 apart between a serial sweep and a fresh worker (seed 1 of
+``tiny()``; a fresh Session in this process gives the worker's value), within
+the Newton tolerance that DESIGN.md allows. NEES against the reference squares
+(E_final - E_ref) / std, a difference of two nearly equal values."""
 
 
 def tiny(seeds: int = 2) -> CompareConfig:
