@@ -301,6 +301,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="seconds per run before it is recorded as failed (default: none)",
     )
     c.add_argument(
+        "--posterior",
+        action="store_true",
+        default=None,
+        help="also compute each run's reference posterior (expensive: a grid of "
+        "path simulations per data set and mesh; settings in a TOML "
+        "[posterior_settings] table)",
+    )
+    c.add_argument(
         "--out",
         type=_path("out"),
         help="results directory (default ./idbench-out; with --quick "
@@ -622,6 +630,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         true=args.true,
         prior=prior,
         timeout=args.timeout,
+        posterior=args.posterior,
         model=args.model,
         shorthand_settings=options or None,
     )

@@ -73,6 +73,13 @@ class CompareConfig:
         Seconds per run before it is stopped and recorded as failed.
     quick
         Use the model's ``--quick`` defaults for what is not given.
+    posterior
+        Compute the reference posterior of each run's data on its model mesh
+        (expensive: a grid of path simulations for p = 1, MCMC otherwise) and
+        add its columns; default False.
+    posterior_settings
+        Its :class:`~idbench.posterior.PosteriorSettings` fields, e.g.
+        ``{"points": 101, "max_solves": 20000}``.
     """
 
     estimators: tuple[str, ...] | None = None
@@ -92,6 +99,8 @@ class CompareConfig:
     reference: str | None = None
     timeout: float | None = None
     quick: bool = False
+    posterior: bool = False
+    posterior_settings: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for name in ("estimators", "meshes", "scenarios"):
@@ -136,6 +145,13 @@ class CompareConfig:
             raise ConfigError(
                 f"timeout {self.timeout!r}: must be a number in (0, {MAX_TIMEOUT:g}] "
                 "(seconds)"
+            )
+        if not isinstance(self.posterior, bool):
+            raise ConfigError(f"posterior {self.posterior!r}: need true or false")
+        if not isinstance(self.posterior_settings, dict):
+            raise ConfigError(
+                f"posterior_settings {self.posterior_settings!r}: need a table of "
+                "name = value"
             )
         for what in ("model_settings", "estimator_settings"):
             tables = getattr(self, what)
@@ -232,6 +248,7 @@ class CompareConfig:
         merged["model_settings"] = self.model_settings
         merged["estimator_settings"] = self.estimator_settings
         merged["true"] = self.true
+        merged["posterior_settings"] = self.posterior_settings
         return CompareConfig(**merged)
 
     def sparsities(self) -> list[Sparsity]:

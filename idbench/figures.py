@@ -274,6 +274,67 @@ def estimates_vs_step(
     return fig
 
 
+def uncertainty_vs_resolution(
+    ok: pd.DataFrame, names: list[str], axes: list[str]
+) -> Any:
+    """Coverage of the 95% intervals and mean NEES against resolution.
+
+    One panel per parameter: the share of seeds whose reported 95% interval
+    holds the true value (filled markers, solid lines) and the reference
+    value (hollow markers, dotted lines), with the nominal 0.95; a last panel:
+    the mean NEES against the true value (log scale) with the calibrated
+    value p. Estimators without a std have no points.
+    """
+    fig, panels = _panels(len(names) + 1)
+    x_all, log = _x(ok)
+    series = _series_names(ok, axes)
+    df = ok.assign(_x=x_all, _s=[_label(r, axes) for _, r in ok.iterrows()])
+    for ax, name in zip(panels, names, strict=False):
+        for i, s in enumerate(series):
+            d = df[df["_s"] == s]
+            for what, filled, ls in (("true", True, "-"), ("ref", False, ":")):
+                col = f"{name}_cover95_{what}"
+                if col not in d:
+                    continue
+                g = d.groupby("_x")[col].mean().dropna()
+                if g.empty:
+                    continue
+                st = style(i)
+                ax.plot(
+                    _offset(g.index.to_numpy(), i, len(series), log), g.to_numpy(),
+                    ls=ls, lw=1.2, ms=6, mfc=st["color"] if filled else "none",
+                    label=s if filled else None, **st,
+                )  # fmt: skip
+        ax.axhline(0.95, color="0.4", ls="--", lw=1, label="nominal 0.95")
+        ax.set(
+            xlabel="model nodes" if log else "model mesh",
+            ylabel="share of seeds covered by the 95% interval",
+            title=f"{name}: covers true (filled) / ref (hollow)",
+            ylim=(-0.05, 1.05),
+        )
+        _resolution_axis(ax, ok, x_all, log)
+    ax = panels[-1]
+    for i, s in enumerate(series):
+        g = df[df["_s"] == s].groupby("_x")["nees_true"].mean().dropna()
+        g = g[g > 0]
+        if g.empty:
+            continue
+        ax.plot(
+            _offset(g.index.to_numpy(), i, len(series), log), g.to_numpy(),
+            lw=1.2, ms=6, label=s, **style(i),
+        )  # fmt: skip
+    ax.axhline(len(names), color="0.4", ls="-.", lw=1, label="calibrated NEES = p")
+    ax.set(
+        yscale="log",
+        xlabel="model nodes" if log else "model mesh",
+        ylabel="mean NEES against the true value",
+        title="NEES (mean over seeds)",
+    )
+    _resolution_axis(ax, ok, x_all, log)
+    _legend(fig, panels)
+    return fig
+
+
 def frontier_figure(table: pd.DataFrame, budgets_hz: tuple[int, ...] = (30, 60)) -> Any:
     """Shape error (mm per grid point) against wall time per step, log-log.
 

@@ -32,7 +32,7 @@ from idbench.interfaces import (
     Skipped,
 )
 from idbench.runspec import RunSpec
-from idbench.session import Session
+from idbench.session import Session, estimator_arguments
 from idbench.truth import Truth
 
 log = logging.getLogger(__name__)
@@ -240,7 +240,7 @@ def _run(
     )
     with _blame(who, "its constructor"):
         try:
-            estimator = cls(**dict(spec.settings))
+            estimator = cls(**estimator_arguments(cls, spec.settings, spec.seed))
         except TypeError as exc:
             allowed = ", ".join(public_settings(cls))
             raise ConfigError(
@@ -306,9 +306,13 @@ def _estimate(
         else:
             shadow = metrics_model.step(mean, k, shadow)
             state = shadow
+        innovation = getattr(est, "innovation", None)
+        if innovation is None:
+            innovation = getattr(estimator, "innovation", None)
         trace = scoring.step_row(
-            spec, k, obs, est, mean, std, metrics_model.grid(state), truth, direct
-        )
+            spec, k, obs, est, mean, std, metrics_model.grid(state), truth, direct,
+            innovation,
+        )  # fmt: skip
         trace.update(
             n_solves=est.cost.forward_solves - solves_before,
             newton_its=est.cost.newton_its - newton_before,

@@ -30,6 +30,9 @@ CAPTIONS = {
     " with the true values (direct) and with each estimator's values.",
     "estimates_vs_step": "Estimates along the load path (first seed): colour"
     " the estimator, line style the mesh.",
+    "uncertainty": "Reported uncertainty: share of seeds whose 95% interval"
+    " holds the true value (filled) and the reference value (hollow), and the"
+    " mean NEES against the true value (calibrated: p).",
     "realtime_frontier": "Real-time frontier: shape error against wall time"
     " per step on this machine; the line is the Pareto front.",
 }

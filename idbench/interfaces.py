@@ -191,6 +191,14 @@ class Estimate:
     state
         The estimator's own model state at this step (free displacements), or
         None if it keeps none; used for the shape error.
+
+    Notes
+    -----
+    Optional: an estimator (or the Estimate it returns) may expose
+    ``innovation = (nu, S)`` after an observed step: the innovation
+    nu = y - y_hat (m,) of the forecast and its covariance S = H P H^T + R
+    (m, m). The harness then writes the normalised innovation squared
+    nu^T S^-1 nu in the traces' ``nis`` column (NaN otherwise).
     """
 
     mean: FloatArray

@@ -347,6 +347,37 @@ def _step_all(
     return new, ok
 
 
+def minimum_solves(settings: PosteriorSettings, p: int, n_steps: int) -> int:
+    """Forward solves the method needs at least on a path observed at step K.
+
+    Grid (p = 1): one search grid and the final grid; MCMC: the MAP search and
+    the chains. :func:`grid_posterior` and :func:`mcmc_posterior` refuse a
+    ``max_solves`` below it before solving anything.
+    """
+    method = settings.method
+    if method == "auto":
+        method = "grid" if p == 1 else "mcmc"
+    if method == "grid":
+        paths = settings.zoom_points + settings.points
+    else:
+        paths = 30 * (p + 1) + settings.chains * (settings.warmup + settings.samples)
+    return paths * n_steps
+
+
+def check_budget(settings: PosteriorSettings, p: int, n_steps: int) -> None:
+    """Raise ValueError naming ``max_solves`` if it cannot hold the method."""
+    need = minimum_solves(settings, p, n_steps)
+    if need > settings.max_solves:
+        method = settings.method if settings.method != "auto" else (
+            "grid" if p == 1 else "mcmc"
+        )
+        raise ValueError(
+            f"max_solves = {settings.max_solves} cannot hold the {method} "
+            f"posterior of {p} parameter(s) on {n_steps} steps: it needs at "
+            f"least {need} solves"
+        )
+
+
 def reference_posterior(
     model: ForwardModel,
     prior: Prior,

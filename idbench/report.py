@@ -161,8 +161,9 @@ def figures(
     """The report's figures (matplotlib), by file stem.
 
     ``stiffness_vs_resolution`` (one panel per parameter), ``shape_error``
-    (one per scenario) and ``estimates_vs_step`` (one per parameter) need ok
-    runs and a parameter; ``realtime_frontier`` is always drawn (it says so
+    (one per scenario), ``estimates_vs_step`` (one per parameter) and
+    ``uncertainty`` (coverage per parameter and NEES; needs a reported std)
+    need ok runs and a parameter; ``realtime_frontier`` is always drawn (it says so
     when no run is ok). See :mod:`idbench.figures`.
     """
     import matplotlib
@@ -182,6 +183,10 @@ def figures(
         figs["shape_error"] = fg.shape_error_vs_resolution(ok, axes, study)
     if not ok.empty and not traces.empty and names and names[0] in traces:
         figs["estimates_vs_step"] = fg.estimates_vs_step(ok, traces, names, axes)
+    covered = [f"{n}_cover95_true" for n in names]
+    if not ok.empty and names and all(c in ok for c in covered):
+        if ok[covered].notna().any().any():
+            figs["uncertainty"] = fg.uncertainty_vs_resolution(ok, names, axes)
     figs["realtime_frontier"] = fg.frontier_figure(frontier(runs, traces), BUDGETS_HZ)
     return figs
 

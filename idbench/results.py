@@ -29,6 +29,9 @@ log = logging.getLogger(__name__)
 RESUMABLE = ("timeout",)
 """Settings that do not change results: a resume may change them."""
 
+ADDED: dict[str, Any] = {"posterior": False, "posterior_settings": {}}
+"""Settings added in later versions, with the value a manifest without them meant."""
+
 
 class ResultsError(RuntimeError):
     """A results directory cannot be used as asked."""
@@ -176,6 +179,9 @@ def _results_settings(settings: Any) -> Any:
     if isinstance(plain, dict):
         for key in RESUMABLE:
             plain.pop(key, None)
+        for key, default in ADDED.items():
+            if plain.get(key, default) == default:
+                plain.pop(key, None)
     return plain
 
 

@@ -5,6 +5,8 @@ resolved settings, the truth, the true values, the prior) times the per-run
 axes (scenario, mesh, estimator and its settings, sparsity, seed). The run id,
 the noise seed, the truth key, the reference-fit key and the resume check all
 derive from a :class:`RunSpec`; nothing copies its fields by hand.
+The noise draws derive from :meth:`RunSpec.noise_key` (common random numbers
+across estimators, meshes and sparsity levels).
 """
 
 from __future__ import annotations
@@ -76,7 +78,9 @@ class RunSpec:
     """One run: the shared set-up and the run's own axes; small and picklable.
 
     ``timeout`` is how long the run may take, not what it computes: it is left
-    out of every key.
+    out of every key. ``posterior`` (the reference posterior's settings as
+    items, None: no posterior) adds columns to the run's row but does not
+    change its estimate: it is left out of the run id too.
     """
 
     setup: Setup
@@ -89,12 +93,14 @@ class RunSpec:
     obs_points: int
     noise: float
     timeout: float | None = None
+    posterior: Items | None = None
 
     @property
     def run_id(self) -> str:
         """Deterministic hash of the run description (timeout excluded)."""
         fields = dataclasses.asdict(self)
         fields.pop("timeout")
+        fields.pop("posterior")
         return stable_hash(fields)
 
     @property
@@ -103,16 +109,25 @@ class RunSpec:
         return Sparsity(self.obs_every, self.obs_points, self.noise)
 
     def data_key(self) -> list[Any]:
-        """What the observation stream depends on (not estimator or model mesh).
-
-        Its hash seeds the noise: the layout (model, scenario, truth, steps,
-        true values, the settings' identity, sparsity, seed) is kept stable so
-        that noise draws, and so results, do not change between versions.
-        """
+        """What the observation stream depends on (not estimator or model mesh)."""
         s = self.setup
         return [
             s.model, self.scenario, s.truth_mesh, s.steps, s._true_key(),
             *s.identity, self.obs_every, self.obs_points, self.noise, self.seed,
+        ]  # fmt: skip
+
+    def noise_key(self) -> list[Any]:
+        """What the standard-normal noise draws depend on; its hash seeds them.
+
+        Common random numbers: the draws are shared by every estimator, model
+        mesh, noise level and observation spacing of a sweep (scaled by the
+        noise sigma, selected by the spacing), so comparisons across them are
+        paired. The markers stay in the key: they set the observation size.
+        """
+        s = self.setup
+        return [
+            s.model, self.scenario, s.truth_mesh, s.steps, s._true_key(),
+            *s.identity, self.obs_points, self.seed,
         ]  # fmt: skip
 
     def reference_key(self) -> str:
@@ -133,6 +148,9 @@ def expand(config: CompareConfig, setup: Setup) -> list[RunSpec]:
     """The runs of a resolved comparison, in a stable order."""
     assert config.is_resolved(), "resolve the config first"
     runs = []
+    posterior = (
+        tuple(sorted(config.posterior_settings.items())) if config.posterior else None
+    )
     for scenario in config.scenarios or ():
         for mesh in config.meshes or ():
             for sp in config.sparsities():
@@ -151,6 +169,7 @@ def expand(config: CompareConfig, setup: Setup) -> list[RunSpec]:
                                 obs_points=sp.obs_points,
                                 noise=float(sp.noise),
                                 timeout=config.timeout,
+                                posterior=posterior,
                             )
                         )
     return runs

@@ -9,6 +9,7 @@ once, in :mod:`idbench.metrics`.
 from __future__ import annotations
 
 import json
+import logging
 from typing import Any
 
 import numpy as np
@@ -18,6 +19,8 @@ from idbench.interfaces import Estimate, FloatArray, Observation
 from idbench.runspec import RunSpec
 from idbench.session import Session
 from idbench.truth import Truth, simulate_path
+
+log = logging.getLogger(__name__)
 
 
 def base_row(spec: RunSpec) -> dict[str, Any]:
@@ -59,11 +62,15 @@ def step_row(
     grid: FloatArray,
     truth: Truth,
     direct: FloatArray,
+    innovation: Any = None,
 ) -> dict[str, Any]:
     """The traces row of step ``k`` (cost columns are added by the caller).
 
     ``grid`` is the model's shape-error point displacements at this step (its
-    own state, or a forward solve with the current estimate).
+    own state, or a forward solve with the current estimate). ``innovation``
+    is the estimator's (nu, S) of this step if it exposes one (see
+    :class:`~idbench.interfaces.Estimate`); ``nis`` is NaN without it and on
+    unobserved steps.
     """
     se_sum, se_mean = metrics.shape_error(grid, truth.grid[k - 1])
     row: dict[str, Any] = {
@@ -75,6 +82,7 @@ def step_row(
     for j, n in enumerate(spec.setup.names):
         row[n] = mean[j]
         row[f"{n}_std"] = std[j]
+    row["nis"] = _nis(innovation) if observation is not None else np.nan
     row.update(
         shape_error=se_sum,
         shape_error_mean=se_mean,
@@ -83,6 +91,84 @@ def step_row(
     for name, values in truth.probes.items():
         row[name] = values[k - 1]
     return row
+
+
+def _nis(innovation: Any) -> float:
+    """NIS of an estimator's innovation pair; NaN if none or malformed."""
+    if innovation is None:
+        return np.nan
+    try:
+        residual, cov = innovation
+        return metrics.nis(residual, cov)
+    except (TypeError, ValueError) as exc:
+        log.warning("innovation is not (residual, covariance): %s", exc)
+        return np.nan
+
+
+def uncertainty_columns(
+    spec: RunSpec, mean: FloatArray, std: FloatArray, true: FloatArray, ref: FloatArray
+) -> dict[str, Any]:
+    """Coverage, NEES and CRPS of the final Gaussian estimate N(mean, std^2).
+
+    Per parameter ``x``: ``x_cover68_true``, ``x_cover95_true`` (1/0: the
+    central 68%/95% interval holds the true value; NaN without a std),
+    ``x_cover68_ref``, ``x_cover95_ref`` (the same for the reference value),
+    ``x_crps`` (CRPS against the true value); ``nees_true`` and ``nees_ref``.
+    """
+    out: dict[str, Any] = {}
+    cover = {
+        (level, what): metrics.coverage(mean, std, value, level / 100)
+        for level in (68, 95)
+        for what, value in (("true", true), ("ref", ref))
+    }
+    crps = metrics.crps_gaussian(mean, std, true)
+    for j, n in enumerate(spec.setup.names):
+        for (level, what), c in cover.items():
+            out[f"{n}_cover{level}_{what}"] = float(c[j])
+        out[f"{n}_crps"] = float(crps[j])
+    out["nees_true"] = metrics.nees(mean, std, true)
+    out["nees_ref"] = metrics.nees(mean, std, ref)
+    return out
+
+
+def posterior_columns(
+    spec: RunSpec, session: Session, mean: FloatArray, std: FloatArray
+) -> dict[str, Any]:
+    """The reference posterior's mean and std and the distance to it.
+
+    Only when the run asks for a posterior (``spec.posterior``): per parameter
+    ``x_post_mean``, ``x_post_std``; ``posterior_converged``; ``w1_posterior``
+    (Wasserstein-1 between N(mean, std^2) and the posterior, p = 1 only). A
+    posterior that did not converge keeps its moments but no distance (NaN).
+    """
+    if spec.posterior is None:
+        return {}
+    post = session.posterior(spec)
+    out = empty_posterior_columns(spec)
+    if post is None:
+        return out
+    for j, n in enumerate(spec.setup.names):
+        out[f"{n}_post_mean"] = float(post.mean[j])
+        out[f"{n}_post_std"] = float(post.std[j])
+    out["posterior_converged"] = bool(post.converged)
+    if post.converged and post.grid is not None and post.density is not None:
+        out["w1_posterior"] = metrics.wasserstein_to_grid(
+            float(mean[0]), float(std[0]), post.grid, post.density
+        )
+    return out
+
+
+def empty_posterior_columns(spec: RunSpec) -> dict[str, Any]:
+    """NaN posterior columns (none if the run asks for no posterior)."""
+    if spec.posterior is None:
+        return {}
+    out: dict[str, Any] = {}
+    for n in spec.setup.names:
+        out[f"{n}_post_mean"] = np.nan
+        out[f"{n}_post_std"] = np.nan
+    out["posterior_converged"] = False
+    out["w1_posterior"] = np.nan
+    return out
 
 
 def final_columns(
@@ -101,6 +187,9 @@ def final_columns(
         out[f"{n}_std_final"] = float(stds[-1, j])
         out[f"{n}_ref"] = float(ref[j])
     settle = metrics.settling_step(means, ref)
+    true = session.theta_true(spec)
+    out.update(uncertainty_columns(spec, means[-1], stds[-1], true, ref))
+    out.update(posterior_columns(spec, session, means[-1], stds[-1]))
     out["settling_step"] = settle if settle is not None else np.nan
     used = metrics.observations_used(settle, spec.obs_every)
     out["settling_obs"] = used if used is not None else np.nan
@@ -124,6 +213,13 @@ def empty_parameter_columns(spec: RunSpec) -> dict[str, Any]:
         out[f"{n}_final"] = np.nan
         out[f"{n}_std_final"] = np.nan
         out[f"{n}_ref"] = np.nan
+        for level in (68, 95):
+            out[f"{n}_cover{level}_true"] = np.nan
+            out[f"{n}_cover{level}_ref"] = np.nan
+        out[f"{n}_crps"] = np.nan
+    out["nees_true"] = np.nan
+    out["nees_ref"] = np.nan
+    out.update(empty_posterior_columns(spec))
     return out
 
 

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from idbench.config import ConfigError, public_settings, suggest
+from idbench.files import stable_hash
 from idbench.interfaces import (
     FloatArray,
     ForwardModel,
@@ -24,6 +25,7 @@ from idbench.interfaces import (
     Prior,
 )
 from idbench.plugins import Registry, build_registry
+from idbench.posterior import Posterior, PosteriorSettings, reference_posterior
 from idbench.runspec import RunSpec
 from idbench.truth import Truth, simulate_path, simulate_truth
 
@@ -73,6 +75,24 @@ def _typed(cls: type, given: dict[str, Any]) -> dict[str, Any]:
         if floaty and isinstance(value, int) and not isinstance(value, bool):
             out[name] = float(value)
     return out
+
+
+def estimator_arguments(cls: type, settings: Any, seed: int) -> dict[str, Any]:
+    """Keyword arguments for an estimator class: its settings, plus the run's seed.
+
+    An estimator with a ``seed`` setting (its own random draws) gets the run's
+    seed unless the user set one, so seeds differ between the runs of a sweep
+    and repeat with them. The seed is not added to the settings themselves:
+    the run id (and resuming) stays as it was.
+    """
+    kwargs = dict(settings)
+    try:
+        seeded = "seed" in public_settings(cls)
+    except TypeError:  # not a dataclass: no settings we can see
+        seeded = False
+    if seeded and "seed" not in kwargs:
+        kwargs["seed"] = int(seed)
+    return kwargs
 
 
 def settings_items(settings: Any) -> tuple[tuple[str, Any], ...]:
@@ -135,6 +155,7 @@ class Session:
         self._truths: dict[str, Truth] = {}
         self._refs: dict[str, FloatArray] = {}
         self._direct: dict[str, FloatArray] = {}
+        self._posteriors: dict[str, Posterior | None] = {}
 
     def model(
         self, spec: RunSpec, mesh: str, scenario: str | None = None, role: str = "est"
@@ -173,13 +194,18 @@ class Session:
         return self._truths[key]
 
     def observations(self, spec: RunSpec) -> list[Observation | None]:
-        """The noisy, sparse observation stream of a run (seeded from its data)."""
-        from idbench.files import stable_hash
+        """The noisy, sparse observation stream of a run.
 
+        Standard normals are drawn once per :meth:`RunSpec.noise_key` (the
+        same for every estimator, mesh, noise level and spacing of a sweep),
+        scaled by the run's noise sigma; the spacing only selects steps.
+        """
         truth = self.truth(spec)
-        seq = np.random.SeedSequence([spec.seed, int(stable_hash(spec.data_key()), 16)])
+        seq = np.random.SeedSequence(
+            [spec.seed, int(stable_hash(spec.noise_key()), 16)]
+        )
         rng = np.random.default_rng(seq)
-        noise = rng.normal(0.0, 1.0, truth.observations.shape) * spec.noise
+        noise = rng.standard_normal(truth.observations.shape) * spec.noise
         stream: list[Observation | None] = []
         for k in range(1, spec.setup.steps + 1):
             if spec.sparsity.observed(k):
@@ -209,7 +235,8 @@ class Session:
             model = self.model(spec, spec.mesh, role="ref")
             p = model.parameters.p
             try:
-                est = self.registry.estimator(spec.setup.reference)()
+                cls = self.registry.estimator(spec.setup.reference)
+                est = cls(**estimator_arguments(cls, {}, spec.seed))
                 est.start(model, self.prior(model, spec))
                 e = None
                 for k, obs in enumerate(self.observations(spec), start=1):
@@ -221,6 +248,30 @@ class Session:
                 log.warning("reference fit failed for %s: %s", spec.mesh, exc)
                 self._refs[key] = np.full(p, np.nan)
         return self._refs[key]
+
+    def posterior(self, spec: RunSpec) -> Posterior | None:
+        """The reference posterior of the run's data on its model mesh (cached).
+
+        Keyed like the reference fit (and by the posterior settings), so every
+        estimator on the same data and mesh shares one. None if the run asks
+        for none (``spec.posterior`` is None) or it could not be computed (the
+        budget ran out, the model could not be solved anywhere): logged.
+        """
+        if spec.posterior is None:
+            return None
+        key = stable_hash([spec.reference_key(), list(spec.posterior)])
+        if key not in self._posteriors:
+            model = self.model(spec, spec.mesh, role="posterior")
+            settings = PosteriorSettings(**dict(spec.posterior))
+            try:
+                post: Posterior | None = reference_posterior(
+                    model, self.prior(model, spec), self.observations(spec), settings
+                )
+            except ValueError as exc:
+                log.warning("reference posterior failed for %s: %s", spec.mesh, exc)
+                post = None
+            self._posteriors[key] = post
+        return self._posteriors[key]
 
     def direct(self, spec: RunSpec, scenario: str | None = None) -> FloatArray:
         """Shape-error point displacements (K, G, d) of the model run with the truth."""

@@ -74,6 +74,9 @@ def sweep_axes(runs: pd.DataFrame) -> list[str]:
     return axes
 
 
+COVERAGE = ("68_true", "95_true", "68_ref", "95_ref")
+"""Coverage columns of a parameter x: ``x_cover68_true`` ..."""
+
 ROW_KEYS = ("scenario", "model_nodes", "mesh", "estimator")
 """What always separates summary rows, in their sort order."""
 
@@ -98,7 +101,12 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
         (``ok``, or each status with its count), ``reason`` (the distinct
         error texts of runs that were not ok); means over the ok runs of, per
         parameter ``x``: ``x_final``, ``x_ratio`` (``x_final / x_true``),
-        ``x_ref``; then ``settling_step``, ``shape_error_mm`` (mean distance
+        ``x_ref``; the coverage fractions ``x_cover68_true``,
+        ``x_cover95_true``, ``x_cover68_ref``, ``x_cover95_ref`` (the share of
+        the row's runs whose 68%/95% interval holds the true or the reference
+        value), the mean ``nees_true`` and ``nees_ref`` (p for a calibrated
+        estimator), ``w1_posterior`` if the runs have a posterior; then
+        ``settling_step``, ``shape_error_mm`` (mean distance
         per grid point at the last step, mm), ``direct_mm`` (the same run
         with the true values, no assimilation), ``transfer_mm`` (on the
         transfer path), ``n_solves`` and ``wall_s_step``.
@@ -119,6 +127,9 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
     metrics = []
     for n in names:
         metrics += [f"{n}_final", f"{n}_ratio", f"{n}_ref"]
+    for n in names:
+        metrics += [f"{n}_cover{c}" for c in COVERAGE]
+    metrics += ["nees_true", "nees_ref", "w1_posterior"]
     metrics += ["settling_step", "shape_error_mm", "direct_mm", "transfer_mm"]
     metrics += ["n_solves", "wall_s_step"]
     metrics = [m for m in metrics if m in df.columns]
@@ -194,6 +205,9 @@ def headers(summary: pd.DataFrame, short: bool = False) -> dict[str, str]:
         "shape_error_mm": ("shape error (mm/pt)", "err mm"),
         "direct_mm": ("direct, true values (mm/pt)", "direct mm"),
         "transfer_mm": ("transfer error (mm/pt)", "transf mm"),
+        "nees_true": ("NEES vs true (mean)", "NEES t"),
+        "nees_ref": ("NEES vs ref (mean)", "NEES r"),
+        "w1_posterior": ("W1 to posterior", "W1 post"),
         "n_solves": ("forward solves", "solves"),
         "wall_s_step": ("wall time (s/step)", "s/step"),
     }
@@ -202,6 +216,10 @@ def headers(summary: pd.DataFrame, short: bool = False) -> dict[str, str]:
     for col in summary.columns:
         if col in fixed:
             out[col] = fixed[col][short]
+            continue
+        cover = _coverage_header(col, params, short)
+        if cover:
+            out[col] = cover
             continue
         name, _, what = col.rpartition("_")
         if name in params and what == "final":
@@ -213,6 +231,18 @@ def headers(summary: pd.DataFrame, short: bool = False) -> dict[str, str]:
         else:
             out[col] = col if not short else _abbreviate(col)
     return out
+
+
+def _coverage_header(col: str, params: set[str], short: bool) -> str:
+    """``x 95% covers true`` (short ``x c95t``) for ``x_cover95_true``; else ''."""
+    for name in params:
+        for c in COVERAGE:
+            if col == f"{name}_cover{c}":
+                level, what = c.split("_")
+                if short:
+                    return f"{name} c{level}{what[0]}"
+                return f"{name} {level}% covers {what}"
+    return ""
 
 
 def parameter_names_of_summary(summary: pd.DataFrame) -> list[str]:

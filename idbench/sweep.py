@@ -26,6 +26,7 @@ from idbench.config import CompareConfig, ConfigError, public_settings, suggest
 from idbench.executors import THREAD_ENV, execute_all
 from idbench.interfaces import ForwardModel, ModelFailure, ModelSpec
 from idbench.plugins import Registry, build_registry
+from idbench.posterior import PosteriorSettings, check_budget
 from idbench.results import ResultStore
 from idbench.runspec import RunSpec, Setup, expand
 from idbench.session import (
@@ -85,6 +86,7 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         reg, config.model, config.model_settings.get(config.model, {})
     )
     probe = _build(reg, config, config.meshes[0], settings)
+    _check_posterior(config, probe.parameters.p)
     setup = Setup(
         model=config.model,
         model_settings=settings_items(settings),
@@ -187,6 +189,24 @@ def _check_estimator_settings(
             f"estimator {name!r} (plugin {reg.estimators[name].plugin!r}) "
             f"raised {type(exc).__name__}: {exc}"
         ) from None
+
+
+def _check_posterior(config: CompareConfig, p: int) -> None:
+    """Posterior settings that exist, are valid and whose budget can be met."""
+    given = config.posterior_settings
+    allowed = public_settings(PosteriorSettings)
+    for key in given:
+        if key not in allowed:
+            raise ConfigError(
+                f"posterior setting {key!r} does not exist{suggest(key, allowed)}; "
+                f"allowed: {', '.join(allowed)}"
+            )
+    try:
+        settings = PosteriorSettings(**given)
+        if config.posterior:
+            check_budget(settings, p, config.steps)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"posterior: {exc}") from None
 
 
 def _known(kind: str, names: Any, table: dict[str, Any], reg: Registry) -> None:

@@ -22,6 +22,12 @@ from idbench.sweep import compare
 distributed = pytest.importorskip("distributed")
 
 TIMING = {"wall_s", "wall_s_step"}
+LOOSE = {"E_ref": 1e-8, "nees_ref": 1e-3}
+"""Columns compared more loosely. E_ref: the reference fit of a data set can
+come out 1.2e-9 apart between a serial sweep and a fresh worker (seed 1 of
+``tiny()``; a fresh Session in this process gives the worker's value), within
+the Newton tolerance that DESIGN.md allows. NEES against the reference squares
+(E_final - E_ref) / std, a difference of two nearly equal values."""
 
 
 def tiny(seeds: int = 2) -> CompareConfig:
@@ -62,7 +68,7 @@ def assert_same(a: pd.DataFrame, b: pd.DataFrame, keys: list[str]) -> None:
             np.testing.assert_allclose(
                 a[col].to_numpy(float),
                 b[col].to_numpy(float),
-                rtol=1e-9,
+                rtol=LOOSE.get(col, 1e-9),
                 atol=0,
                 equal_nan=True,
                 err_msg=col,

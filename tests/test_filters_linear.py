@@ -129,3 +129,27 @@ def test_batch_ls_refit_each_tracks_growing_data():
             np.testing.assert_allclose(
                 e.mean, least_squares_answer(model, seen), rtol=RTOL
             )
+
+
+@pytest.mark.parametrize("sigma_points", ["simplex", "star"])
+def test_ro_ukf_innovation_is_the_kalman_innovation(sigma_points):
+    # nu = y_k - J_k m_{k-1}, S = J_k P_{k-1} J_k^T + s^2 I (linear: exact)
+    p = 2
+    model = SensitiveLinearToy(p=p, n=4, m=3, n_steps=6, seed=p)
+    prior = Prior((1.0, 0.5), (2.0, 1.5))
+    obs = make_data(model, np.array([3.0, -1.5]), every=2)
+    est = RoUkf(transform="identity", sigma_points=sigma_points)
+    est.start(model, prior)
+    assert est.innovation is None
+    m, P = np.asarray(prior.mean, float), np.diag(np.asarray(prior.std) ** 2)
+    for k in range(1, model.n_steps + 1):
+        est.update(k, obs.get(k))
+        if k not in obs:
+            continue
+        J = model.jac(k)
+        nu = obs[k].values - J @ m
+        S = J @ P @ J.T + SIGMA**2 * np.eye(3)
+        np.testing.assert_allclose(est.innovation[0], nu, rtol=1e-8, atol=1e-10)
+        np.testing.assert_allclose(est.innovation[1], S, rtol=1e-8, atol=1e-12)
+        gain = P @ J.T @ np.linalg.inv(S)
+        m, P = m + gain @ nu, P - gain @ J @ P

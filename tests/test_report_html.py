@@ -98,7 +98,7 @@ def test_renders_offline_without_errors(page):
 def test_every_figure_is_visible(page, report):
     pg, _, _ = page
     stems = sorted(p.stem for p in report.glob("*.svg"))
-    assert len(stems) == 4
+    assert len(stems) == 5
     for stem in stems:
         svg = pg.locator(f"#fig-{stem} svg")
         assert svg.count() == 1, stem

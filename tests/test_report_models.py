@@ -164,6 +164,7 @@ def test_spring_chain_report_has_every_figure(registry, tmp_path):
         "stiffness_vs_resolution",
         "shape_error",
         "estimates_vs_step",
+        "uncertainty",
         "realtime_frontier",
     ):
         for ext in ("png", "svg"):
@@ -172,7 +173,7 @@ def test_spring_chain_report_has_every_figure(registry, tmp_path):
     md = (out / "report.md").read_text()
     assert "k / k_true" in md and "E" not in md.split("## Summary")[1].split("|")[1]
     page = (out / "report.html").read_text()
-    assert page.count("<svg") == 4
+    assert page.count("<svg") == 5
     assert "k / k_true" in page
     assert "E / E_true" not in summary_text(runs)
 

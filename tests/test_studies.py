@@ -38,3 +38,24 @@ def test_calibrated_E_predicts_a_held_back_stretch_one_constant_misses(study, tm
     assert set(fit["coordinates"]) == {"angle, fraction", "tip", "tip_angle"}
     module.plot(cal, scores, tmp_path / "fig.png")
     assert (tmp_path / "fig.png").stat().st_size > 10_000
+
+
+def test_uncertainty_coarse_meshes_are_confidently_wrong_the_control_is_not(
+    study, tmp_path
+):
+    module = study("uncertainty_calibration")
+    table = module.compute(quick=True, out=tmp_path)
+    coarse = table[table["case"] != "= truth"]
+    control = table[table["case"] == "= truth"]
+    # no estimator's 95% interval holds E_true on the coarse mesh, model error
+    # term or not; with mesh = truth the batch fit's does at both noise levels
+    assert (coarse["cover95_true"] == 0).all()
+    ls = control[control["estimator"] == "batch-ls"]
+    assert len(ls) == 2 and (ls["cover95_true"] == 1).all()
+    # against its own model's posterior the batch fit is calibrated
+    assert (coarse.loc[coarse["estimator"] == "batch-ls", "cover95_post"] == 1).all()
+    # the remedy widens the reported std where the misfit exceeds the noise
+    by = coarse[coarse["noise"] == 1e-4].set_index("estimator")
+    assert by.loc["ro-ukf+me", "E_std"] > 1.2 * by.loc["ro-ukf", "E_std"]
+    module.plot(table, tmp_path / "fig.png")
+    assert (tmp_path / "fig.png").stat().st_size > 10_000

@@ -20,6 +20,10 @@ sum_i alpha I*_i = 0 and sum_i alpha I*_i I*_i^T = I_p: ``"simplex"``
    x <- x - L U^-1 G R^-1 zbar;
 5. report P_xi = L_xi U^-1 L_xi^T.
 
+After an observed step :attr:`RoUkf.innovation` is (zbar, S), the mean
+innovation and its forecast covariance S = sum_i alpha (Z_i - zbar)
+(Z_i - zbar)^T + R, for the normalised innovation squared zbar^T S^-1 zbar.
+
 For a linear-Gaussian model this is exactly the Kalman filter.
 
 Model-error-aware variant (``model_error`` = e > 0): the coarse model's own
@@ -94,6 +98,7 @@ class RoUkf(Settings):
         check_choice("sigma_points", self.sigma_points, SIGMA_POINTS)
         check_positive("param_noise", self.param_noise, allow_zero=True)
         check_positive("model_error", self.model_error, allow_zero=True)
+        self.innovation: tuple[FloatArray, FloatArray] | None = None
 
     def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run: x = [reset(); mu_xi], L = [0; I_p], U = P_xi^-1."""
@@ -105,6 +110,7 @@ class RoUkf(Settings):
         self._L = np.vstack([np.zeros((self._nu, p)), np.eye(p)])
         self._Uinv = p_xi.copy()  # U^-1, kept as the inverse: that is what is sampled
         self._I = sigma_directions(p, self.sigma_points)
+        self.innovation = None
 
     @property
     def solves_per_step(self) -> int:
@@ -140,6 +146,8 @@ class RoUkf(Settings):
             zbar = Z @ np.full(r, alpha)
             G = alpha * I @ Z.T  # (p, m)
             var = noise_var(observation, self.sigma_floor) + self.model_error**2
+            dz = Z - zbar[:, None]
+            self.innovation = (zbar, alpha * dz @ dz.T + var * np.eye(y.size))
             rinv = 1.0 / var
             U = np.eye(I.shape[0]) + rinv * (G @ G.T)
             x = x - L @ np.linalg.solve(U, rinv * (G @ zbar))
