@@ -322,6 +322,37 @@ def public_settings(cls: type) -> list[str]:
     ]
 
 
+def build_settings(cls: type, given: dict[str, Any], what: str) -> Any:
+    """``cls(**given)`` for a settings dataclass, or one ConfigError line.
+
+    Parameters
+    ----------
+    cls
+        The settings dataclass (an estimator, a model's settings, ...).
+    given
+        The user's values by setting name.
+    what
+        How messages name the owner, e.g. ``"estimator 'rls'"``.
+
+    Raises
+    ------
+    ConfigError
+        Naming an unknown setting (with a suggestion and the allowed ones) or
+        the bad value (the class's own ValueError or TypeError message).
+    """
+    allowed = public_settings(cls)
+    for key in given:
+        if key not in allowed:
+            raise ConfigError(
+                f"{what} has no setting {key!r}{suggest(key, allowed)}; "
+                f"allowed: {', '.join(allowed)}"
+            )
+    try:
+        return cls(**given)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{what}: {exc}") from None
+
+
 def suggest(key: str, allowed: Any) -> str:
     """A ``did you mean`` hint, or an empty string."""
     close = difflib.get_close_matches(key, sorted(allowed), n=1)

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from idbench.config import ConfigError, public_settings, suggest
+from idbench.config import ConfigError, build_settings, public_settings
 from idbench.files import stable_hash
 from idbench.interfaces import (
     FloatArray,
@@ -46,17 +46,7 @@ def model_settings(registry: Registry, model: str, given: dict[str, Any]) -> Any
         if given:
             raise ConfigError(f"model {model!r} has no settings; got {sorted(given)}")
         return None
-    allowed = public_settings(cls)
-    for key in given:
-        if key not in allowed:
-            raise ConfigError(
-                f"model {model!r} has no setting {key!r}{suggest(key, allowed)}; "
-                f"allowed: {', '.join(allowed)}"
-            )
-    try:
-        return cls(**_typed(cls, given))
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"model {model!r}: {exc}") from None
+    return build_settings(cls, _typed(cls, given), f"model {model!r}")
 
 
 def _typed(cls: type, given: dict[str, Any]) -> dict[str, Any]:

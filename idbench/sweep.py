@@ -22,7 +22,7 @@ from typing import Any
 
 import pandas as pd
 
-from idbench.config import CompareConfig, ConfigError, public_settings, suggest
+from idbench.config import CompareConfig, ConfigError, build_settings, suggest
 from idbench.executors import THREAD_ENV, execute_all
 from idbench.interfaces import ForwardModel, ModelFailure, ModelSpec
 from idbench.plugins import Registry, build_registry
@@ -172,18 +172,10 @@ def _check_estimator_settings(
     reg: Registry, name: str, settings: dict[str, Any]
 ) -> None:
     _known("estimator (in settings)", [name], reg.estimators, reg)
-    cls = reg.estimator(name)
-    fields = set(public_settings(cls))
-    for key in settings:
-        if key not in fields:
-            raise ConfigError(
-                f"estimator {name!r} has no setting {key!r}{suggest(key, fields)}; "
-                f"allowed: {', '.join(sorted(fields))}"
-            )
     try:
-        cls(**settings)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"estimator {name!r}: {exc}") from None
+        build_settings(reg.estimator(name), settings, f"estimator {name!r}")
+    except ConfigError:
+        raise
     except Exception as exc:  # a plugin's own bug, still one clean line
         raise ConfigError(
             f"estimator {name!r} (plugin {reg.estimators[name].plugin!r}) "
@@ -194,19 +186,12 @@ def _check_estimator_settings(
 def _check_posterior(config: CompareConfig, p: int) -> None:
     """Posterior settings that exist, are valid and whose budget can be met."""
     given = config.posterior_settings
-    allowed = public_settings(PosteriorSettings)
-    for key in given:
-        if key not in allowed:
-            raise ConfigError(
-                f"posterior setting {key!r} does not exist{suggest(key, allowed)}; "
-                f"allowed: {', '.join(allowed)}"
-            )
-    try:
-        settings = PosteriorSettings(**given)
-        if config.posterior:
+    settings = build_settings(PosteriorSettings, given, "posterior")
+    if config.posterior:
+        try:
             check_budget(settings, p, config.steps)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"posterior: {exc}") from None
+        except ValueError as exc:
+            raise ConfigError(f"posterior: {exc}") from None
 
 
 def _known(kind: str, names: Any, table: dict[str, Any], reg: Registry) -> None:
