@@ -293,3 +293,20 @@ def test_scenarios_of_the_shipped_bodies_and_env(tmp_path, monkeypatch):
         "manipulation": "own-end",
     }
     assert reg.scenario("grasp-pole").load["body"] == "kidney"
+
+
+def test_simulate_writes_the_liver_with_region_tags(tmp_path, capsys):
+    pytest.importorskip("gmsh")
+    from idbench.cli import main
+
+    out = tmp_path / "liver.xdmf"
+    code = main(["simulate", "--model", "solid", "--mesh", "200", "--scenario",
+                 "grasp-lift", "--model-option", "reference=200", "--steps", "2",
+                 "--out", str(out)])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    assert "u_max" in capsys.readouterr().out
+    with meshio.xdmf.TimeSeriesReader(out) as reader:
+        points, _ = reader.read_points_cells()
+        _t, point_data, cell_data = reader.read_data(1)
+    assert np.abs(point_data["displacement"]).max() > 1e-4
+    assert set(cell_data) == {"region", "E_factor"}
