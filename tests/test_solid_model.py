@@ -306,7 +306,7 @@ def test_simulate_writes_the_liver_with_region_tags(tmp_path, capsys):
     assert code == 0, capsys.readouterr().err
     assert "u_max" in capsys.readouterr().out
     with meshio.xdmf.TimeSeriesReader(out) as reader:
-        points, _ = reader.read_points_cells()
+        reader.read_points_cells()
         _t, point_data, cell_data = reader.read_data(1)
     assert np.abs(point_data["displacement"]).max() > 1e-4
     assert set(cell_data) == {"region", "E_factor"}
