@@ -145,7 +145,9 @@ class SolidModel:
         self._solver = make_solver(
             self.backend, self._pattern.indptr, self._pattern.indices
         )
-        f1 = nodal_forces(self.manipulation, mesh, body.material.density, t=1.0)
+        f1 = nodal_forces(
+            self.manipulation, mesh, body.material.density, t=float(s.load_scale)
+        )
         self._f_end = f1.ravel()[self._asm.free_dofs]
         self.atol = float(s.atol or ATOL) * float(np.linalg.norm(self._f_end))
 
@@ -260,6 +262,7 @@ class SolidModel:
             "n_elements": len(self.mesh_data.tets),
             "law": self.law_name,
             "nu": self.nu,
+            "load_scale": self.settings.load_scale,
             "parameter_names": list(self.parameters.names),
             "scenario": {"name": m.name, "kind": m.kind},
             "markers": len(self.marker_points),

@@ -55,6 +55,9 @@ class SolidSettings:
     kernel
         ``"auto"`` (SVK through the beam's assembler, other laws through the
         general one) or ``"general"`` (always the general-law assembler).
+    load_scale
+        Multiplies every manipulation's end load (e.g. to keep SVK in the
+        range it can follow).
     """
 
     body: str = "liver"
@@ -67,6 +70,7 @@ class SolidSettings:
     max_iterations: int | None = None
     solver: str | None = None
     kernel: str = "auto"
+    load_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.body, str) or not self.body:
@@ -86,6 +90,8 @@ class SolidSettings:
             raise ValueError(f"max_iterations {m!r}: need a whole number >= 1")
         if self.solver is not None and self.solver not in BACKENDS:
             raise ValueError(f"solver {self.solver!r}: allowed: {', '.join(BACKENDS)}")
+        if not (_number(self.load_scale) and self.load_scale > 0):
+            raise ValueError(f"load_scale {self.load_scale!r}: need a number > 0")
         if self.kernel not in KERNELS:
             raise ValueError(f"kernel {self.kernel!r}: allowed: {', '.join(KERNELS)}")
 
@@ -95,8 +101,9 @@ class SolidSettings:
         ``E`` (part of the true values), ``solver`` and ``kernel`` (the same
         numbers to the Newton tolerance) are left out.
         """
-        return [self.body, self.law, self.nu, self.reference, self.rtol, self.atol,
-                self.max_iterations]  # fmt: skip
+        out = [self.body, self.law, self.nu, self.reference, self.rtol, self.atol,
+               self.max_iterations]  # fmt: skip
+        return out if self.load_scale == 1.0 else [*out, self.load_scale]
 
 
 def _number(x: Any) -> bool:
