@@ -272,7 +272,8 @@ def test_bad_settings():
     from idbench_skfem.solid_settings import SolidSettings
 
     for kw, word in (({"law": "rubber"}, "law"), ({"E": -1.0}, "E"),
-                     ({"kernel": "fast"}, "kernel"), ({"nu": 0.5}, "nu")):  # fmt: skip
+                     ({"kernel": "fast"}, "kernel"), ({"nu": 0.5}, "nu"),
+                     ({"load_scale": 0.0}, "load_scale")):  # fmt: skip
         with pytest.raises(ValueError, match=word):
             SolidSettings(**kw)
 
@@ -310,3 +311,10 @@ def test_simulate_writes_the_liver_with_region_tags(tmp_path, capsys):
         _t, point_data, cell_data = reader.read_data(1)
     assert np.abs(point_data["displacement"]).max() > 1e-4
     assert set(cell_data) == {"region", "E_factor"}
+
+
+def test_load_scale_scales_the_external_force(tmp_path):
+    body, _ = write_beam_body(tmp_path)
+    full, third = solid(body), solid(body, load_scale=1 / 3)
+    np.testing.assert_allclose(3 * third.external_force(2), full.external_force(2))
+    assert third.describe()["load_scale"] == 1 / 3

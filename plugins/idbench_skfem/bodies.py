@@ -46,7 +46,7 @@ def body_path(spec: str) -> Path:
     if spec in SHIPPED:
         here = Path(__file__).resolve().parent
         for candidate in (
-            here / "bodies" / f"{spec}.toml",  # the wheel's copy
+            here / "examples" / f"{spec}.toml",  # the wheel's copy
             here.parent.parent / "examples" / spec / "body.toml",  # a checkout
         ):
             if candidate.is_file():
