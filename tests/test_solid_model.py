@@ -318,3 +318,18 @@ def test_load_scale_scales_the_external_force(tmp_path):
     full, third = solid(body), solid(body, load_scale=1 / 3)
     np.testing.assert_allclose(3 * third.external_force(2), full.external_force(2))
     assert third.describe()["load_scale"] == 1 / 3
+
+
+def test_describe_keys_on_contents_not_on_folders(tmp_path):
+    import shutil
+
+    body, _ = write_beam_body(tmp_path)
+    other = tmp_path / "moved"
+    other.mkdir()
+    for f in (body, tmp_path / "beam-8x2x2.vtu"):
+        shutil.copy(f, other / f.name)
+    a, b = solid(body).describe(), solid(other / body.name).describe()
+    assert a == b and a["mesh_sha256"] and str(tmp_path) not in str(a)
+    changed = solid(body, E=6000.0).describe()
+    assert changed == a  # the true E is part of the run, not of the model
+    assert solid(body, nu=0.3).describe() != a

@@ -253,9 +253,9 @@ class SolidModel:
         return {
             "model": "solid",
             "code_version": MODEL_VERSION,
-            "body": self.body.source,
-            "body_sha256": _digest(Path(self.body.source)),
-            "mesh": self.mesh_data.path,
+            "body": Path(self.body.source).name,  # names, not paths: the
+            "body_sha256": _digest(Path(self.body.source)),  # contents key it
+            "mesh": Path(self.mesh_data.path).name,
             "mesh_sha256": _digest(Path(self.mesh_data.path)),
             "reference_sha256": _digest(Path(self._reference)),
             "n_nodes": self.n_nodes,
