@@ -314,8 +314,6 @@ class SolidModel:
 
     def _factor(self, kin: Any, modulus: FloatArray, k: int) -> None:
         data = self._asm.tangent_data(kin, modulus, self._pattern)
-        if not np.all(np.isfinite(data)):
-            raise ModelFailure("non-finite tangent", step=k)
         try:
             self._solver.factor(data)
         except SolverError as exc:
