@@ -37,7 +37,7 @@ import hashlib
 import logging
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import scipy.sparse as sp
@@ -118,9 +118,9 @@ class SolidModel:
         free = np.ones(len(mesh.points), dtype=bool)
         free[fixed] = False
         self.n_nodes = len(mesh.points)
-        from idbench_skfem.materials import make_material
+        from idbench_skfem.materials import Material, make_material
 
-        law = make_material(self.law_name, 1.0, self.nu)
+        law = cast(Material, make_material(self.law_name, 1.0, self.nu))
         if self.law_name == "svk" and s.kernel == "auto":
             self._asm: Any = Assembler(mesh.points, mesh.tets, free, self.nu)
         else:
