@@ -271,7 +271,7 @@ def test_transfer_must_name_another_manipulation(tmp_path):
 def test_bad_settings():
     from idbench_skfem.solid_settings import SolidSettings
 
-    for kw, word in (({"law": "rubber"}, "law"), ({"E": -1.0}, "E"),
+    for kw, word in (({"law": "rubber"}, "law"),
                      ({"kernel": "fast"}, "kernel"), ({"nu": 0.5}, "nu"),
                      ({"load_scale": 0.0}, "load_scale")):  # fmt: skip
         with pytest.raises(ValueError, match=word):
@@ -330,6 +330,4 @@ def test_describe_keys_on_contents_not_on_folders(tmp_path):
         shutil.copy(f, other / f.name)
     a, b = solid(body).describe(), solid(other / body.name).describe()
     assert a == b and a["mesh_sha256"] and str(tmp_path) not in str(a)
-    changed = solid(body, E=6000.0).describe()
-    assert changed == a  # the true E is part of the run, not of the model
     assert solid(body, nu=0.3).describe() != a

@@ -112,7 +112,7 @@ class SolidModel:
         self.backend = resolve_backend(s.solver)
         self.law_name = s.law or body.material.law
         self.nu = float(body.material.nu if s.nu is None else s.nu)
-        E = float(body.material.E if s.E is None else s.E)
+        E = float(body.material.E)
 
         fixed = resolve.fixed_nodes(body, mesh)
         free = np.ones(len(mesh.points), dtype=bool)
@@ -129,10 +129,10 @@ class SolidModel:
 
         # parameters: E per region; c_e = true modulus / its region's true value
         self._regions = resolve.element_regions(body, mesh)
-        moduli = resolve.element_moduli(body, mesh) * (E / body.material.E)
+        moduli = resolve.element_moduli(body, mesh)
         names = body.parameter_names
         true = np.array([
-            _region_value(body, r, E) for r in range(len(names))
+            _region_value(body, r) for r in range(len(names))
         ])  # fmt: skip
         self._factors = moduli / true[self._regions]
         lo, hi = _BOUNDS
@@ -368,13 +368,12 @@ class SolidModel:
         raise AssertionError("unreachable")  # pragma: no cover
 
 
-def _region_value(body: Body, r: int, E: float) -> float:
+def _region_value(body: Body, r: int) -> float:
     """True value of parameter ``r``: its region's ``E_regions`` entry, else E."""
     if not body.parameter_regions:
-        return E
+        return body.material.E
     name = body.parameter_regions[r].name
-    scale = E / body.material.E
-    return dict(body.material.E_regions).get(name or "", body.material.E) * scale
+    return dict(body.material.E_regions).get(name or "", body.material.E)
 
 
 def _digest(path: Path) -> str:

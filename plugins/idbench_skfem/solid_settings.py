@@ -38,8 +38,6 @@ class SolidSettings:
         ``kidney``); used when a scenario's load names no body.
     law
         Material law override (``svk`` or ``neo-hookean``; None: the body's).
-    E
-        True Young's modulus override (Pa; None: the body's ``[material] E``).
     nu
         Poisson's ratio override (None: the body's).
     reference
@@ -62,7 +60,6 @@ class SolidSettings:
 
     body: str = "liver"
     law: str | None = None
-    E: float | None = None
     nu: float | None = None
     reference: str | None = None
     rtol: float | None = None
@@ -77,8 +74,6 @@ class SolidSettings:
             raise ValueError(f"body {self.body!r}: need a body TOML path or name")
         if self.law is not None and self.law not in LAWS:
             raise ValueError(f"law {self.law!r}: allowed: {', '.join(LAWS)}")
-        if self.E is not None and not (_number(self.E) and self.E > 0):
-            raise ValueError(f"E {self.E!r}: must be a number > 0 (Pa)")
         if self.nu is not None and not (_number(self.nu) and -1 < self.nu < 0.5):
             raise ValueError(f"nu {self.nu!r}: must be a number in (-1, 0.5)")
         for name in ("rtol", "atol"):
@@ -98,8 +93,8 @@ class SolidSettings:
     def identity(self) -> list[Any]:
         """What of these settings identifies the data (seeds the noise).
 
-        ``E`` (part of the true values), ``solver`` and ``kernel`` (the same
-        numbers to the Newton tolerance) are left out.
+        ``solver`` and ``kernel`` (the same numbers to the Newton tolerance)
+        are left out; true values (``--true E=...``) are part of a run anyway.
         """
         out = [self.body, self.law, self.nu, self.reference, self.rtol, self.atol,
                self.max_iterations]  # fmt: skip
