@@ -299,7 +299,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     """``idbench simulate``: one load path, written as an XDMF time series.
 
     Needs a model that can show its field: ``mesh() -> (points, tets)`` and
-    ``displacement_field(state) -> (N, 3)``; its probes are printed per step.
+    ``displacement_field(state) -> (N, 3)``; its probes are printed per step,
+    and its optional ``cell_data() -> {name: (T,) array}`` (e.g. region tags)
+    is written with every step.
     """
     import meshio
     import numpy as np
@@ -341,11 +343,17 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     points, tets = model.mesh()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     probes = getattr(model, "probes", None)
+    cells = getattr(model, "cell_data", None)
+    cell_data = {n: [np.asarray(v)] for n, v in (cells() if cells else {}).items()}
     with meshio.xdmf.TimeSeriesWriter(args.out, data_format="XML") as writer:
         writer.write_points_cells(points, [("tetra", tets)])
         for k, state in enumerate(states, start=1):
             u = model.displacement_field(state)
-            writer.write_data(k / args.steps, point_data={"displacement": u})
+            writer.write_data(
+                k / args.steps,
+                point_data={"displacement": u},
+                cell_data=cell_data or None,
+            )
             named = probes(state) if probes else {}
             shown = "  ".join(f"{n} {v: .5g}" for n, v in named.items())
             print(f"step {k:3d}  load {k / args.steps:5.2f}  {shown}".rstrip())

@@ -37,7 +37,16 @@ def builtin_names() -> set[str]:
 
 
 def _docstrings(tree: ast.AST) -> set[int]:
+    """Docstrings, and the stylesheet (``STYLE = "..."``: CSS words such as
+    ``solid`` are not model names)."""
     ids = set()
+    for node in ast.walk(tree):
+        if (
+            isinstance(node, ast.Assign)
+            and [getattr(t, "id", None) for t in node.targets] == ["STYLE"]
+            and isinstance(node.value, ast.Constant)
+        ):
+            ids.add(id(node.value))
     for node in ast.walk(tree):
         if isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef):
             body = getattr(node, "body", [])

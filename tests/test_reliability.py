@@ -498,7 +498,7 @@ def test_plugins_lists_builtins_when_third_party_plugins_fail(installed, capsys)
     assert main(["plugins", "--json"]) == 0
     rows = {r["name"]: r for r in json.loads(capsys.readouterr().out)}
     assert set(rows["filters"]["estimators"]) == BUILTIN_ESTIMATORS
-    assert rows["skfem"]["models"] == ["svk-beam"]
+    assert rows["skfem"]["models"] == ["solid", "svk-beam"]
     assert rows["filters"]["error"] == rows["skfem"]["error"] == ""
     assert "registration exploded" in rows["explodes"]["error"]
     assert rows["explodes"]["estimators"] == []  # nothing half-registered

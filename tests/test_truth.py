@@ -125,3 +125,21 @@ def test_simulate_cli_rejects_bad_input(tmp_path, capsys):
     assert main(["simulate", "--mesh", "nonsense", "--scenario", "bend-y",
                  "--out", out]) == 2  # fmt: skip
     assert "nonsense" in capsys.readouterr().err
+
+
+def test_simulate_cli_writes_the_models_cell_data(tmp_path, capsys, monkeypatch):
+    """A model's optional ``cell_data()`` (region tags) goes with every step."""
+    from idbench_skfem import model as beam_model
+
+    def cell_data(self):
+        return {"region": np.arange(len(self.beam.tets), dtype=float)}
+
+    monkeypatch.setattr(beam_model.SvkBeam, "cell_data", cell_data, raising=False)
+    out = tmp_path / "beam.xdmf"
+    assert main(["simulate", "--mesh", "4x1x1", "--scenario", "bend-y",
+                 "--steps", "2", "--out", str(out)]) == 0  # fmt: skip
+    with meshio.xdmf.TimeSeriesReader(out) as reader:
+        _points, cells = reader.read_points_cells()
+        _t, _pd, cell_data = reader.read_data(1)
+    n_tets = len(cells[0].data)
+    np.testing.assert_array_equal(cell_data["region"][0], np.arange(n_tets))

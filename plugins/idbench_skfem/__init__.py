@@ -1,4 +1,4 @@
-"""Built-in model plugin: the scikit-fem St Venant-Kirchhoff cantilever beam."""
+"""Built-in model plugin: the St Venant-Kirchhoff beam and general solid bodies."""
 
 from __future__ import annotations
 
@@ -14,15 +14,22 @@ def register_scenarios(register: Callable[[Any], None]) -> None:
     """Register the beam's load paths (bend-y, bend-z, stretch-x, mixed-30/60)."""
     for scenario in SCENARIOS:
         register(scenario)
+    from idbench_skfem.solid_settings import all_scenarios
+
+    for scenario in all_scenarios({s.name for s in SCENARIOS}):
+        register(scenario)
 
 
 @idbench.hookimpl
 def register_models(register: Callable[..., None]) -> None:
-    """Register the St Venant-Kirchhoff cantilever as ``"svk-beam"``."""
+    """Register the cantilever as ``"svk-beam"`` and body TOMLs as ``"solid"``."""
     from idbench_skfem.model import make_model
     from idbench_skfem.settings import BeamSettings
+    from idbench_skfem.solid import make_model as make_solid
+    from idbench_skfem.solid_settings import SolidSettings
 
     register("svk-beam", make_model, settings=BeamSettings, defaults=BEAM_DEFAULTS)
+    register("solid", make_solid, settings=SolidSettings, defaults=SOLID_DEFAULTS)
 
 
 @idbench.hookimpl
@@ -46,3 +53,14 @@ BEAM_DEFAULTS = idbench.ModelDefaults(
     primary=True,
 )
 """The study's comparison (DESIGN.md section 7): what ``idbench compare`` runs."""
+
+
+SOLID_DEFAULTS = idbench.ModelDefaults(
+    truth_mesh="16000",
+    meshes=("200", "500", "1000"),
+    scenarios=("grasp-lift",),
+    prior=(2000.0, 2000.0),
+    quick={"truth_mesh": "1000", "meshes": ("200", "500")},
+    shorthands={"body": ("body", "body TOML path or shipped name (liver, kidney)")},
+)
+"""The shipped liver (settings' default body): meshes by node count, grasp-lift."""

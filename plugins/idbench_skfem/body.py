@@ -24,6 +24,7 @@ manipulated, what is observed and what is identified::
     point = [0.04, 0.045, -0.03]
     radius = 0.01
     force = [0.0, 0.0, 0.5]            # N at the end of the ramp
+    transfer = "lateral-push"          # optional: the transfer target scenario
 
     [[manipulation]]
     name = "lateral-push"
@@ -127,6 +128,9 @@ class Manipulation:
         Traction (Pa), gravity acceleration (m/s2) or grasp force (N) at t = 1.
     pressure
         Dead pressure (Pa) at t = 1, positive into the body.
+    transfer
+        The manipulation its identified values are tested on (the transfer
+        error); empty: the next one of the body.
     """
 
     name: str
@@ -134,6 +138,7 @@ class Manipulation:
     region: Region | None = None
     vector: Vec | None = None
     pressure: float | None = None
+    transfer: str = ""
 
 
 @dataclass(frozen=True)
@@ -366,6 +371,12 @@ def parse_body(
     if len(set(names)) != len(names):
         dup = next(n for n in names if names.count(n) > 1)
         raise ValueError(f"{source}: two manipulations are called {dup!r}")
+    for m in manipulations:
+        if m.transfer and (m.transfer not in names or m.transfer == m.name):
+            raise ValueError(
+                f"{source}: [[manipulation]] {m.name!r} transfer = {m.transfer!r}: "
+                f"need another manipulation of this body ({', '.join(names)})"
+            )
     if density == 0 and any(m.kind == "gravity" for m in manipulations):
         raise ValueError(
             f"{source}: [material] density = 0 but a manipulation is gravity"
@@ -454,7 +465,10 @@ def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
         "gravity": ("acceleration",),
         "grasp": ("point", "radius", "force"),
     }[kind]
-    c.keys(raw, ("name", "kind", *needs))
+    c.keys(raw, ("name", "kind", "transfer", *needs))
+    transfer = raw.get("transfer", "")
+    if not isinstance(transfer, str):
+        raise c.error(f"transfer = {transfer!r}: need a manipulation name")
     for key in needs:
         if key not in raw:
             raise c.error(f"needs {key} (a {kind} has {', '.join(needs)})")
@@ -464,6 +478,7 @@ def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
             kind,
             c.region("region", raw["region"]),
             c.vector("traction", raw["traction"]),
+            transfer=transfer,
         )
     if kind == "pressure":
         return Manipulation(
@@ -471,14 +486,22 @@ def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
             kind,
             c.region("region", raw["region"]),
             pressure=c.number("pressure", raw["pressure"]),
+            transfer=transfer,
         )
     if kind == "gravity":
         return Manipulation(
-            name, kind, vector=c.vector("acceleration", raw["acceleration"])
+            name,
+            kind,
+            vector=c.vector("acceleration", raw["acceleration"]),
+            transfer=transfer,
         )
     patch = (c.vector("point", raw["point"]), c.number("radius", raw["radius"], True))
     return Manipulation(
-        name, kind, Region(patch=patch), c.vector("force", raw["force"])
+        name,
+        kind,
+        Region(patch=patch),
+        c.vector("force", raw["force"]),
+        transfer=transfer,
     )
 
 

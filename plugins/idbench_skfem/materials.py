@@ -272,6 +272,26 @@ class NeoHookean(_Law):
         S[..., _I, _I] += self.mu
         return S
 
+    def mandel_tangent(self, F: FloatArray) -> FloatArray:
+        """Material tangent in Mandel form (n, 6, 6), built directly.
+
+        The same as ``mandel_matrix(tangent(F))`` without the (n, 81) tensor:
+        D = lambda c c^T + (mu - lambda ln J) M, c = mandel(C^-1),
+        M_(IJ)(KL) = w_IJ w_KL (C^-1_IK C^-1_JL + C^-1_IL C^-1_JK), w the
+        Mandel weights (1 or sqrt 2).
+        """
+        _, Ci, lnJ = self._invariants(F)
+        i, j = np.array(MANDEL_PAIRS).T
+        a, b = i[:, None], i[None, :]
+        c, d = j[:, None], j[None, :]
+        M = Ci[..., a, b] * Ci[..., c, d] + Ci[..., a, d] * Ci[..., c, b]
+        M *= (self.mu - self.lam * lnJ)[..., None, None] * np.outer(
+            _MANDEL_W, _MANDEL_W
+        )
+        m = mandel(Ci)
+        M += self.lam * m[..., :, None] * m[..., None, :]
+        return M
+
     def tangent(self, F: FloatArray) -> FloatArray:
         """Material tangent dS/dE (n, 3, 3, 3, 3)."""
         _, Ci, lnJ = self._invariants(F)

@@ -1,0 +1,495 @@
+r"""The ``solid`` model: any tetrahedral body described by a body TOML.
+
+:class:`SolidModel` solves each quasi-static load step of a manipulation by
+Newton's method on the free displacements of a P1 tet mesh: the body's fixed
+region has all components zero, the manipulation's dead load is ramped as
+:math:`f_{ext}(k) = (k/K) f_{ext}(1)`, the law is the body's (``svk`` or
+``neo-hookean``) and the moduli are
+
+.. math::
+
+    E_e = \theta_{r(e)}\, c_e,
+
+with :math:`r(e)` the element's parameter region (one region: ``E``) and
+:math:`c_e` the element's true modulus over its region's true value (1 except
+where ``[material] E_regions`` makes a region stiffer than the parameter it
+belongs to). The internal force is linear in theta,
+:math:`f_{int}(u) = \sum_r \theta_r g_r(u)`, so at equilibrium
+:math:`\partial u / \partial \theta_r = -K^{-1} g_r(u)`: one back-substitution
+per parameter with the last factorization.
+
+Newton's conventions are the beam's (:mod:`idbench_skfem.model`): converged
+when :math:`\|r\| \le \max(\mathrm{rtol} \|f_{ext}(k)\|, \mathrm{atol})`
+with rtol = 1e-8 and atol = 1e-12 times the end force; each update is halved
+(up to 8 times) while an element would have det F <= 0.
+
+Markers are the body's, snapped to the reference mesh's surface (the
+comparison's truth) and then projected onto each model mesh's surface;
+shape-error points are placed in the reference mesh and located in each
+model mesh (points a coarse mesh misses take its nearest tet's clipped
+barycentric weights).
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import logging
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, cast
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from idbench import Cost, ModelFailure, ModelSpec, ParameterSpec, Scenario
+from idbench_skfem import resolve
+from idbench_skfem.assembly import Assembler
+from idbench_skfem.bodies import get_body, get_mesh, mesh_file
+from idbench_skfem.body import Body
+from idbench_skfem.loads import nodal_forces
+from idbench_skfem.probes import _barycentric
+from idbench_skfem.solid_assembly import LawAssembler
+from idbench_skfem.solid_settings import SolidSettings
+from idbench_skfem.solidmesh import SolidMesh, project_to_surface
+from idbench_skfem.solver import SolverError, make_solver, resolve_backend
+
+log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+MODEL_VERSION = "solid/1"
+"""Bump when the numerics change: part of :meth:`SolidModel.describe`."""
+
+RTOL = 1e-8
+ATOL = 1e-12
+MAX_ITERATIONS = 25
+_BACKTRACKS = 8
+_BOUNDS = (1e-3, 1e3)
+"""Parameter bounds as multiples of the body's E."""
+
+
+class SolidModel:
+    """A body under one manipulation, on one mesh, stepped by Newton.
+
+    Parameters
+    ----------
+    body
+        The parsed body description.
+    mesh
+        The model mesh.
+    manipulation
+        Name of the body's manipulation (the scenario).
+    reference
+        The mesh markers and shape-error points are placed on.
+    n_steps, markers
+        Load steps K and number of markers M.
+    settings
+        Overrides and solver options.
+    """
+
+    def __init__(
+        self,
+        body: Body,
+        mesh: SolidMesh,
+        manipulation: str,
+        reference: SolidMesh,
+        n_steps: int = 20,
+        markers: int = 2,
+        settings: SolidSettings | None = None,
+    ) -> None:
+        if n_steps < 1:
+            raise ValueError(f"n_steps = {n_steps}: need at least one load step")
+        s = settings or SolidSettings()
+        self.body, self.mesh_data, self.settings = body, mesh, s
+        self.manipulation = body.manipulation(manipulation)
+        self.n_steps = int(n_steps)
+        self.rtol = float(s.rtol or RTOL)
+        self.max_iterations = int(s.max_iterations or MAX_ITERATIONS)
+        self.backend = resolve_backend(s.solver)
+        self.law_name = s.law or body.material.law
+        self.nu = float(body.material.nu if s.nu is None else s.nu)
+        E = float(body.material.E)
+
+        fixed = resolve.fixed_nodes(body, mesh)
+        free = np.ones(len(mesh.points), dtype=bool)
+        free[fixed] = False
+        self.n_nodes = len(mesh.points)
+        from idbench_skfem.materials import Material, make_material
+
+        law = cast(Material, make_material(self.law_name, 1.0, self.nu))
+        if self.law_name == "svk" and s.kernel == "auto":
+            self._asm: Any = Assembler(mesh.points, mesh.tets, free, self.nu)
+        else:
+            self._asm = LawAssembler(mesh.points, mesh.tets, free, law)
+        self.n_state = int(self._asm.n_free)
+
+        # parameters: E per region; c_e = true modulus / its region's true value
+        self._regions = resolve.element_regions(body, mesh)
+        moduli = resolve.element_moduli(body, mesh)
+        names = body.parameter_names
+        true = np.array([
+            _region_value(body, r) for r in range(len(names))
+        ])  # fmt: skip
+        self._factors = moduli / true[self._regions]
+        lo, hi = _BOUNDS
+        self.parameters = ParameterSpec(
+            names, tuple(lo * E for _ in names), tuple(hi * E for _ in names),
+            default=tuple(float(v) for v in true),
+        )  # fmt: skip
+
+        self._pattern = self._asm.pattern(upper=self.backend == "pardiso")
+        self._solver = make_solver(
+            self.backend, self._pattern.indptr, self._pattern.indices
+        )
+        f1 = nodal_forces(
+            self.manipulation, mesh, body.material.density, t=float(s.load_scale)
+        )
+        self._f_end = f1.ravel()[self._asm.free_dofs]
+        self.atol = float(s.atol or ATOL) * float(np.linalg.norm(self._f_end))
+
+        f2f = self._asm.full_to_free
+        pts = _reference_markers(body, reference)
+        if markers > len(pts):
+            raise ValueError(
+                f"{body.source}: {markers} markers asked for, the body has "
+                f"{len(pts)} on {reference.path!r}"
+            )
+        self.marker_points = pts[_spread(pts, markers)]
+        self.grid_points = _reference_grid(body, reference)
+        self._obs = _surface_interpolation(mesh, self.marker_points, f2f)
+        self._grid = _interpolation(mesh, self.grid_points, f2f)
+        self._reference = reference.path
+        self._cost = [0, 0, 0]
+        self._factored_key: tuple[bytes, bytes] | None = None
+        self.last_residuals: list[float] = []
+
+    # -- the ForwardModel protocol -------------------------------------------
+
+    def reset(self) -> FloatArray:
+        """Return the unloaded state: zeros, shape (n_state,)."""
+        return np.zeros(self.n_state)
+
+    def step(
+        self, theta: FloatArray, k: int, state: FloatArray, *, substeps: int = 1
+    ) -> FloatArray:
+        """Solve load step ``k`` (1..K) with ``theta`` from ``state``.
+
+        Raises
+        ------
+        ModelFailure
+            No convergence, a non-finite residual, or inverted elements that
+            backtracking cannot avoid.
+        """
+        modulus = self._modulus(theta, k)
+        if not 1 <= k <= self.n_steps:
+            raise ValueError(f"load step k = {k}: must be in 1..{self.n_steps}")
+        if substeps < 1:
+            raise ValueError(f"substeps = {substeps}: must be >= 1")
+        u = np.array(state, dtype=np.float64)
+        if u.shape != (self.n_state,):
+            raise ValueError(f"state has shape {u.shape}, expected ({self.n_state},)")
+        self._cost[0] += 1
+        self._factored_key = None
+        factored = False
+        for j in range(1, substeps + 1):
+            t = (k - 1 + j / substeps) / self.n_steps
+            u, its = self._newton(modulus, t * self._f_end, u, k)
+            factored = factored or its > 0
+        if factored:
+            self._factored_key = (np.asarray(theta, float).tobytes(), u.tobytes())
+        return u
+
+    def observe(self, state: FloatArray) -> FloatArray:
+        """Marker displacements, shape (3M,), ``[p0x, p0y, p0z, p1x, ...]``."""
+        return np.asarray(self._obs @ state)
+
+    def grid(self, state: FloatArray) -> FloatArray:
+        """Displacements of the shape-error points, shape (G, 3)."""
+        return np.asarray(self._grid @ state).reshape(-1, 3)
+
+    def probes(self, state: FloatArray) -> dict[str, float]:
+        """``u_max``: the largest nodal displacement (m)."""
+        return {"u_max": float(np.abs(state).max(initial=0.0))}
+
+    def sensitivity(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
+        """D observe / d theta at the converged ``state``, shape (3M, p).
+
+        du/dtheta_r = -K(u)^-1 g_r(u). Reuses the factorization of the step just
+        solved (one step of iterative refinement with K(u) removes the
+        O(|last update|) error of factoring the last iterate), else factors
+        K(u).
+        """
+        modulus = self._modulus(theta, k)
+        u = np.asarray(state, dtype=np.float64)
+        key = (np.asarray(theta, float).tobytes(), u.tobytes())
+        kin = self._asm.kinematics(u, modulus)
+        exact = key != self._factored_key
+        if exact:
+            self._factor(kin, modulus, k)
+            self._factored_key = key
+        p = self.parameters.p
+        g = self._asm.region_forces(
+            self._asm.kinematics(u, self._factors), self._regions, p
+        )
+        du = -self._solver.solve(g)
+        self._cost[2] += p
+        if not exact:
+            data = self._asm.tangent_data(kin, modulus, self._pattern)
+            du += self._solver.solve(-g - self._pattern.matvec(data, du))
+            self._cost[2] += p
+        return np.asarray(self._obs @ du.reshape(self.n_state, -1))
+
+    def cost(self) -> Cost:
+        """Cumulative forward solves, Newton iterations and linear solves."""
+        return Cost(*self._cost)
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-serialisable description of everything the results depend on."""
+        m = self.manipulation
+        return {
+            "model": "solid",
+            "code_version": MODEL_VERSION,
+            "body": Path(self.body.source).name,  # names, not paths: the
+            "body_sha256": _digest(Path(self.body.source)),  # contents key it
+            "mesh": Path(self.mesh_data.path).name,
+            "mesh_sha256": _digest(Path(self.mesh_data.path)),
+            "reference_sha256": _digest(Path(self._reference)),
+            "n_nodes": self.n_nodes,
+            "n_elements": len(self.mesh_data.tets),
+            "law": self.law_name,
+            "nu": self.nu,
+            "load_scale": self.settings.load_scale,
+            "parameter_names": list(self.parameters.names),
+            "scenario": {"name": m.name, "kind": m.kind},
+            "markers": len(self.marker_points),
+            "grid_points": len(self.grid_points),
+            "n_steps": self.n_steps,
+            "rtol": self.rtol,
+            "atol": self.atol,
+            "max_iterations": self.max_iterations,
+        }
+
+    # -- extras: idbench simulate, tests ------------------------------------------
+
+    def mesh(self) -> tuple[FloatArray, IntArray]:
+        """Node coordinates (N, 3) and tets (T, 4)."""
+        return self.mesh_data.points, self.mesh_data.tets
+
+    def cell_data(self) -> dict[str, FloatArray]:
+        """Per-tet tags for ParaView: parameter ``region`` and ``E_factor`` c_e."""
+        return {"region": self._regions.astype(float), "E_factor": self._factors}
+
+    def displacement_field(self, state: FloatArray) -> FloatArray:
+        """Displacement of every node (N, 3), zeros on the fixed ones."""
+        full = np.zeros(3 * self.n_nodes)
+        full[self._asm.free_dofs] = state
+        return full.reshape(-1, 3)
+
+    def external_force(self, k: int) -> FloatArray:
+        """External force on the free dofs at step ``k``, (n_state,)."""
+        return (k / self.n_steps) * self._f_end
+
+    def internal_force(self, theta: FloatArray, state: FloatArray) -> FloatArray:
+        """Internal force f_int(state; theta) on the free dofs, (n_state,)."""
+        modulus = self._modulus(theta, None)
+        return np.asarray(self._asm.forces(self._asm.kinematics(state, modulus)))
+
+    # -- internals -------------------------------------------------------------
+
+    def _modulus(self, theta: FloatArray, k: int | None) -> FloatArray:
+        th = np.asarray(theta, dtype=np.float64).reshape(-1)
+        if th.shape != (self.parameters.p,):
+            raise ValueError(
+                f"theta has shape {th.shape}, expected ({self.parameters.p},)"
+            )
+        if not np.all(np.isfinite(th)) or np.any(th <= 0):
+            raise ModelFailure(
+                f"parameters {th.tolist()} are not positive and finite", step=k
+            )
+        return np.asarray(th[self._regions] * self._factors)
+
+    def _factor(self, kin: Any, modulus: FloatArray, k: int) -> None:
+        data = self._asm.tangent_data(kin, modulus, self._pattern)
+        try:
+            self._solver.factor(data)
+        except SolverError as exc:
+            raise ModelFailure(f"tangent factorization failed: {exc}", step=k) from exc
+
+    def _newton(
+        self, modulus: FloatArray, f_ext: FloatArray, u: FloatArray, k: int
+    ) -> tuple[FloatArray, int]:
+        """Newton iterations for one load; returns the state and the iterations."""
+        asm = self._asm
+        tol = max(self.rtol * float(np.linalg.norm(f_ext)), self.atol)
+        res: list[float] = []
+        self.last_residuals = res
+        kin = asm.kinematics(u, modulus)
+        if not np.all(kin.det > 0):
+            raise ModelFailure("the starting state has inverted elements", step=k)
+        for it in range(self.max_iterations + 1):
+            r = asm.forces(kin) - f_ext
+            norm = float(np.linalg.norm(r))
+            res.append(norm)
+            if not np.isfinite(norm):
+                raise ModelFailure(
+                    f"non-finite residual at Newton iteration {it}", step=k
+                )
+            if norm <= tol:
+                self._cost[1] += it
+                return u, it
+            if it == self.max_iterations or norm > 1e10 * max(res[0], tol):
+                self._cost[1] += it
+                raise ModelFailure(
+                    f"Newton did not converge in {it} iterations: |r| = {norm:.3e} "
+                    f"> tol {tol:.3e} (first |r| = {res[0]:.3e})",
+                    step=k,
+                )
+            self._factor(kin, modulus, k)
+            du = self._solver.solve(-r)
+            self._cost[2] += 1
+            if not np.all(np.isfinite(du)):
+                raise ModelFailure("non-finite Newton update", step=k)
+            for _ in range(_BACKTRACKS + 1):
+                u_new = u + du
+                kin = asm.kinematics(u_new, modulus)
+                if np.all(kin.det > 0):
+                    break
+                du = 0.5 * du
+            else:
+                self._cost[1] += it + 1
+                raise ModelFailure(
+                    "inverted element (det F <= 0) in every backtrack", step=k
+                )
+            u = u_new
+        raise AssertionError("unreachable")  # pragma: no cover
+
+
+def _region_value(body: Body, r: int) -> float:
+    """True value of parameter ``r``: its region's ``E_regions`` entry, else E."""
+    if not body.parameter_regions:
+        return body.material.E
+    name = body.parameter_regions[r].name
+    return dict(body.material.E_regions).get(name or "", body.material.E)
+
+
+def _digest(path: Path) -> str:
+    return _digest_cached(path, path.stat().st_mtime)
+
+
+@functools.lru_cache(maxsize=64)
+def _digest_cached(path: Path, mtime: float) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@functools.lru_cache(maxsize=8)
+def _reference_markers(body: Body, reference: SolidMesh) -> FloatArray:
+    return resolve.marker_points(body, reference)
+
+
+@functools.lru_cache(maxsize=8)
+def _reference_grid(body: Body, reference: SolidMesh) -> FloatArray:
+    return resolve.shape_error_points(body, reference)
+
+
+def _spread(points: FloatArray, m: int) -> IntArray:
+    """Indices of ``m`` of ``points``: the first m of a farthest-point ordering.
+
+    Starts from point 0, so for listed markers the first is kept; when m
+    equals the number of points, all of them in their order.
+    """
+    if m >= len(points):
+        return np.arange(len(points))
+    chosen = [0]
+    dist = np.linalg.norm(points - points[0], axis=1)
+    for _ in range(m - 1):  # m markers, not mesh entities
+        i = int(dist.argmax())
+        chosen.append(i)
+        dist = np.minimum(dist, np.linalg.norm(points - points[i], axis=1))
+    return np.asarray(chosen)
+
+
+def _matrix(
+    nodes: IntArray, weights: FloatArray, full_to_free: IntArray
+) -> sp.csr_matrix:
+    """(3P, n_free) interpolation from node indices (P, k) and weights (P, k)."""
+    n_pts, k = nodes.shape
+    rows = np.broadcast_to(
+        3 * np.arange(n_pts)[:, None, None] + np.arange(3), (n_pts, k, 3)
+    )
+    cols = full_to_free[3 * nodes[:, :, None] + np.arange(3)]
+    vals = np.broadcast_to(weights[:, :, None], (n_pts, k, 3))
+    keep = cols >= 0
+    n_free = int((full_to_free >= 0).sum())
+    return sp.csr_matrix(
+        (vals[keep], (rows[keep], cols[keep])), shape=(3 * n_pts, n_free)
+    )
+
+
+def _surface_interpolation(
+    mesh: SolidMesh, points: FloatArray, full_to_free: IntArray
+) -> sp.csr_matrix:
+    """Interpolate at the nearest surface points of ``mesh`` to ``points``."""
+    _, facet, bary, _ = project_to_surface(mesh, points)
+    return _matrix(mesh.facets[facet], bary, full_to_free)
+
+
+def _interpolation(
+    mesh: SolidMesh, points: FloatArray, full_to_free: IntArray, k: int = 16
+) -> sp.csr_matrix:
+    """P1 interpolation at ``points``; outside points use the nearest tet, clipped.
+
+    Among the ``k`` tets with the nearest centroids, the one whose smallest
+    barycentric coordinate is largest; its negative coordinates are set to
+    zero and the rest rescaled to sum to one.
+    """
+    x = mesh.points[mesh.tets]
+    k = min(k, len(mesh.tets))
+    _, cand = cKDTree(x.mean(axis=1)).query(points, k=k)
+    cand = np.asarray(cand).reshape(len(points), k)
+    bary = _barycentric(points[:, None, :], x[cand])  # (P, k, 4)
+    best = bary.min(axis=2).argmax(axis=1)
+    rows = np.arange(len(points))
+    w = np.clip(bary[rows, best], 0.0, None)
+    w /= w.sum(axis=1, keepdims=True)
+    return _matrix(mesh.tets[cand[rows, best]], w, full_to_free)
+
+
+def make_model(spec: ModelSpec) -> SolidModel:
+    """Build the model of ``spec`` (registered as ``"solid"``).
+
+    ``spec.scenario.load`` names the manipulation (``{"manipulation": NAME}``,
+    optionally ``"body"``: else the settings' body); ``spec.mesh`` is a mesh
+    spec of that body (:mod:`idbench_skfem.bodies`).
+
+    Raises
+    ------
+    ValueError
+        One line: unknown body, manipulation or mesh, or a body that does not
+        fit the mesh (:mod:`idbench_skfem.resolve`).
+    """
+    settings = spec.settings
+    if settings is None:
+        settings = SolidSettings()
+    elif isinstance(settings, Mapping):
+        settings = SolidSettings(**settings)
+    load = spec.scenario.load
+    name = load.get("manipulation") if isinstance(load, dict) else None
+    if not isinstance(name, str):
+        raise ValueError(
+            f"scenario {spec.scenario.name!r}: the solid model needs a load "
+            f"{{'manipulation': NAME[, 'body': FILE]}}, got {load!r}"
+        )
+    body = get_body(str(load.get("body", settings.body)))
+    body.manipulation(name)  # one line if unknown
+    mesh = get_mesh(mesh_file(body, spec.mesh))
+    reference = get_mesh(mesh_file(body, settings.reference or "truth"))
+    return SolidModel(body, mesh, name, reference, spec.n_steps, spec.markers, settings)
+
+
+def scenario_of(body_spec: str, manipulation: str) -> Scenario:
+    """An ad-hoc scenario for a body's manipulation (scripts, tests)."""
+    return Scenario(manipulation, {"body": body_spec, "manipulation": manipulation})

@@ -1,0 +1,181 @@
+r"""Vectorised internal force and tangent of any hyperelastic law on P1 tets.
+
+The general-law counterpart of :mod:`idbench_skfem.assembly` (which is the
+St Venant-Kirchhoff fast path). With one quadrature point per element, the
+shape-function gradients G (T, 4, 3) and volumes V are constant; for all
+elements at once
+
+.. math::
+
+    F = I + \sum_a u_a \otimes G_a,\qquad
+    S = E_e\, S_1(F),\qquad
+    f_{ai} = V (F S)_{iJ} G_{aJ},
+
+    K_e = V E_e \left(B^T D_1 B\right) + V\,(G S G^T) \otimes I_3,
+
+with :math:`S_1` and :math:`D_1` the law's second Piola-Kirchhoff stress and
+Mandel tangent at unit Young's modulus (every law here is linear in E), B the
+Mandel strain variation (:func:`idbench_skfem.materials.strain_variation`)
+and :math:`E_e` the element's modulus. The element matrices are one batched
+matmul; no Python loop runs over elements. The free-free CSR pattern and the
+scatter from element matrices to its data are built once.
+
+:class:`LawAssembler` has the public interface the ``solid`` model uses of
+:class:`idbench_skfem.assembly.Assembler` (``kinematics``, ``forces``,
+``region_forces``, ``pattern``, ``tangent_data``, the dof maps), so either
+serves the same Newton.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from idbench_skfem.assembly import Pattern, shape_gradients
+from idbench_skfem.materials import Material, strain_variation
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+_I = np.arange(3)
+
+
+@dataclass
+class LawKinematics:
+    """Per-element state at one displacement: F and S (T, 3, 3), det F (T,)."""
+
+    F: FloatArray
+    S: FloatArray
+    det: FloatArray
+
+
+class LawAssembler:
+    """Internal force and tangent of ``law`` on P1 tets with some nodes fixed.
+
+    Parameters
+    ----------
+    points, tets
+        Nodes (N, 3) and positively oriented tets (T, 4).
+    free
+        Boolean mask of the nodes whose displacements are unknowns (N,).
+    law
+        A :class:`idbench_skfem.materials.Material` with
+        ``linear_in_modulus``; it is evaluated at unit modulus.
+    """
+
+    def __init__(
+        self, points: FloatArray, tets: IntArray, free: NDArray[np.bool_], law: Material
+    ) -> None:
+        if not law.linear_in_modulus:
+            raise ValueError(f"law {law.name!r}: need a law linear in the modulus")
+        self.law = law.with_modulus(1.0)  # type: ignore[attr-defined]
+        self.tets = np.asarray(tets, dtype=np.int64)
+        self.n_nodes = len(points)
+        self.n_elements = len(tets)
+        self.grads, self.volumes = shape_gradients(points, self.tets)
+        self._grads_t = np.ascontiguousarray(self.grads.transpose(0, 2, 1))
+        node_dof = np.full(self.n_nodes, -1, dtype=np.int64)
+        node_dof[free] = 3 * np.arange(int(free.sum()))
+        self.n_free = 3 * int(free.sum())
+        self.full_to_free = (node_dof[:, None] + _I).ravel()
+        self.full_to_free[np.repeat(~free, 3)] = -1
+        self.free_dofs = np.flatnonzero(self.full_to_free >= 0)
+        self.element_dofs = self.full_to_free[
+            (3 * self.tets[:, :, None] + _I).reshape(-1, 12)
+        ]
+        ed = self.element_dofs.ravel()
+        keep = ed >= 0
+        self._force_scatter = sp.csr_matrix(
+            (np.ones(int(keep.sum())), (ed[keep], np.flatnonzero(keep))),
+            shape=(self.n_free, ed.size),
+        )
+        self._patterns: dict[bool, Pattern] = {}
+        self._u_full = np.zeros(3 * self.n_nodes)
+
+    def kinematics(self, state: FloatArray, modulus: FloatArray) -> LawKinematics:
+        """F, S = modulus S_1(F) and det F of every element at free displacements.
+
+        Parameters
+        ----------
+        state
+            Free displacements (n,).
+        modulus
+            Young's modulus per element (T,).
+        """
+        u = self._u_full
+        u[self.free_dofs] = state
+        ue = u.reshape(-1, 3)[self.tets]  # (T, 4, 3)
+        F = np.matmul(ue.transpose(0, 2, 1), self.grads)
+        F[:, _I, _I] += 1.0
+        det = np.linalg.det(F)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            S = self.law.stress(F)
+        S *= modulus[:, None, None]
+        return LawKinematics(F, S, det)
+
+    def element_forces(self, kin: LawKinematics) -> FloatArray:
+        """Element internal forces (T, 4, 3): V (F S)_iJ G_aJ."""
+        P = np.matmul(kin.F, kin.S * self.volumes[:, None, None])
+        return np.matmul(self.grads, P.transpose(0, 2, 1))
+
+    def forces(self, kin: LawKinematics) -> FloatArray:
+        """Assembled internal force on the free dofs (n,)."""
+        return self._force_scatter @ self.element_forces(kin).ravel()
+
+    def region_forces(
+        self, kin_unit: LawKinematics, regions: IntArray, p: int
+    ) -> FloatArray:
+        """Each region's internal force g_r (n, p) at the moduli of ``kin_unit``."""
+        fe = self.element_forces(kin_unit).reshape(self.n_elements, 12)
+        out = np.empty((self.n_free, p))
+        for r in range(p):  # p parameters, not elements
+            out[:, r] = self._force_scatter @ (fe * (regions == r)[:, None]).ravel()
+        return out
+
+    def element_tangents(self, kin: LawKinematics, modulus: FloatArray) -> FloatArray:
+        """Element tangents (T, 12, 12), dofs ordered (node, component)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            D = self.law.mandel_tangent(kin.F)
+        D *= (self.volumes * modulus)[:, None, None]
+        B = strain_variation(kin.F, self.grads)  # (T, 6, 12)
+        K = np.matmul(B.transpose(0, 2, 1), np.matmul(D, B))
+        GSG = np.matmul(
+            np.matmul(self.grads, kin.S * self.volumes[:, None, None]), self._grads_t
+        )
+        K5 = K.reshape(-1, 4, 3, 4, 3)
+        for i in range(3):
+            K5[:, :, i, :, i] += GSG
+        return K
+
+    def pattern(self, upper: bool) -> Pattern:
+        """Build (once) the CSR pattern and scatter of the free-free tangent."""
+        if upper in self._patterns:
+            return self._patterns[upper]
+        ed = self.element_dofs
+        n_el = self.n_elements
+        rows = np.broadcast_to(ed[:, :, None], (n_el, 12, 12)).ravel()
+        cols = np.broadcast_to(ed[:, None, :], (n_el, 12, 12)).ravel()
+        keep = (rows >= 0) & (cols >= 0)
+        if upper:
+            keep &= rows <= cols
+        src = np.flatnonzero(keep)
+        key = rows[src] * self.n_free + cols[src]
+        uniq, pos = np.unique(key, return_inverse=True)
+        r, c = np.divmod(uniq, self.n_free)
+        indptr = np.zeros(self.n_free + 1, dtype=np.int64)
+        np.cumsum(np.bincount(r, minlength=self.n_free), out=indptr[1:])
+        scatter = sp.csr_matrix(
+            (np.ones(len(src)), (pos, src)), shape=(len(uniq), rows.size)
+        )
+        pat = Pattern(indptr.astype(np.int32), c.astype(np.int32), scatter, upper)
+        self._patterns[upper] = pat
+        return pat
+
+    def tangent_data(
+        self, kin: LawKinematics, modulus: FloatArray, pattern: Pattern
+    ) -> FloatArray:
+        """CSR data of the free-free tangent in ``pattern`` (from :meth:`pattern`)."""
+        return pattern.scatter @ self.element_tangents(kin, modulus).ravel()

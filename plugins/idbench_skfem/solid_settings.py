@@ -1,0 +1,169 @@
+"""The ``solid`` model's settings, and the scenarios its bodies define.
+
+Every ``[[manipulation]]`` of a body is a scenario whose load names it:
+``{"body": "liver", "manipulation": "grasp-lift"}`` (``body`` omitted: the
+model's ``body`` setting). The plugin registers the shipped examples'
+manipulations and those of the body files listed in ``$IDBENCH_BODIES``
+(separated by the OS path separator, ``:`` on Linux), so that a user's own
+body needs no plugin of its own.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from dataclasses import dataclass
+from typing import Any
+
+from idbench import Scenario
+from idbench_skfem.body import Body
+from idbench_skfem.materials import LAWS
+from idbench_skfem.solver import BACKENDS
+
+log = logging.getLogger(__name__)
+
+BODIES_ENV = "IDBENCH_BODIES"
+KERNELS = ("auto", "general")
+
+
+@dataclass(frozen=True)
+class SolidSettings:
+    """Settings of the ``solid`` model (``--model-option NAME=VALUE``).
+
+    Attributes
+    ----------
+    body
+        The body description: a TOML path or a shipped example (``liver``,
+        ``kidney``); used when a scenario's load names no body.
+    law
+        Material law override (``svk`` or ``neo-hookean``; None: the body's).
+    nu
+        Poisson's ratio override (None: the body's).
+    reference
+        Mesh spec on which markers are snapped and shape-error points are
+        placed, shared by every mesh of a comparison (None: the body's truth).
+        Give the comparison's truth mesh when it is not the body's.
+    rtol, atol, max_iterations
+        Newton tolerance (relative to the step's external force), absolute
+        floor (relative to the end force) and iteration limit (None: 1e-8,
+        1e-12, 25, as the beam's).
+    solver
+        ``"pardiso"`` or ``"scipy"`` (None: ``$IDBENCH_SOLVER`` or the best).
+    kernel
+        ``"auto"`` (SVK through the beam's assembler, other laws through the
+        general one) or ``"general"`` (always the general-law assembler).
+    load_scale
+        Multiplies every manipulation's end load (e.g. to keep SVK in the
+        range it can follow).
+    """
+
+    body: str = "liver"
+    law: str | None = None
+    nu: float | None = None
+    reference: str | None = None
+    rtol: float | None = None
+    atol: float | None = None
+    max_iterations: int | None = None
+    solver: str | None = None
+    kernel: str = "auto"
+    load_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.body, str) or not self.body:
+            raise ValueError(f"body {self.body!r}: need a body TOML path or name")
+        if self.law is not None and self.law not in LAWS:
+            raise ValueError(f"law {self.law!r}: allowed: {', '.join(LAWS)}")
+        if self.nu is not None and not (_number(self.nu) and -1 < self.nu < 0.5):
+            raise ValueError(f"nu {self.nu!r}: must be a number in (-1, 0.5)")
+        for name in ("rtol", "atol"):
+            v = getattr(self, name)
+            if v is not None and not (_number(v) and v > 0):
+                raise ValueError(f"{name} {v!r}: need a number > 0")
+        m = self.max_iterations
+        if m is not None and (not isinstance(m, int) or isinstance(m, bool) or m < 1):
+            raise ValueError(f"max_iterations {m!r}: need a whole number >= 1")
+        if self.solver is not None and self.solver not in BACKENDS:
+            raise ValueError(f"solver {self.solver!r}: allowed: {', '.join(BACKENDS)}")
+        if not (_number(self.load_scale) and self.load_scale > 0):
+            raise ValueError(f"load_scale {self.load_scale!r}: need a number > 0")
+        if self.kernel not in KERNELS:
+            raise ValueError(f"kernel {self.kernel!r}: allowed: {', '.join(KERNELS)}")
+
+    def identity(self) -> list[Any]:
+        """What of these settings identifies the data (seeds the noise).
+
+        ``solver`` and ``kernel`` (the same numbers to the Newton tolerance)
+        are left out; true values (``--true E=...``) are part of a run anyway.
+        """
+        out = [self.body, self.law, self.nu, self.reference, self.rtol, self.atol,
+               self.max_iterations]  # fmt: skip
+        return out if self.load_scale == 1.0 else [*out, self.load_scale]
+
+
+def _number(x: Any) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def describe_manipulation(body: Body, name: str) -> str:
+    """One line for listings: kind and magnitude of a manipulation."""
+    m = body.manipulation(name)
+    if m.kind == "pressure":
+        return f"dead pressure {m.pressure:g} Pa"
+    assert m.vector is not None
+    size = math.sqrt(sum(v * v for v in m.vector))
+    unit = {"traction": "Pa", "gravity": "m/s2", "grasp": "N"}[m.kind]
+    return f"{m.kind} {size:.3g} {unit}"
+
+
+def body_scenarios(body: Body, spec: str) -> list[Scenario]:
+    """One scenario per manipulation of ``body`` (``spec``: how loads name it).
+
+    The transfer target is the manipulation's ``transfer`` if given, else the
+    next manipulation of the body (cyclically); none for a single one.
+    """
+    names = [m.name for m in body.manipulations]
+    out = []
+    for i, m in enumerate(body.manipulations):
+        transfer = m.transfer or (names[(i + 1) % len(names)] if len(names) > 1 else "")
+        what = f"{describe_manipulation(body, m.name)} ({spec})"
+        out.append(
+            Scenario(m.name, {"body": spec, "manipulation": m.name}, transfer, what)
+        )
+    return out
+
+
+def registered_bodies() -> list[str]:
+    """Body specs whose manipulations the plugin registers: shipped, then env."""
+    from idbench_skfem.bodies import SHIPPED
+
+    extra = [p for p in os.environ.get(BODIES_ENV, "").split(os.pathsep) if p.strip()]
+    return [*SHIPPED, *(os.path.abspath(os.path.expanduser(p)) for p in extra)]
+
+
+def all_scenarios(taken: set[str]) -> list[Scenario]:
+    """Scenarios of every registered body, skipping names already ``taken``.
+
+    A body that cannot be read, or a duplicate name, is logged and skipped
+    (one bad file must not disable the plugin).
+    """
+    from idbench_skfem.bodies import get_body
+
+    out: list[Scenario] = []
+    seen = set(taken)
+    for spec in registered_bodies():
+        try:
+            body = get_body(spec)
+        except ValueError as exc:
+            log.warning("%s: %s", BODIES_ENV, exc)
+            continue
+        for sc in body_scenarios(body, spec):
+            if sc.name in seen:
+                log.warning(
+                    "%s: scenario %r of %s skipped: the name is taken",
+                    BODIES_ENV, sc.name, spec,
+                )  # fmt: skip
+                continue
+            seen.add(sc.name)
+            out.append(sc)
+    return out
