@@ -18,11 +18,12 @@ from numpy.typing import NDArray
 from idbench import Cost, ModelFailure, ModelSpec, ParameterSpec, Scenario
 from idbench_skfem import batched
 from idbench_skfem import mesh as meshes
-from idbench_skfem.assembly import Assembler, Kinematics
+from idbench_skfem.assembly import Assembler
+from idbench_skfem.newton import NewtonSolve
 from idbench_skfem.probes import grid_points, interpolation_matrix, marker_points
 from idbench_skfem.regions import parameter_regions
 from idbench_skfem.settings import BeamSettings, EndTraction
-from idbench_skfem.solver import SolverError, make_solver, resolve_backend
+from idbench_skfem.solver import make_solver, resolve_backend
 
 log = logging.getLogger(__name__)
 
@@ -38,10 +39,9 @@ ATOL = 1e-12
 """Absolute floor, relative to ||external force|| at the end of the load path."""
 
 MAX_ITERATIONS = 25
-_BACKTRACKS = 8
 
 
-class SvkBeam:
+class SvkBeam(NewtonSolve):
     """P1 St Venant-Kirchhoff cantilever under an end traction, stepped by Newton.
 
     Parameters
@@ -180,9 +180,6 @@ class SvkBeam:
         return u
 
     # -- batched steps (idbench.BatchModel) -----------------------------------
-
-    factorizations: int = 0
-    """Numeric factorizations of the tangent so far (all methods)."""
 
     _batch_anchor: batched._Anchor | None = None
     _batch_stats: batched.BatchStats | None = None
@@ -333,62 +330,6 @@ class SvkBeam:
 
     def _load(self, traction: FloatArray) -> FloatArray:
         return self._load_weights * (np.asarray(traction) @ self._load_dir)
-
-    def _factor(self, kin: Kinematics, modulus: FloatArray, k: int) -> None:
-        self.factorizations += 1
-        data = self._asm.tangent_data(kin, modulus, self._pattern)
-        try:
-            self._solver.factor(data)
-        except SolverError as exc:
-            raise ModelFailure(f"tangent factorization failed: {exc}", step=k) from exc
-
-    def _newton(
-        self, modulus: FloatArray, f_ext: FloatArray, u: FloatArray, k: int
-    ) -> tuple[FloatArray, int]:
-        """Newton iterations for one load; returns the state and the iterations."""
-        asm = self._asm
-        tol = max(self.rtol * float(np.linalg.norm(f_ext)), self.atol)
-        res: list[float] = []
-        self.last_residuals = res
-        kin = asm.kinematics(u, modulus)
-        if not np.all(kin.det > 0):
-            raise ModelFailure("the starting state has inverted elements", step=k)
-        for it in range(self.max_iterations + 1):
-            r = asm.forces(kin) - f_ext
-            norm = float(np.linalg.norm(r))
-            res.append(norm)
-            if not np.isfinite(norm):
-                raise ModelFailure(
-                    f"non-finite residual at Newton iteration {it}", step=k
-                )
-            if norm <= tol:
-                self._cost[1] += it
-                return u, it
-            if it == self.max_iterations or norm > 1e10 * max(res[0], tol):
-                self._cost[1] += it
-                raise ModelFailure(
-                    f"Newton did not converge in {it} iterations: |r| = {norm:.3e} "
-                    f"> tol {tol:.3e} (first |r| = {res[0]:.3e})",
-                    step=k,
-                )
-            self._factor(kin, modulus, k)
-            du = self._solver.solve(-r)
-            self._cost[2] += 1
-            if not np.all(np.isfinite(du)):
-                raise ModelFailure("non-finite Newton update", step=k)
-            for _ in range(_BACKTRACKS + 1):
-                u_new = u + du
-                kin = asm.kinematics(u_new, modulus)
-                if np.all(kin.det > 0):
-                    break
-                du = 0.5 * du
-            else:
-                self._cost[1] += it + 1
-                raise ModelFailure(
-                    "inverted element (det F <= 0) in every backtrack", step=k
-                )
-            u = u_new
-        raise AssertionError("unreachable")  # pragma: no cover
 
 
 def make_model(spec: ModelSpec) -> SvkBeam:

@@ -50,11 +50,12 @@ from idbench_skfem.assembly import Assembler
 from idbench_skfem.bodies import get_body, get_mesh, mesh_file
 from idbench_skfem.body import Body
 from idbench_skfem.loads import nodal_forces
+from idbench_skfem.newton import NewtonSolve
 from idbench_skfem.probes import _barycentric
 from idbench_skfem.solid_assembly import LawAssembler
 from idbench_skfem.solid_settings import SolidSettings
 from idbench_skfem.solidmesh import SolidMesh, project_to_surface
-from idbench_skfem.solver import SolverError, make_solver, resolve_backend
+from idbench_skfem.solver import make_solver, resolve_backend
 
 log = logging.getLogger(__name__)
 
@@ -67,12 +68,11 @@ MODEL_VERSION = "solid/1"
 RTOL = 1e-8
 ATOL = 1e-12
 MAX_ITERATIONS = 25
-_BACKTRACKS = 8
 _BOUNDS = (1e-3, 1e3)
 """Parameter bounds as multiples of the body's E."""
 
 
-class SolidModel:
+class SolidModel(NewtonSolve):
     """A body under one manipulation, on one mesh, stepped by Newton.
 
     Parameters
@@ -311,61 +311,6 @@ class SolidModel:
                 f"parameters {th.tolist()} are not positive and finite", step=k
             )
         return np.asarray(th[self._regions] * self._factors)
-
-    def _factor(self, kin: Any, modulus: FloatArray, k: int) -> None:
-        data = self._asm.tangent_data(kin, modulus, self._pattern)
-        try:
-            self._solver.factor(data)
-        except SolverError as exc:
-            raise ModelFailure(f"tangent factorization failed: {exc}", step=k) from exc
-
-    def _newton(
-        self, modulus: FloatArray, f_ext: FloatArray, u: FloatArray, k: int
-    ) -> tuple[FloatArray, int]:
-        """Newton iterations for one load; returns the state and the iterations."""
-        asm = self._asm
-        tol = max(self.rtol * float(np.linalg.norm(f_ext)), self.atol)
-        res: list[float] = []
-        self.last_residuals = res
-        kin = asm.kinematics(u, modulus)
-        if not np.all(kin.det > 0):
-            raise ModelFailure("the starting state has inverted elements", step=k)
-        for it in range(self.max_iterations + 1):
-            r = asm.forces(kin) - f_ext
-            norm = float(np.linalg.norm(r))
-            res.append(norm)
-            if not np.isfinite(norm):
-                raise ModelFailure(
-                    f"non-finite residual at Newton iteration {it}", step=k
-                )
-            if norm <= tol:
-                self._cost[1] += it
-                return u, it
-            if it == self.max_iterations or norm > 1e10 * max(res[0], tol):
-                self._cost[1] += it
-                raise ModelFailure(
-                    f"Newton did not converge in {it} iterations: |r| = {norm:.3e} "
-                    f"> tol {tol:.3e} (first |r| = {res[0]:.3e})",
-                    step=k,
-                )
-            self._factor(kin, modulus, k)
-            du = self._solver.solve(-r)
-            self._cost[2] += 1
-            if not np.all(np.isfinite(du)):
-                raise ModelFailure("non-finite Newton update", step=k)
-            for _ in range(_BACKTRACKS + 1):
-                u_new = u + du
-                kin = asm.kinematics(u_new, modulus)
-                if np.all(kin.det > 0):
-                    break
-                du = 0.5 * du
-            else:
-                self._cost[1] += it + 1
-                raise ModelFailure(
-                    "inverted element (det F <= 0) in every backtrack", step=k
-                )
-            u = u_new
-        raise AssertionError("unreachable")  # pragma: no cover
 
 
 def _region_value(body: Body, r: int) -> float:

@@ -1,0 +1,101 @@
+"""Newton's method for one quasi-static load, shared by the beam and the solid.
+
+The models keep their own assembly (a ``kinematics(u, modulus)`` / ``forces``
+/ ``tangent_data`` assembler), sparse pattern and linear solver; this mixin
+owns the iteration: the residual test against ``max(rtol |f_ext|, atol)``,
+the divergence and iteration-limit checks, the factorization and solve, and
+the halving of the update while an element would invert (det F <= 0).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from idbench import ModelFailure
+from idbench_skfem.solver import SolverError
+
+FloatArray = NDArray[np.float64]
+
+BACKTRACKS = 8
+"""Halvings of a Newton update tried before an inversion is a failure."""
+
+
+class NewtonSolve:
+    """Mixin: :meth:`_newton` and :meth:`_factor` for a model with an assembler.
+
+    The model provides ``_asm`` (the assembler), ``_pattern`` (its sparse
+    pattern), ``_solver`` (factor/solve), ``rtol``, ``atol``,
+    ``max_iterations``, ``_cost`` ([solves, Newton iterations, linear
+    solves]); the mixin keeps ``last_residuals`` (the residual norms of the
+    last load solved) and ``factorizations`` (a count).
+    """
+
+    _asm: Any
+    _pattern: Any
+    _solver: Any
+    _cost: list[int]
+    rtol: float
+    atol: float
+    max_iterations: int
+    last_residuals: list[float]
+    factorizations: int = 0
+
+    def _factor(self, kin: Any, modulus: FloatArray, k: int) -> None:
+        """Factor the tangent at ``kin``; a failure is a ModelFailure at step k."""
+        self.factorizations += 1
+        data = self._asm.tangent_data(kin, modulus, self._pattern)
+        try:
+            self._solver.factor(data)
+        except SolverError as exc:
+            raise ModelFailure(f"tangent factorization failed: {exc}", step=k) from exc
+
+    def _newton(
+        self, modulus: FloatArray, f_ext: FloatArray, u: FloatArray, k: int
+    ) -> tuple[FloatArray, int]:
+        """Newton iterations for one load; returns the state and the iterations."""
+        asm = self._asm
+        tol = max(self.rtol * float(np.linalg.norm(f_ext)), self.atol)
+        res: list[float] = []
+        self.last_residuals = res
+        kin = asm.kinematics(u, modulus)
+        if not np.all(kin.det > 0):
+            raise ModelFailure("the starting state has inverted elements", step=k)
+        for it in range(self.max_iterations + 1):
+            r = asm.forces(kin) - f_ext
+            norm = float(np.linalg.norm(r))
+            res.append(norm)
+            if not np.isfinite(norm):
+                raise ModelFailure(
+                    f"non-finite residual at Newton iteration {it}", step=k
+                )
+            if norm <= tol:
+                self._cost[1] += it
+                return u, it
+            if it == self.max_iterations or norm > 1e10 * max(res[0], tol):
+                self._cost[1] += it
+                raise ModelFailure(
+                    f"Newton did not converge in {it} iterations: |r| = {norm:.3e} "
+                    f"> tol {tol:.3e} (first |r| = {res[0]:.3e})",
+                    step=k,
+                )
+            self._factor(kin, modulus, k)
+            du = self._solver.solve(-r)
+            self._cost[2] += 1
+            if not np.all(np.isfinite(du)):
+                raise ModelFailure("non-finite Newton update", step=k)
+            for _ in range(BACKTRACKS + 1):
+                u_new = u + du
+                kin = asm.kinematics(u_new, modulus)
+                if np.all(kin.det > 0):
+                    break
+                du = 0.5 * du
+            else:
+                self._cost[1] += it + 1
+                raise ModelFailure(
+                    "inverted element (det F <= 0) in every backtrack", step=k
+                )
+            u = u_new
+        raise AssertionError("unreachable")  # pragma: no cover
