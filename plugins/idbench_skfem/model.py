@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench import Cost, ModelFailure, ModelSpec, ParameterSpec, Scenario
+from idbench import Cost, ModelSpec, ParameterSpec, Scenario
 from idbench_skfem import batched
 from idbench_skfem import mesh as meshes
 from idbench_skfem.assembly import Assembler
@@ -317,15 +317,7 @@ class SvkBeam(NewtonSolve):
     # -- internals -------------------------------------------------------------
 
     def _modulus(self, theta: FloatArray, k: int | None) -> FloatArray:
-        th = np.asarray(theta, dtype=np.float64).reshape(-1)
-        if th.shape != (self.parameters.p,):
-            raise ValueError(
-                f"theta has shape {th.shape}, expected ({self.parameters.p},)"
-            )
-        if not np.all(np.isfinite(th)) or np.any(th <= 0):
-            raise ModelFailure(
-                f"parameters {th.tolist()} are not positive and finite", step=k
-            )
+        th = self._theta(theta, k)
         return th[self._regions]
 
     def _load(self, traction: FloatArray) -> FloatArray:

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench import ModelFailure
+from idbench import ModelFailure, ParameterSpec
 from idbench_skfem.solver import SolverError
 
 FloatArray = NDArray[np.float64]
@@ -29,19 +29,38 @@ class NewtonSolve:
     The model provides ``_asm`` (the assembler), ``_pattern`` (its sparse
     pattern), ``_solver`` (factor/solve), ``rtol``, ``atol``,
     ``max_iterations``, ``_cost`` ([solves, Newton iterations, linear
-    solves]); the mixin keeps ``last_residuals`` (the residual norms of the
-    last load solved) and ``factorizations`` (a count).
+    solves]), ``parameters`` (for the theta check :meth:`_theta`); the mixin
+    keeps ``last_residuals`` (the residual norms of the last load solved) and
+    ``factorizations`` (a count).
     """
 
     _asm: Any
     _pattern: Any
     _solver: Any
     _cost: list[int]
+    parameters: ParameterSpec
     rtol: float
     atol: float
     max_iterations: int
     last_residuals: list[float]
     factorizations: int = 0
+
+    def _theta(self, theta: FloatArray, k: int | None) -> FloatArray:
+        """Theta as a flat (p,) array, checked.
+
+        ValueError for a wrong shape, ModelFailure (at step k) for a parameter
+        that is not positive and finite.
+        """
+        th = np.asarray(theta, dtype=np.float64).reshape(-1)
+        if th.shape != (self.parameters.p,):
+            raise ValueError(
+                f"theta has shape {th.shape}, expected ({self.parameters.p},)"
+            )
+        if not np.all(np.isfinite(th)) or np.any(th <= 0):
+            raise ModelFailure(
+                f"parameters {th.tolist()} are not positive and finite", step=k
+            )
+        return th
 
     def _factor(self, kin: Any, modulus: FloatArray, k: int) -> None:
         """Factor the tangent at ``kin``; a failure is a ModelFailure at step k."""

@@ -44,7 +44,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from idbench import Cost, ModelFailure, ModelSpec, ParameterSpec, Scenario
+from idbench import Cost, ModelSpec, ParameterSpec, Scenario
 from idbench_skfem import resolve
 from idbench_skfem.assembly import Assembler
 from idbench_skfem.bodies import get_body, get_mesh, mesh_file
@@ -301,15 +301,7 @@ class SolidModel(NewtonSolve):
     # -- internals -------------------------------------------------------------
 
     def _modulus(self, theta: FloatArray, k: int | None) -> FloatArray:
-        th = np.asarray(theta, dtype=np.float64).reshape(-1)
-        if th.shape != (self.parameters.p,):
-            raise ValueError(
-                f"theta has shape {th.shape}, expected ({self.parameters.p},)"
-            )
-        if not np.all(np.isfinite(th)) or np.any(th <= 0):
-            raise ModelFailure(
-                f"parameters {th.tolist()} are not positive and finite", step=k
-            )
+        th = self._theta(theta, k)
         return np.asarray(th[self._regions] * self._factors)
 
 
