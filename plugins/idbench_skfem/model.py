@@ -23,7 +23,7 @@ from idbench_skfem.newton import NewtonSolve
 from idbench_skfem.probes import grid_points, interpolation_matrix, marker_points
 from idbench_skfem.regions import parameter_regions
 from idbench_skfem.settings import BeamSettings, EndTraction
-from idbench_skfem.solver import make_solver, resolve_backend
+from idbench_skfem.solver import resolve_backend
 
 log = logging.getLogger(__name__)
 
@@ -106,10 +106,6 @@ class SvkBeam(NewtonSolve):
             parameters, points[tets].mean(axis=1), beam.lower, beam.upper, opts.get
         )
         self._parameter_kind = parameters
-        self._pattern = self._asm.pattern(upper=self.backend == "pardiso")
-        self._solver = make_solver(
-            self.backend, self._pattern.indptr, self._pattern.indices
-        )
 
         weights = beam.nodal_traction_weights()
         self._load_weights = np.repeat(weights, 3)[self._asm.free_dofs]

@@ -9,13 +9,14 @@ the halving of the update while an element would invert (det F <= 0).
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from idbench import ModelFailure, ParameterSpec
-from idbench_skfem.solver import SolverError
+from idbench_skfem.solver import SolverError, make_solver
 
 FloatArray = NDArray[np.float64]
 
@@ -26,17 +27,15 @@ BACKTRACKS = 8
 class NewtonSolve:
     """Mixin: :meth:`_newton` and :meth:`_factor` for a model with an assembler.
 
-    The model provides ``_asm`` (the assembler), ``_pattern`` (its sparse
-    pattern), ``_solver`` (factor/solve), ``rtol``, ``atol``,
-    ``max_iterations``, ``_cost`` ([solves, Newton iterations, linear
-    solves]), ``parameters`` (for the theta check :meth:`_theta`); the mixin
-    keeps ``last_residuals`` (the residual norms of the last load solved) and
-    ``factorizations`` (a count).
+    The model provides ``_asm`` (the assembler), ``backend`` (the linear
+    solver's name), ``rtol``, ``atol``, ``max_iterations``, ``_cost``
+    ([solves, Newton iterations, linear solves]), ``parameters`` (for the
+    theta check :meth:`_theta`); the mixin keeps ``last_residuals`` (the
+    residual norms of the last load solved) and ``factorizations`` (a count).
     """
 
     _asm: Any
-    _pattern: Any
-    _solver: Any
+    backend: str
     _cost: list[int]
     parameters: ParameterSpec
     rtol: float
@@ -44,6 +43,20 @@ class NewtonSolve:
     max_iterations: int
     last_residuals: list[float]
     factorizations: int = 0
+
+    @functools.cached_property
+    def _pattern(self) -> Any:
+        """The tangent's sparse pattern, built on first use.
+
+        A model that is only probed (a truth read from the cache) never
+        needs it: building it is most of a large model's set-up.
+        """
+        return self._asm.pattern(upper=self.backend == "pardiso")
+
+    @functools.cached_property
+    def _solver(self) -> Any:
+        """The linear solver on :attr:`_pattern`, made on first use."""
+        return make_solver(self.backend, self._pattern.indptr, self._pattern.indices)
 
     def _theta(self, theta: FloatArray, k: int | None) -> FloatArray:
         """Theta as a flat (p,) array, checked.

@@ -55,7 +55,7 @@ from idbench_skfem.probes import _barycentric
 from idbench_skfem.solid_assembly import LawAssembler
 from idbench_skfem.solid_settings import SolidSettings
 from idbench_skfem.solidmesh import SolidMesh, project_to_surface
-from idbench_skfem.solver import make_solver, resolve_backend
+from idbench_skfem.solver import resolve_backend
 
 log = logging.getLogger(__name__)
 
@@ -141,10 +141,6 @@ class SolidModel(NewtonSolve):
             default=tuple(float(v) for v in true),
         )  # fmt: skip
 
-        self._pattern = self._asm.pattern(upper=self.backend == "pardiso")
-        self._solver = make_solver(
-            self.backend, self._pattern.indptr, self._pattern.indices
-        )
         f1 = nodal_forces(
             self.manipulation, mesh, body.material.density, t=float(s.load_scale)
         )
