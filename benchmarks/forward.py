@@ -29,6 +29,7 @@ import pypardiso
 from idbench_skfem import mesh as meshes
 from idbench_skfem.model import SvkBeam
 from idbench_skfem.scenarios import SCENARIOS
+from idbench_skfem.settings import EndTraction
 
 E, NU = 5000.0, 0.45
 N_STEPS = 4
@@ -134,7 +135,7 @@ def felupe_solve(beam, tols):
         x = field
         its[0] = 0
         for k in range(1, N_STEPS + 1):
-            t = SCENARIO.traction(k, N_STEPS)
+            t = EndTraction.of(SCENARIO).traction(k, N_STEPS)
             load.values = w[loaded, None] * t[None, :]
             tol = tols[k - 1]
 

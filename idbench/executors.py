@@ -22,7 +22,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Generator, Iterator
+from collections.abc import Generator, Iterator
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
@@ -42,6 +42,9 @@ MAX_ATTEMPTS = 2
 GRACE_S = 2.0
 """Seconds past ``timeout`` before a run's worker is killed (the run's own
 check, a signal inside the worker, gets the first chance)."""
+
+STOP_GRACE_S = 0.05
+"""Seconds an idle worker asked to stop gets before it is killed."""
 
 _LOCAL = threading.local()
 
@@ -99,34 +102,30 @@ def execute_all(
     *,
     jobs: int = 1,
     timeout: float | None = None,
-    order: Callable[[list[RunSpec]], list[RunSpec]] | None = None,
-    key: Callable[[RunSpec], Any] | None = None,
 ) -> Generator[RunResult, None, None]:
     """Execute ``runs`` and yield each result as it finishes.
 
     Parameters
     ----------
     runs
-        What to run.
+        What to run, in the order to start them.
     session
-        This process's session (used by in-process runs).
+        This process's session: in-process runs use it; workers start with
+        what it has to share (:meth:`Session.shared`) and pass on to each
+        other what they compute, so each reference fit and direct run is
+        done once per sweep, not once per worker.
     jobs
         Worker processes; 1 without a timeout runs in this process.
     timeout
         With a timeout, runs always go to worker processes (even ``jobs=1``)
         so that a run hung in compiled code can be killed.
-    order, key
-        Dispatch order and the key under which runs share a reference fit
-        (passed on from worker to worker); defaults: as given, none shared.
     """
     if jobs == 1 and timeout is None:
         with one_blas_thread():
             for spec in runs:
                 yield execute(spec, session)
     else:
-        yield from _execute_processes(
-            (order or list)(runs), jobs, timeout, key or (lambda spec: None)
-        )
+        yield from _execute_processes(runs, jobs, timeout, session.shared())
 
 
 # --- worker processes ----------------------------------------------------------
@@ -152,7 +151,11 @@ def _die_with_parent(parent: int) -> None:
 
 
 def _worker_main(conn: Connection, parent: int) -> None:
-    """A worker's loop: receive (spec, E_ref hint), send back events and results."""
+    """A worker's loop: receive (spec, shared), send back events and results.
+
+    ``shared`` is what other workers computed that this one has not seen
+    (:meth:`Session.shared`); the result goes back with what this run added.
+    """
     _die_with_parent(parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us on Ctrl-C
     session = worker_session()
@@ -163,11 +166,57 @@ def _worker_main(conn: Connection, parent: int) -> None:
             return
         if message is None:
             return
-        spec, hint = message
-        if hint is not None:
-            session.remember_reference(spec, hint)
+        spec, shared = message
+        session.adopt(shared)
+        before = set(session.shared())
         result = execute(spec, session, phase=lambda name: conn.send(("phase", name)))
-        conn.send(("done", result, session.known_reference(spec)))
+        added = {k: v for k, v in session.shared().items() if k not in before}
+        conn.send(("done", result, added))
+
+
+@contextlib.contextmanager
+def _single_thread_environ() -> Iterator[None]:
+    """Set :func:`single_thread_env` for the block (workers inherit it)."""
+    saved = {k: os.environ.get(k) for k in THREAD_ENV}
+    os.environ.update(single_thread_env())
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+_SPARE: list[_Worker] = []
+"""Workers started ahead by :func:`started`, for the next pool to take."""
+
+
+@contextlib.contextmanager
+def started(jobs: int) -> Iterator[None]:
+    """Start ``jobs`` worker processes now, for the next pool in this block.
+
+    A worker spends its first 0.6-0.7 s importing; started here, that
+    overlaps whatever the caller does before it executes runs (planning a
+    sweep, computing its truths). Workers no pool took are stopped at the
+    end of the block.
+    """
+    with _single_thread_environ():
+        spare = [_Worker(_context()) for _ in range(jobs)]
+    _SPARE.extend(spare)
+    try:
+        yield
+    finally:
+        for w in spare:
+            if w in _SPARE:
+                _SPARE.remove(w)
+                w.stop()
+
+
+def _context() -> Any:
+    """The multiprocessing context of the workers: spawn (no forked locks)."""
+    return mp.get_context("spawn")
 
 
 class _Worker:
@@ -182,11 +231,26 @@ class _Worker:
         child.close()
         self.spec: RunSpec | None = None
         self.deadline: float | None = None
+        self.has: set[Any] = set()  # keys of the shared products it holds
 
-    def give(self, spec: RunSpec, hint: FloatArray | None) -> None:
-        """Start ``spec`` on this worker."""
+    def give(self, spec: RunSpec, known: dict[Any, FloatArray]) -> None:
+        """Start ``spec`` on this worker, with the shared products it lacks."""
         self.spec, self.deadline = spec, None
-        self.conn.send((spec, hint))
+        new = {k: v for k, v in known.items() if k not in self.has}
+        self.conn.send((spec, new))
+        self.has.update(new)
+
+    def stop(self) -> None:
+        """Ask the process to end, then make sure it has.
+
+        It holds nothing to save (results travel through the pipe), so it
+        gets a moment to exit, then is killed: a Python process tearing
+        down its imports takes 0.1-0.2 s that a sweep should not wait for.
+        """
+        with contextlib.suppress(Exception):
+            self.conn.send(None)
+        self.proc.join(STOP_GRACE_S)
+        self.kill()
 
     def kill(self) -> None:
         """End the process now."""
@@ -201,9 +265,16 @@ class _Pool:
     """``jobs`` workers, each replaced when it dies or overruns its deadline."""
 
     def __init__(self, jobs: int, timeout: float | None) -> None:
-        self.ctx = mp.get_context("spawn")
+        self.ctx = _context()
         self.timeout = timeout
-        self.workers = [_Worker(self.ctx) for _ in range(jobs)]
+        self.workers: list[_Worker] = []
+        while _SPARE and len(self.workers) < jobs:
+            w = _SPARE.pop(0)
+            if w.proc.is_alive():
+                self.workers.append(w)
+            else:
+                w.kill()
+        self.workers += [_Worker(self.ctx) for _ in range(jobs - len(self.workers))]
         self.attempts: dict[str, int] = {}
 
     def idle(self) -> list[_Worker]:
@@ -227,8 +298,8 @@ class _Pool:
 
     def attend(
         self, w: _Worker, queue: list[RunSpec]
-    ) -> tuple[RunSpec, RunResult | None, FloatArray | None] | None:
-        """Handle what ``w`` has to say: None, or (spec, result, E_ref).
+    ) -> tuple[RunSpec, RunResult | None, dict[Any, FloatArray]] | None:
+        """Handle what ``w`` has to say: None, or (spec, result, shared products).
 
         A result of None means the run went back to ``queue`` (its worker died
         and it has attempts left).
@@ -246,6 +317,7 @@ class _Pool:
                     w.deadline = time.monotonic() + self.timeout + GRACE_S
                 return None
             w.spec = None
+            w.has.update(message[2])
             return spec, message[1], message[2]
         if not w.proc.is_alive():
             return self._died(w, queue)
@@ -255,12 +327,12 @@ class _Pool:
                 f"run exceeded --timeout {self.timeout:g} s and did not stop by "
                 "itself (hung in compiled code?): its worker process was killed"
             )
-            return spec, worker_lost(spec, why), None
+            return spec, worker_lost(spec, why), {}
         return None
 
     def _died(
         self, w: _Worker, queue: list[RunSpec]
-    ) -> tuple[RunSpec, RunResult | None, None]:
+    ) -> tuple[RunSpec, RunResult | None, dict[Any, FloatArray]]:
         spec = w.spec
         assert spec is not None
         w.proc.join(5)
@@ -270,67 +342,57 @@ class _Pool:
         log.warning("worker died (exit code %s) running run %s", code, spec.run_id)
         if n < MAX_ATTEMPTS:
             queue.insert(0, spec)
-            return spec, None, None
+            return spec, None, {}
         why = f"its worker process died (exit code {code}) while running it, {n} times"
-        return spec, worker_lost(spec, why), None
+        return spec, worker_lost(spec, why), {}
 
     def _replace(self, w: _Worker) -> None:
         w.kill()
         self.workers[self.workers.index(w)] = _Worker(self.ctx)
 
     def close(self) -> None:
-        """Ask every worker to stop, then make sure it has."""
+        """Stop every worker (see :meth:`_Worker.stop`)."""
         for w in self.workers:
-            with contextlib.suppress(Exception):
-                w.conn.send(None)
-        for w in self.workers:
-            w.proc.join(1)
-            w.kill()
+            w.stop()
 
 
 def _execute_processes(
-    queue: list[RunSpec], jobs: int, timeout: float | None, key: Callable[..., Any]
+    queue: list[RunSpec],
+    jobs: int,
+    timeout: float | None,
+    known: dict[Any, FloatArray],
 ) -> Iterator[RunResult]:
     """Run on ``jobs`` worker processes; see the module docstring.
 
-    A reference fit (E_ref) that a worker made is passed with later runs that
-    share its ``key``, so each is fitted once per sweep, not once per worker.
+    ``known``: the shared products (reference fits, direct runs) so far; each
+    worker gets those it lacks with its next run and returns what it added.
     """
     queue = list(queue)
     if not queue:
         return
-    known: dict[Any, FloatArray] = {}
-    saved = {k: os.environ.get(k) for k in THREAD_ENV}
-    os.environ.update(single_thread_env())
-    pool = None
-    try:
+    known = dict(known)
+    with _single_thread_environ():
         pool = _Pool(min(jobs, len(queue)) or 1, timeout)
-        while queue or pool.busy():
-            for w in pool.idle():
-                if queue:
-                    spec = queue.pop(0)
-                    try:
-                        w.give(spec, known.get(key(spec)))
-                    except OSError:  # it died between the check and now
-                        w.spec = None
-                        queue.insert(0, spec)
-            if not pool.busy():  # every hand-over failed: try again
-                continue
-            pool.wait()
-            for w in pool.busy():
-                news = pool.attend(w, queue)
-                if news is None:
+        try:
+            while queue or pool.busy():
+                for w in pool.idle():
+                    if queue:
+                        spec = queue.pop(0)
+                        try:
+                            w.give(spec, known)
+                        except OSError:  # it died between the check and now
+                            w.spec = None
+                            queue.insert(0, spec)
+                if not pool.busy():  # every hand-over failed: try again
                     continue
-                spec, result, reference = news
-                if reference is not None:
-                    known[key(spec)] = reference
-                if result is not None:
-                    yield result
-    finally:
-        if pool is not None:
+                pool.wait()
+                for w in pool.busy():
+                    news = pool.attend(w, queue)
+                    if news is None:
+                        continue
+                    spec, result, added = news
+                    known.update(added)
+                    if result is not None:
+                        yield result
+        finally:
             pool.close()
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v

@@ -296,6 +296,11 @@ class Estimator(Protocol):
 
     Implementations are dataclasses whose fields are their settings; ``start``
     resets all run state, so one instance can serve several runs in sequence.
+
+    Optional: ``estimate_solves(n_state, p, steps) -> int``, the forward model
+    steps a run is expected to take (0 for a run :meth:`start` would skip).
+    The sweep sums it for ``--dry-run`` and starts the costliest runs first,
+    so that no long run is left alone at the end of a parallel sweep.
     """
 
     def start(self, model: ForwardModel, prior: Prior) -> None:

@@ -94,20 +94,30 @@ class ResultStore:
         moved to ``DIR/quarantine/`` with its sibling, with a warning, and its
         run counts as not finished, so it is done again.
         """
-        done = set()
+        return set(self.scan())
+
+    def scan(self) -> dict[str, bool]:
+        """Finished run id -> whether it failed; see :meth:`finished`."""
+        done = {}
         for p in self.parts.glob("*.runs.parquet"):
             run_id = p.name.removesuffix(".runs.parquet")
-            traces = self.parts / f"{run_id}.traces.parquet"
-            if not traces.exists():
-                continue
-            try:  # the whole table: a footer can be intact over damaged pages
-                pq.read_table(p)
-                pq.read_table(traces)
-            except Exception as exc:
-                self._quarantine(run_id, exc)
-                continue
-            done.add(run_id)
+            tables = self._read(run_id)
+            if tables is not None:
+                status = tables[0].get("status", pd.Series([], dtype=object))
+                done[run_id] = bool((status == "failed").any())
         return done
+
+    def _read(self, run_id: str) -> tuple[pd.DataFrame, pd.DataFrame] | None:
+        """Both parts of ``run_id``; None if missing, or unreadable (quarantined)."""
+        runs = self.parts / f"{run_id}.runs.parquet"
+        traces = self.parts / f"{run_id}.traces.parquet"
+        if not (runs.exists() and traces.exists()):
+            return None
+        try:  # the whole table: a footer can be intact over damaged pages
+            return pq.read_table(runs).to_pandas(), pq.read_table(traces).to_pandas()
+        except Exception as exc:
+            self._quarantine(run_id, exc)
+            return None
 
     def _quarantine(self, run_id: str, exc: Exception) -> None:
         self.quarantine.mkdir(exist_ok=True)
@@ -129,14 +139,7 @@ class ResultStore:
         A crash, a lost worker or a timeout: a resume tries them again; ok,
         diverged and skipped runs are results and are kept.
         """
-        out = set()
-        for run_id in self.finished():
-            part = pd.read_parquet(
-                self.parts / f"{run_id}.runs.parquet", columns=["status"]
-            )
-            if (part["status"] == "failed").any():
-                out.add(run_id)
-        return out
+        return {run_id for run_id, failed in self.scan().items() if failed}
 
     def write(self, run: dict[str, Any], traces: list[dict[str, Any]]) -> None:
         """Store one finished run (traces first, so a run part implies both)."""
@@ -158,15 +161,20 @@ class ResultStore:
         return runs_df, traces_df
 
     def consolidate(self, order: list[str]) -> tuple[pd.DataFrame, pd.DataFrame]:
-        """Write ``runs.parquet`` and ``traces.parquet`` for the runs in ``order``."""
-        done = self.finished()
-        ids = [i for i in order if i in done]
-        runs, traces = self.load(ids)
-        if len(runs):
-            runs = runs.set_index("run_id").loc[ids].reset_index()
+        """Write ``runs.parquet`` and ``traces.parquet`` for the runs in ``order``.
+
+        Runs not finished (or whose parts are unreadable) are left out.
+        """
+        parts = [t for t in map(self._read, order) if t is not None]
+        runs = _concat([r for r, _ in parts])
+        traces = _concat([t for _, t in parts if len(t)])
         atomic_write_parquet(runs, self.root / "runs.parquet")
         atomic_write_parquet(traces, self.root / "traces.parquet")
         return runs, traces
+
+
+def _concat(frames: list[pd.DataFrame]) -> pd.DataFrame:
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
 def _roundtrip(obj: Any) -> Any:

@@ -218,6 +218,23 @@ class Session:
         """Seed the reference value of ``spec``'s data (fitted by another worker)."""
         self._refs[spec.reference_key()] = np.asarray(value, dtype=float)
 
+    def shared(self) -> dict[tuple[str, str], FloatArray]:
+        """What this session computed that another process can reuse.
+
+        The reference fits and the direct runs, by (kind, key); pass them to
+        another session's :meth:`adopt` (the worker pool does, so each is
+        computed once per sweep rather than once per worker).
+        """
+        out = {("reference", k): v for k, v in self._refs.items()}
+        out.update({("direct", k): v for k, v in self._direct.items()})
+        return out
+
+    def adopt(self, shared: dict[tuple[str, str], FloatArray]) -> None:
+        """Take over what another session computed (see :meth:`shared`)."""
+        tables = {"reference": self._refs, "direct": self._direct}
+        for (kind, key), value in shared.items():
+            tables[kind].setdefault(key, np.asarray(value, dtype=float))
+
     def reference(self, spec: RunSpec) -> FloatArray:
         """The reference estimator fitted on the run's own data."""
         key = spec.reference_key()
@@ -266,9 +283,9 @@ class Session:
     def direct(self, spec: RunSpec, scenario: str | None = None) -> FloatArray:
         """Shape-error point displacements (K, G, d) of the model run with the truth."""
         scenario = scenario or spec.scenario
-        model = self.model(spec, spec.mesh, scenario, role="metrics")
         key = spec.model_key(spec.mesh, scenario, "metrics")
         if key not in self._direct:
+            model = self.model(spec, spec.mesh, scenario, role="metrics")
             states = simulate_path(model, self.theta_true(spec))
             self._direct[key] = np.array([model.grid(s) for s in states])
         return self._direct[key]

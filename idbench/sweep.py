@@ -16,14 +16,14 @@ import platform
 import sys
 import tempfile
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
 from idbench.config import CompareConfig, ConfigError, build_settings, suggest
-from idbench.executors import THREAD_ENV, execute_all
+from idbench.executors import THREAD_ENV, execute_all, started
 from idbench.interfaces import ForwardModel, ModelFailure, ModelSpec
 from idbench.plugins import Registry, build_registry
 from idbench.posterior import PosteriorSettings, check_budget
@@ -40,15 +40,30 @@ from idbench.session import (
 log = logging.getLogger(__name__)
 
 
-
 @dataclass(frozen=True)
 class Plan:
-    """A validated comparison: its runs and what they will cost."""
+    """A validated comparison: its runs and what they will cost.
+
+    Attributes
+    ----------
+    config
+        The resolved configuration.
+    runs
+        Every run, in table order.
+    nodes
+        Nodes per mesh (0 where the model does not say).
+    solves
+        The estimators' guess of the forward model steps of all runs.
+    work
+        Per run id, its guessed solves times its model's state size: a
+        relative cost, for starting the costliest runs first.
+    """
 
     config: CompareConfig
     runs: list[RunSpec]
     nodes: dict[str, int]
     solves: int
+    work: dict[str, float] = field(default_factory=dict)
 
 
 def plan(config: CompareConfig, session: Session) -> Plan:
@@ -104,11 +119,14 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         build = functools.partial(session.model, runs[0], mesh, role=role)
         model = _build(reg, config, mesh, settings, build)
         nodes[mesh] = int(getattr(model, "n_nodes", 0))
-    solves = 0
+    solves, work = 0, {}
     for spec in runs:
         model = session.model(spec, spec.mesh)
-        solves += _guess_solves(reg, spec, model.reset().size, model.parameters.p)
-    return Plan(config, runs, nodes, solves)
+        n_state = model.reset().size
+        guess = _guess_solves(reg, spec, n_state, model.parameters.p)
+        work[spec.run_id] = float(guess) * n_state
+        solves += guess
+    return Plan(config, runs, nodes, solves, work)
 
 
 def _guess_solves(reg: Registry, spec: RunSpec, n_state: int, p: int) -> int:
@@ -272,12 +290,14 @@ def compare(
         raise ConfigError(f"jobs {jobs!r}: must be a whole number >= 1")
     isolate = registry is None  # workers can rebuild only an installed registry
     session = Session(registry or build_registry())
-    the_plan = plan(config, session)
-    args = (session, jobs, scheduler, progress, isolate)
-    if out is None:
-        with tempfile.TemporaryDirectory(prefix="idbench-") as tmp:
-            return _compare(the_plan, Path(tmp), *args)
-    return _compare(the_plan, Path(out), *args)
+    # local workers start importing while this process plans and prepares
+    with started(jobs if isolate and jobs > 1 and not scheduler else 0):
+        the_plan = plan(config, session)
+        args = (session, jobs, scheduler, progress, isolate)
+        if out is None:
+            with tempfile.TemporaryDirectory(prefix="idbench-") as tmp:
+                return _compare(the_plan, Path(tmp), *args)
+        return _compare(the_plan, Path(out), *args)
 
 
 def _compare(
@@ -291,15 +311,13 @@ def _compare(
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     config = the_plan.config
     store = ResultStore(out, config.to_dict(), manifest(config))
-    done = store.finished()
-    retry = store.failed()
-    if retry:
-        log.info("retrying %d run(s) that failed before", len(retry))
-    done -= retry
-    pending = [r for r in the_plan.runs if r.run_id not in done]
-    # the reference estimator's own runs first: each is its data's reference fit,
-    # which later runs on the same data then reuse instead of fitting again
-    pending.sort(key=lambda r: r.estimator != r.setup.reference or bool(r.settings))
+    stored = store.scan()
+    done = {run_id for run_id, failed in stored.items() if not failed}
+    if len(done) < len(stored):
+        log.info("retrying %d run(s) that failed before", len(stored) - len(done))
+    pending = dispatch_order(
+        [r for r in the_plan.runs if r.run_id not in done], the_plan.work
+    )
     total = len(the_plan.runs)
     count = total - len(pending)
     if pending:
@@ -318,8 +336,6 @@ def _compare(
             session,
             jobs=jobs,
             timeout=config.timeout if isolate else None,
-            order=interleave,
-            key=RunSpec.reference_key,
         )
     order = [r.run_id for r in the_plan.runs]
     try:
@@ -357,6 +373,24 @@ def prepare(runs: list[RunSpec], session: Session) -> None:
                         f"the truth ({spec.setup.truth_mesh}, {name}) cannot be "
                         f"simulated with these settings: {exc}"
                     ) from None
+
+
+def dispatch_order(runs: list[RunSpec], work: dict[str, float]) -> list[RunSpec]:
+    """The order in which runs start.
+
+    The reference estimator's own runs first: each is its data's reference
+    fit, which later runs on the same data reuse instead of fitting again.
+    Then the others. Within each group the costliest first (by ``work``, the
+    plan's guess), so that no long run starts last and keeps the sweep going
+    on one worker while the others idle; runs of equal cost alternate
+    between data sets (:func:`interleave`).
+    """
+
+    def key(spec: RunSpec) -> tuple[bool, float]:
+        own_reference = spec.estimator == spec.setup.reference and not spec.settings
+        return not own_reference, -work.get(spec.run_id, 0.0)
+
+    return sorted(interleave(runs), key=key)
 
 
 def interleave(runs: list[RunSpec]) -> list[RunSpec]:

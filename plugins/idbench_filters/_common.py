@@ -283,6 +283,13 @@ class Settings:
             raise RuntimeError("call start() before update()")
         return self._run
 
+    def estimate_solves(self, n_state: int, p: int, steps: int) -> int:
+        """Forward model steps a run is expected to take: one a step and parameter.
+
+        Estimators whose cost differs say so; a guess for planning only.
+        """
+        return (p + 1) * steps
+
     def start(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run on ``model`` from ``prior`` (cost counted from here)."""
         self._run = RunState(model, model.cost())

@@ -117,6 +117,10 @@ class EnsembleFilter(Settings):
             raise ValueError(f"seed = {self.seed!r} is not allowed; it must be >= 0")
         self.innovation: tuple[FloatArray, FloatArray] | None = None
 
+    def estimate_solves(self, n_state: int, p: int, steps: int) -> int:
+        """One forward step per member and load step."""
+        return (self.members if self.members is not None else 2 * p + 2) * steps
+
     def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run: u_i = reset(), xi_i drawn from the prior (see ``init``)."""
         p = model.parameters.p

@@ -49,6 +49,10 @@ REFITS = ("end", "each")
 METHODS = ("trf", "dogbox")
 
 
+TYPICAL_EVALUATIONS = 5
+"""Path simulations a fit typically takes (for planning; ``max_nfev`` caps it)."""
+
+
 @dataclass
 class BatchLs(Settings):
     """Least squares over the whole path, re-simulated at every evaluation.
@@ -92,6 +96,11 @@ class BatchLs(Settings):
                 f"max_nfev = {self.max_nfev!r} is not allowed; "
                 "it must be an integer >= 1"
             )
+
+    def estimate_solves(self, n_state: int, p: int, steps: int) -> int:
+        """A few path simulations a fit (one fit, or one an observed step)."""
+        fits = 1 if self.refit == "end" else steps
+        return fits * min(TYPICAL_EVALUATIONS, self.max_nfev) * steps
 
     def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run: no observations yet; report the prior until the first fit."""

@@ -112,6 +112,10 @@ class RoUkf(Settings):
         self._I = sigma_directions(p, self.sigma_points)
         self.innovation = None
 
+    def estimate_solves(self, n_state: int, p: int, steps: int) -> int:
+        """One forward step per sigma point and load step."""
+        return sigma_directions(p, self.sigma_points).shape[1] * steps
+
     @property
     def solves_per_step(self) -> int:
         """Forward solves a step: r = p + 1 (simplex) or 2p + 1 (star)."""

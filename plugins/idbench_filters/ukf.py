@@ -112,6 +112,11 @@ class Ukf(Settings):
                 f"kappa = {self.kappa!r} is not allowed; it must be finite"
             )
 
+    def estimate_solves(self, n_state: int, p: int, steps: int) -> int:
+        """2n + 1 forward steps a load step (n = n_state + p); 0 if skipped."""
+        per_step = 2 * (n_state + p) + 1
+        return per_step * steps if per_step <= self.max_solves else 0
+
     def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run; raise Skipped if 2n + 1 solves a step exceed ``max_solves``."""
         p = model.parameters.p

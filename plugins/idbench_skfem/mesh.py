@@ -15,6 +15,7 @@ A mesh spec is one of
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import io
 import math
@@ -144,9 +145,11 @@ def structured(
     size: tuple[float, float, float] = (LENGTH, WIDTH, HEIGHT),
     spec: str | None = None,
 ) -> BeamMesh:
-    """Build the structured beam with ``nx x ny x nz`` hexes, each split into 6 tets."""
-    from skfem import MeshTet
+    """Build the structured beam with ``nx x ny x nz`` hexes, each split into 6 tets.
 
+    Built once per process and shared (its arrays are read-only): a sweep
+    builds several models on each mesh (one per scenario and role).
+    """
     for name, n in (("nx", nx), ("ny", ny), ("nz", nz)):
         if n < 1:
             raise ValueError(f"mesh divisions: {name} = {n}, must be >= 1")
@@ -157,12 +160,25 @@ def structured(
             f"{max_nodes():,} (about {nodes * _BYTES_PER_NODE / 2**30:.1f} GiB to "
             f"assemble; set {MAX_NODES_ENV} to raise it)"
         )
+    return _structured(nx, ny, nz, tuple(size), spec or f"{nx}x{ny}x{nz}")
+
+
+@functools.lru_cache(maxsize=8)
+def _structured(
+    nx: int, ny: int, nz: int, size: tuple[float, ...], spec: str
+) -> BeamMesh:
+    from skfem import MeshTet
+
     m = MeshTet.init_tensor(
         np.linspace(0.0, size[0], nx + 1),
         np.linspace(0.0, size[1], ny + 1),
         np.linspace(0.0, size[2], nz + 1),
     )
-    return from_arrays(m.p.T, m.t.T, spec or f"{nx}x{ny}x{nz}")
+    mesh = from_arrays(m.p.T, m.t.T, spec)
+    for value in vars(mesh).values():
+        if isinstance(value, np.ndarray):
+            value.setflags(write=False)
+    return mesh
 
 
 def from_arrays(
