@@ -19,7 +19,7 @@ from idbench import Cost, ModelSpec, ParameterSpec, Scenario
 from idbench_skfem import batched
 from idbench_skfem import mesh as meshes
 from idbench_skfem.assembly import Assembler
-from idbench_skfem.newton import NewtonSolve
+from idbench_skfem.newton import CHORD_RATIO, NewtonSolve
 from idbench_skfem.probes import grid_points, interpolation_matrix, marker_points
 from idbench_skfem.regions import parameter_regions
 from idbench_skfem.settings import BeamSettings, EndTraction
@@ -29,7 +29,9 @@ log = logging.getLogger(__name__)
 
 FloatArray = NDArray[np.float64]
 
-MODEL_VERSION = "svk-beam/1"
+MODEL_VERSION = "svk-beam/2"
+"""Changes when a solution changes beyond round-off (the truth cache keys on it);
+2: chord steps in Newton (same tolerance, solutions differ by about 1e-10)."""
 """Bump when the numerics change: part of :meth:`SvkBeam.describe` (cache key)."""
 
 RTOL = 1e-8
@@ -62,7 +64,9 @@ class SvkBeam(NewtonSolve):
         ``"E"`` or ``"E_regions"`` (see :mod:`idbench_skfem.regions`).
     options
         ``regions``, ``inclusion``, ``rtol``, ``atol``, ``max_iterations``,
-        ``sensitivity_refine``, ``solver`` (``"pardiso"``/``"scipy"``; default
+        ``sensitivity_refine``, ``chord_ratio`` (see
+        :data:`idbench_skfem.newton.CHORD_RATIO`; 0: plain Newton), ``solver``
+        (``"pardiso"``/``"scipy"``; default
         from ``IDBENCH_SOLVER``).
 
     Attributes
@@ -93,6 +97,7 @@ class SvkBeam(NewtonSolve):
         self.rtol = float(opts.get("rtol", RTOL))
         self.max_iterations = int(opts.get("max_iterations", MAX_ITERATIONS))
         self.sensitivity_refine = bool(opts.get("sensitivity_refine", True))
+        self.chord_ratio = float(opts.get("chord_ratio", CHORD_RATIO))
         self.backend = resolve_backend(opts.get("solver"))
 
         points, tets = beam.points, beam.tets
@@ -228,8 +233,8 @@ class SvkBeam(NewtonSolve):
         modulus. Reuses the last Newton factorization when ``state`` and
         ``theta`` are those of the step just solved (plus one step of iterative
         refinement with K(u), option ``sensitivity_refine``, default on: the
-        factorization is of the last iterate, off by O(|last update|)), else
-        factors K(u) once.
+        factorization is of an iterate before the last, off by O(|the updates
+        since|)), else factors K(u) once.
         """
         modulus = self._modulus(theta, k)
         u = np.asarray(state, dtype=np.float64)

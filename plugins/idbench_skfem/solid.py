@@ -62,7 +62,9 @@ log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-MODEL_VERSION = "solid/1"
+MODEL_VERSION = "solid/2"
+"""Changes when a solution changes beyond round-off (the truth cache keys on it);
+2: chord steps in Newton (same tolerance)."""
 """Bump when the numerics change: part of :meth:`SolidModel.describe`."""
 
 RTOL = 1e-8
