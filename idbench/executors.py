@@ -112,8 +112,8 @@ def execute_all(
     session
         This process's session: in-process runs use it; workers start with
         what it has to share (:meth:`Session.shared`) and pass on to each
-        other what they compute, so each reference fit and direct run is
-        done once per sweep, not once per worker.
+        other what they compute, so a reference fit or direct run is done
+        again only by a worker that needs it while another is computing it.
     jobs
         Worker processes; 1 without a timeout runs in this process.
     timeout

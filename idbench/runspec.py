@@ -143,6 +143,16 @@ class RunSpec:
              self.obs_points, role]
         )  # fmt: skip
 
+    def truth_product_key(self, scenario: str) -> str:
+        """Identity of the probed truth of ``scenario`` (model and true values)."""
+        truth = self.model_key(self.setup.truth_mesh, scenario, "truth")
+        return stable_hash([truth, [list(item) for item in self.setup.true]])
+
+    def direct_key(self, scenario: str) -> str:
+        """Identity of the direct run: the run's mesh on ``scenario`` at the truth."""
+        model = self.model_key(self.mesh, scenario, "metrics")
+        return stable_hash([model, [list(item) for item in self.setup.true]])
+
 
 def expand(config: CompareConfig, setup: Setup) -> list[RunSpec]:
     """The runs of a resolved comparison, in a stable order."""

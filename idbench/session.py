@@ -176,8 +176,9 @@ class Session:
         """The truth of ``scenario`` (default: the run's), from the disk cache."""
         scenario = scenario or spec.scenario
         # the states depend on the set-up only (cached on disk), the probed
-        # observations also on the markers: one Truth per truth model
-        key = spec.model_key(spec.setup.truth_mesh, scenario, "truth")
+        # observations also on the markers: one Truth per truth model and
+        # true values (a session may serve sweeps with other true values)
+        key = spec.truth_product_key(scenario)
         if key not in self._truths:
             model = self.model(spec, spec.setup.truth_mesh, scenario, role="truth")
             self._truths[key] = simulate_truth(model, self.theta_true(spec))
@@ -223,7 +224,7 @@ class Session:
 
         The reference fits and the direct runs, by (kind, key); pass them to
         another session's :meth:`adopt` (the worker pool does, so each is
-        computed once per sweep rather than once per worker).
+        computed about once per sweep rather than once per worker).
         """
         out = {("reference", k): v for k, v in self._refs.items()}
         out.update({("direct", k): v for k, v in self._direct.items()})
@@ -283,7 +284,7 @@ class Session:
     def direct(self, spec: RunSpec, scenario: str | None = None) -> FloatArray:
         """Shape-error point displacements (K, G, d) of the model run with the truth."""
         scenario = scenario or spec.scenario
-        key = spec.model_key(spec.mesh, scenario, "metrics")
+        key = spec.direct_key(scenario)
         if key not in self._direct:
             model = self.model(spec, spec.mesh, scenario, role="metrics")
             states = simulate_path(model, self.theta_true(spec))

@@ -139,7 +139,7 @@ def test_ensemble_estimate_is_one_step_per_member(registry, name):
 
 def test_other_estimates_follow_their_settings(registry):
     for name in ("rls", "lms"):
-        assert registry.estimator(name)().estimate_solves(100, 2, 5) == 3 * 5
+        assert registry.estimator(name)().estimate_solves(100, 2, 5) == 5  # own path
     batch = registry.estimator("batch-ls")
     assert batch().estimate_solves(100, 1, 6) == 5 * 6  # one fit, ~5 paths
     assert batch(max_nfev=2).estimate_solves(100, 1, 6) == 2 * 6  # capped
@@ -221,7 +221,7 @@ def test_a_plugin_that_cannot_guess_is_planned_with_two_solves_a_step(
     plug = next(r for r in the_plan.runs if r.estimator == "plug")
     n_state = session.model(plug, plug.mesh).reset().size
     assert the_plan.work[plug.run_id] == 2 * STEPS * n_state
-    assert the_plan.solves == 2 * STEPS + 2 * STEPS  # and rls's (p + 1) a step, p = 1
+    assert the_plan.solves == 2 * STEPS + STEPS  # and rls's own path
     if cls is not Keeper:
         assert "'plug' cannot estimate its cost" in caplog.text
 
@@ -325,7 +325,7 @@ def test_shared_names_each_product_by_kind_and_key(computed):
     shared = session.shared()
     assert sorted(kind for kind, _ in shared) == ["direct", "direct", "reference"]
     assert ("reference", spec.reference_key()) in shared
-    metrics = spec.model_key(spec.mesh, spec.scenario, "metrics")
+    metrics = spec.direct_key(spec.scenario)
     np.testing.assert_array_equal(shared[("direct", metrics)], session.direct(spec))
     assert shared[("direct", metrics)].ndim == 3  # (K, G, d)
     assert shared[("direct", metrics)].shape[0] == STEPS
@@ -352,7 +352,7 @@ def test_adopt_keeps_what_a_session_already_has(computed, registry):
     second = Session(registry)
     mine = np.array([1234.5])
     second.remember_reference(spec, mine)
-    metrics = ("direct", spec.model_key(spec.mesh, spec.scenario, "metrics"))
+    metrics = ("direct", spec.direct_key(spec.scenario))
     second.adopt({metrics: [[[0, 0, 0]]]})
     second.adopt(first.shared())
     assert second.known_reference(spec)[0] == 1234.5
@@ -360,7 +360,7 @@ def test_adopt_keeps_what_a_session_already_has(computed, registry):
     kept = second.shared()[metrics]
     assert kept.dtype == float and kept.shape == (1, 1, 3) and not kept.any()
     # what it lacked it took
-    transfer = ("direct", spec.model_key(spec.mesh, "stretch-x", "metrics"))
+    transfer = ("direct", spec.direct_key("stretch-x"))
     np.testing.assert_array_equal(second.shared()[transfer], first.shared()[transfer])
 
 
@@ -405,8 +405,8 @@ def test_a_worker_adopts_what_it_is_sent_and_returns_only_what_it_added(
     assert row1["status"] == "ok" and row1["E_ref"] == 1234.5  # adopted, not fitted
     assert {kind for kind, _ in added1} == {"direct"}  # the reference came in
     assert {key for _, key in added1} == {
-        rls.model_key(rls.mesh, rls.scenario, "metrics"),
-        rls.model_key(rls.mesh, "stretch-x", "metrics"),
+        rls.direct_key(rls.scenario),
+        rls.direct_key("stretch-x"),
     }
     # the reference estimator's own run keeps the adopted value and adds nothing
     assert row2["status"] == "ok" and row2["E_ref"] == 1234.5
@@ -613,3 +613,22 @@ def test_consolidate_keeps_the_order_given_and_skips_unfinished(tmp_path):
     assert list(runs["run_id"]) == ["a", "b"]
     runs, traces = store.consolidate(["x"])
     assert runs.empty and traces.empty
+
+
+def test_a_session_keeps_truths_and_direct_runs_apart_by_true_value():
+    # a Dask worker's session outlives a sweep: a second sweep with another
+    # true E must not get the first sweep's truth or direct runs
+    kw: dict[str, Any] = dict(
+        truth_mesh="10x2x2", meshes=("4x1x1",), steps=3, seeds=1, estimators=("rls",)
+    )
+    a = runs_of(CompareConfig(**kw))[0]
+    b = runs_of(CompareConfig(**kw, true={"E": 8000.0}))[0]
+    assert a.direct_key(a.scenario) != b.direct_key(b.scenario)
+    shared = Session()
+    shared.direct(a), shared.truth(a)
+    fresh = Session()
+    np.testing.assert_array_equal(shared.direct(b), fresh.direct(b))
+    np.testing.assert_array_equal(
+        shared.truth(b).observations, fresh.truth(b).observations
+    )
+    assert not np.array_equal(shared.direct(b), shared.direct(a))

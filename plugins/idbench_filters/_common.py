@@ -284,11 +284,13 @@ class Settings:
         return self._run
 
     def estimate_solves(self, n_state: int, p: int, steps: int) -> int:
-        """Forward model steps a run is expected to take: one a step and parameter.
+        """Forward model steps a run is expected to take: one a load step.
 
-        Estimators whose cost differs say so; a guess for planning only.
+        That is the gradient filters' own path with the model's sensitivities
+        (finite differences, for a model without them, add p a step); the
+        other estimators say what they cost. A guess, for planning only.
         """
-        return (p + 1) * steps
+        return steps
 
     def start(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run on ``model`` from ``prior`` (cost counted from here)."""
