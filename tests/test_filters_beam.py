@@ -94,7 +94,7 @@ def test_cost_per_step_on_beam(small_beam):
 
 def test_full_ukf_refuses_a_large_beam():
     model = beam("20x4x4", n_steps=2)
-    with pytest.raises(Skipped, match="max_solves = 600"):
+    with pytest.raises(Skipped, match="max_solves = 1500"):
         Ukf().start(model, Prior((2500.0,), (2500.0,)))
 
 

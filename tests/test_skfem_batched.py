@@ -185,3 +185,33 @@ def test_a_run_does_not_depend_on_the_runs_before_it():
     for a, b, c in zip(first, second, third, strict=True):
         assert np.array_equal(a.mean, b.mean) and np.array_equal(a.mean, c.mean)
     assert (model.cost() - c0) == fresh.cost()
+
+
+def test_line_residuals_equal_assembled_ones():
+    # p = 1: residuals of the predictions from the cubic along the line equal
+    # the assembled residuals to round-off, and det F > 0 is judged alike
+    from idbench_skfem.batched import _line_residuals, _residuals
+
+    model = _beam("8x2x2")
+    k = 4
+    u_a = _path(model, [E_TRUE], k)[-1]
+    rng = np.random.default_rng(5)
+    s = rng.normal(size=model.n_state) * 1e-2 * np.abs(u_a).max() / E_TRUE
+    t = np.concatenate([[0.0], E_TRUE * rng.uniform(-0.3, 0.3, 20)])
+    thetas = E_TRUE + t
+    f_ext = model.external_force(k)
+    ok, norms, res = _line_residuals(model, u_a, s, t, thetas, f_ext)
+    preds = u_a + t[:, None] * s
+    mods = np.stack([model._modulus(np.array([th]), k) for th in thetas])
+    ok_ref, norms_ref, res_ref = _residuals(model, preds, mods, f_ext)
+    np.testing.assert_array_equal(ok, ok_ref)
+    scale = np.linalg.norm(f_ext)  # the Newton tolerance is 1e-8 of it
+    assert np.abs(res - res_ref).max() <= 1e-10 * scale
+    np.testing.assert_allclose(norms, norms_ref, rtol=0, atol=1e-10 * scale)
+    # a prediction that inverts an element is caught from the cubic det F too
+    far = np.array([0.0, 50.0 * E_TRUE])
+    ok_far, _, _ = _line_residuals(model, u_a, s * 40, far, E_TRUE + far, f_ext)
+    mods_far = np.stack([model._modulus(np.array([E_TRUE]), k)] * 2)
+    ok_far_ref, _, _ = _residuals(model, u_a + far[:, None] * s * 40, mods_far, f_ext)
+    np.testing.assert_array_equal(ok_far, ok_far_ref)
+    assert not ok_far[-1]

@@ -108,11 +108,11 @@ def test_every_built_in_estimator_estimates_a_positive_int(
 def test_ukf_estimate_is_zero_exactly_when_over_max_solves(registry):
     ukf = registry.estimator("ukf")
     default = ukf()
-    assert default.max_solves == 600
-    # 2 (n_state + p) + 1 = 599 <= 600: (2n + 1) a step
-    assert default.estimate_solves(297, 2, 7) == 599 * 7
-    # 2 (n_state + p) + 1 = 601 > 600: skipped, costs nothing
-    assert default.estimate_solves(298, 2, 7) == 0
+    assert default.max_solves == 1500
+    # 2 (n_state + p) + 1 = 1499 <= 1500: (2n + 1) a step
+    assert default.estimate_solves(747, 2, 7) == 1499 * 7
+    # 2 (n_state + p) + 1 = 1501 > 1500: skipped, costs nothing
+    assert default.estimate_solves(748, 2, 7) == 0
     assert default.estimate_solves(10_000, 1, 7) == 0
     # the budget itself is allowed, as begin() allows it
     assert ukf(max_solves=601).estimate_solves(298, 2, 7) == 601 * 7
