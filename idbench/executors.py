@@ -22,12 +22,11 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Generator, Iterator
+from collections.abc import Callable, Generator, Iterator
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
 from idbench.harness import execute
-from idbench.interfaces import FloatArray
 from idbench.runspec import RunSpec
 from idbench.scoring import base_row, empty_parameter_columns
 from idbench.session import Session
@@ -125,7 +124,9 @@ def execute_all(
             for spec in runs:
                 yield execute(spec, session)
     else:
-        yield from _execute_processes(runs, jobs, timeout, session.shared())
+        yield from _execute_processes(
+            runs, jobs, timeout, session.shared(), session.products
+        )
 
 
 # --- worker processes ----------------------------------------------------------
@@ -233,7 +234,7 @@ class _Worker:
         self.deadline: float | None = None
         self.has: set[Any] = set()  # keys of the shared products it holds
 
-    def give(self, spec: RunSpec, known: dict[Any, FloatArray]) -> None:
+    def give(self, spec: RunSpec, known: dict[Any, Any]) -> None:
         """Start ``spec`` on this worker, with the shared products it lacks."""
         self.spec, self.deadline = spec, None
         new = {k: v for k, v in known.items() if k not in self.has}
@@ -298,7 +299,7 @@ class _Pool:
 
     def attend(
         self, w: _Worker, queue: list[RunSpec]
-    ) -> tuple[RunSpec, RunResult | None, dict[Any, FloatArray]] | None:
+    ) -> tuple[RunSpec, RunResult | None, dict[Any, Any]] | None:
         """Handle what ``w`` has to say: None, or (spec, result, shared products).
 
         A result of None means the run went back to ``queue`` (its worker died
@@ -332,7 +333,7 @@ class _Pool:
 
     def _died(
         self, w: _Worker, queue: list[RunSpec]
-    ) -> tuple[RunSpec, RunResult | None, dict[Any, FloatArray]]:
+    ) -> tuple[RunSpec, RunResult | None, dict[Any, Any]]:
         spec = w.spec
         assert spec is not None
         w.proc.join(5)
@@ -356,16 +357,42 @@ class _Pool:
             w.stop()
 
 
+LOOKAHEAD = 8
+"""Queued runs a free worker considers (the queue starts with the costliest)."""
+
+
+def _next(
+    queue: list[RunSpec],
+    busy: list[_Worker],
+    known: dict[Any, Any],
+    products: Callable[[RunSpec], set[Any]],
+) -> int:
+    """Index of the run a free worker starts: see :func:`_execute_processes`."""
+    underway = set()
+    for w in busy:
+        assert w.spec is not None
+        underway |= products(w.spec)
+    underway -= known.keys()
+    for i, spec in enumerate(queue[:LOOKAHEAD]):
+        if not products(spec) & underway:
+            return i
+    return 0
+
+
 def _execute_processes(
     queue: list[RunSpec],
     jobs: int,
     timeout: float | None,
-    known: dict[Any, FloatArray],
+    known: dict[Any, Any],
+    products: Callable[[RunSpec], set[Any]],
 ) -> Iterator[RunResult]:
     """Run on ``jobs`` worker processes; see the module docstring.
 
-    ``known``: the shared products (reference fits, direct runs) so far; each
-    worker gets those it lacks with its next run and returns what it added.
+    ``known``: the shared products (truths, reference fits, direct runs) so
+    far; each worker gets those it lacks with its next run and returns what
+    it added. ``products(spec)``: the keys of what a run computes if new; a
+    free worker takes the first queued run (of the next ``LOOKAHEAD``) that
+    would not compute what a busy worker is computing now.
     """
     queue = list(queue)
     if not queue:
@@ -377,7 +404,7 @@ def _execute_processes(
             while queue or pool.busy():
                 for w in pool.idle():
                     if queue:
-                        spec = queue.pop(0)
+                        spec = queue.pop(_next(queue, pool.busy(), known, products))
                         try:
                             w.give(spec, known)
                         except OSError:  # it died between the check and now

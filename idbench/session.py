@@ -31,6 +31,8 @@ from idbench.truth import Truth, simulate_path, simulate_truth
 
 log = logging.getLogger(__name__)
 
+_NO_STATES = np.empty((0, 0))
+
 
 def model_settings(registry: Registry, model: str, given: dict[str, Any]) -> Any:
     """The settings object of ``model`` with ``given`` values (None: no settings).
@@ -219,22 +221,43 @@ class Session:
         """Seed the reference value of ``spec``'s data (fitted by another worker)."""
         self._refs[spec.reference_key()] = np.asarray(value, dtype=float)
 
-    def shared(self) -> dict[tuple[str, str], FloatArray]:
+    def shared(self) -> dict[tuple[str, str], Any]:
         """What this session computed that another process can reuse.
 
-        The reference fits and the direct runs, by (kind, key); pass them to
-        another session's :meth:`adopt` (the worker pool does, so each is
-        computed about once per sweep rather than once per worker).
+        The probed truths (without their states, which runs do not read),
+        the reference fits and the direct runs, by (kind, key); pass them to
+        another session's :meth:`adopt` (the worker pool does, so a worker
+        neither builds the truth model nor repeats what another worker did).
         """
-        out = {("reference", k): v for k, v in self._refs.items()}
+        out: dict[tuple[str, str], Any] = {
+            ("truth", k): dataclasses.replace(v, states=_NO_STATES)
+            for k, v in self._truths.items()
+        }
+        out.update({("reference", k): v for k, v in self._refs.items()})
         out.update({("direct", k): v for k, v in self._direct.items()})
         return out
 
-    def adopt(self, shared: dict[tuple[str, str], FloatArray]) -> None:
+    def products(self, spec: RunSpec) -> set[tuple[str, str]]:
+        """The keys (see :meth:`shared`) of what running ``spec`` computes if new.
+
+        Its data's reference fit and its direct runs (its scenario's and the
+        transfer scenario's).
+        """
+        keys = {("reference", spec.reference_key())}
+        target = self.registry.scenario(spec.scenario).transfer
+        for scenario in (spec.scenario, target):
+            if scenario:
+                keys.add(("direct", spec.direct_key(scenario)))
+        return keys
+
+    def adopt(self, shared: dict[tuple[str, str], Any]) -> None:
         """Take over what another session computed (see :meth:`shared`)."""
-        tables = {"reference": self._refs, "direct": self._direct}
         for (kind, key), value in shared.items():
-            tables[kind].setdefault(key, np.asarray(value, dtype=float))
+            if kind == "truth":
+                self._truths.setdefault(key, value)
+            else:
+                table = self._refs if kind == "reference" else self._direct
+                table.setdefault(key, np.asarray(value, dtype=float))
 
     def reference(self, spec: RunSpec) -> FloatArray:
         """The reference estimator fitted on the run's own data."""

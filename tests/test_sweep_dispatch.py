@@ -323,8 +323,15 @@ def refuse(*args: Any, **kwargs: Any) -> Any:
 def test_shared_names_each_product_by_kind_and_key(computed):
     session, spec = computed
     shared = session.shared()
-    assert sorted(kind for kind, _ in shared) == ["direct", "direct", "reference"]
+    kinds = sorted(kind for kind, _ in shared)
+    assert kinds == ["direct", "direct", "reference", "truth"]  # the fit's data
     assert ("reference", spec.reference_key()) in shared
+    assert {key for kind, key in shared if kind != "truth"} == {
+        key for _, key in session.products(spec)
+    }
+    truth = shared[("truth", spec.truth_product_key(spec.scenario))]
+    assert truth.states.size == 0  # runs do not read the states: not shipped
+    np.testing.assert_array_equal(truth.grid, session.truth(spec).grid)
     metrics = spec.direct_key(spec.scenario)
     np.testing.assert_array_equal(shared[("direct", metrics)], session.direct(spec))
     assert shared[("direct", metrics)].ndim == 3  # (K, G, d)
@@ -403,8 +410,9 @@ def test_a_worker_adopts_what_it_is_sent_and_returns_only_what_it_added(
     assert [m[1] for m in got if m[0] == "phase"] == ["estimator", "scoring"] * 2
     (_, (row1, _), added1), (_, (row2, _), added2) = [m for m in got if m[0] == "done"]
     assert row1["status"] == "ok" and row1["E_ref"] == 1234.5  # adopted, not fitted
-    assert {kind for kind, _ in added1} == {"direct"}  # the reference came in
-    assert {key for _, key in added1} == {
+    # the reference came in; the truths are computed here (no parent sent them)
+    assert {kind for kind, _ in added1} == {"direct", "truth"}
+    assert {key for kind, key in added1 if kind == "direct"} == {
         rls.direct_key(rls.scenario),
         rls.direct_key("stretch-x"),
     }
@@ -632,3 +640,25 @@ def test_a_session_keeps_truths_and_direct_runs_apart_by_true_value():
         shared.truth(b).observations, fresh.truth(b).observations
     )
     assert not np.array_equal(shared.direct(b), shared.direct(a))
+
+
+def test_a_free_worker_skips_runs_whose_inputs_another_is_computing(runs, registry):
+    # the first queued run shares its data's reference fit (or direct run) with
+    # the run a busy worker is on: the free worker takes the next one instead
+    session = Session(registry)
+    busy_spec = next(r for r in runs if own_reference(r))
+    same = [
+        r
+        for r in runs
+        if r is not busy_spec and session.products(r) & session.products(busy_spec)
+    ]
+    other = [r for r in runs if not session.products(r) & session.products(busy_spec)]
+    assert same and other
+    busy = [SimpleNamespace(spec=busy_spec)]
+    queue = [same[0], other[0]]
+    assert executors._next(queue, busy, {}, session.products) == 1  # type: ignore[arg-type]
+    # once what it computes is known, the order stands
+    known = {key: None for key in session.products(busy_spec)}
+    assert executors._next(queue, busy, known, session.products) == 0  # type: ignore[arg-type]
+    # nothing free of conflicts within the look-ahead: the first
+    assert executors._next([same[0]], busy, {}, session.products) == 0  # type: ignore[arg-type]
