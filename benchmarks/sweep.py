@@ -1,6 +1,7 @@
 """Serial vs local process pool on a 16-run sweep, or on the default compare.
 
-Run: ``python benchmarks/sweep.py [--jobs 2] [--default] [--repeat 2]``. The
+Run: ``python benchmarks/sweep.py [--jobs 2] [--default | --quick] [--repeat 2]``
+(``--quick``: a 4-run sweep on tiny meshes, to check the script runs). The
 truth is computed into the cache first (a temporary one, or
 ``$IDBENCH_CACHE_DIR`` with ``--default``, where the 11,664-node truth is worth
 keeping), so no timing includes it. Each timing is one ``compare()`` call in a
@@ -45,6 +46,14 @@ SMALL = {
     "estimators": ("ro-ukf", "rls", "lms", "batch-ls"),
 }
 
+TINY = {
+    "truth_mesh": "10x2x2",
+    "meshes": ("4x1x1",),
+    "steps": 3,
+    "seeds": 2,
+    "estimators": ("rls", "batch-ls"),
+}
+
 CHILD = """
 import sys, time
 from pathlib import Path
@@ -76,11 +85,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--repeat", type=int, default=2)
-    parser.add_argument(
+    which = parser.add_mutually_exclusive_group()
+    which.add_argument(
         "--default", action="store_true", help="the default compare (all defaults)"
     )
+    which.add_argument("--quick", action="store_true", help="a 4-run check")
     args = parser.parse_args()
-    config: dict[str, object] = {} if args.default else SMALL
+    config: dict[str, object] = {} if args.default else TINY if args.quick else SMALL
     with tempfile.TemporaryDirectory(prefix="idbench-bench-") as tmp:
         root = Path(tmp)
         if not (args.default and os.environ.get("IDBENCH_CACHE_DIR")):
