@@ -190,8 +190,51 @@ def _single_thread_environ() -> Iterator[None]:
                 os.environ[k] = v
 
 
-_SPARE: list[_Worker] = []
-"""Workers started ahead by :func:`started`, for the next pool to take."""
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """Ignore SIGINT in the block (main thread only; elsewhere: unchanged).
+
+    A process started here begins with SIGINT ignored, so a Ctrl-C during its
+    imports does not print its traceback; the parent handles Ctrl-C.
+    """
+    try:
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
+def _send(conn: Connection, message: Any) -> None:
+    """``conn.send(message)`` with SIGPIPE ignored (main thread; else as is).
+
+    Python ignores SIGPIPE, but libraries may restore its default (gmsh
+    does), which kills a process that writes to a worker that just died; with
+    it ignored the write fails with an OSError the pool handles.
+    """
+    try:
+        old = signal.signal(signal.SIGPIPE, signal.SIG_IGN)
+    except (ValueError, AttributeError):  # not the main thread; no SIGPIPE
+        conn.send(message)
+        return
+    try:
+        conn.send(message)
+    finally:
+        signal.signal(signal.SIGPIPE, old)
+
+
+def _spares() -> list[_Worker]:
+    """The workers started ahead in this thread by :func:`started`.
+
+    One list a thread, so that a sweep in another thread cannot take them.
+    """
+    spares: list[_Worker] | None = getattr(_LOCAL, "spares", None)
+    if spares is None:
+        spares = _LOCAL.spares = []
+    return spares
 
 
 @contextlib.contextmanager
@@ -200,18 +243,21 @@ def started(jobs: int) -> Iterator[None]:
 
     A worker spends its first 0.6-0.7 s importing; started here, that
     overlaps whatever the caller does before it executes runs (planning a
-    sweep, computing its truths). Workers no pool took are stopped at the
-    end of the block.
+    sweep, computing its truths). The next pool takes what it needs and
+    stops the rest; workers no pool took are stopped at the end of the block.
     """
-    with _single_thread_environ():
-        spare = [_Worker(_context()) for _ in range(jobs)]
-    _SPARE.extend(spare)
+    spares = _spares()
+    mine: list[_Worker] = []
     try:
+        with _single_thread_environ():
+            for _ in range(jobs):
+                mine.append(_Worker(_context()))
+                spares.append(mine[-1])
         yield
     finally:
-        for w in spare:
-            if w in _SPARE:
-                _SPARE.remove(w)
+        for w in mine:
+            if w in spares:
+                spares.remove(w)
                 w.stop()
 
 
@@ -228,7 +274,8 @@ class _Worker:
         self.proc = ctx.Process(
             target=_worker_main, args=(child, os.getpid()), daemon=True
         )
-        self.proc.start()
+        with _sigint_ignored():  # inherited: a Ctrl-C while it imports is ours
+            self.proc.start()
         child.close()
         self.spec: RunSpec | None = None
         self.deadline: float | None = None
@@ -238,7 +285,7 @@ class _Worker:
         """Start ``spec`` on this worker, with the shared products it lacks."""
         self.spec, self.deadline = spec, None
         new = {k: v for k, v in known.items() if k not in self.has}
-        self.conn.send((spec, new))
+        _send(self.conn, (spec, new))
         self.has.update(new)
 
     def stop(self) -> None:
@@ -248,8 +295,9 @@ class _Worker:
         gets a moment to exit, then is killed: a Python process tearing
         down its imports takes 0.1-0.2 s that a sweep should not wait for.
         """
-        with contextlib.suppress(Exception):
-            self.conn.send(None)
+        if self.proc.is_alive():
+            with contextlib.suppress(Exception):
+                _send(self.conn, None)
         self.proc.join(STOP_GRACE_S)
         self.kill()
 
@@ -269,12 +317,13 @@ class _Pool:
         self.ctx = _context()
         self.timeout = timeout
         self.workers: list[_Worker] = []
-        while _SPARE and len(self.workers) < jobs:
-            w = _SPARE.pop(0)
-            if w.proc.is_alive():
+        spares = _spares()
+        while spares:
+            w = spares.pop(0)
+            if w.proc.is_alive() and len(self.workers) < jobs:
                 self.workers.append(w)
             else:
-                w.kill()
+                w.stop()  # dead, or more than this pool needs
         self.workers += [_Worker(self.ctx) for _ in range(jobs - len(self.workers))]
         self.attempts: dict[str, int] = {}
 

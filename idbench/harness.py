@@ -229,8 +229,7 @@ def _run(
     model = session.model(spec, spec.mesh)
     metrics_model = session.model(spec, spec.mesh, role="metrics")
     row["model_nodes"] = getattr(model, "n_nodes", np.nan)
-    truth_model = session.model(spec, spec.setup.truth_mesh, role="truth")
-    row["truth_nodes"] = getattr(truth_model, "n_nodes", np.nan)
+    row["truth_nodes"] = session.truth(spec).nodes
     row.update(scoring.empty_parameter_columns(spec))
 
     cls = session.registry.estimator(spec.estimator)

@@ -97,13 +97,16 @@ class ResultStore:
         return set(self.scan())
 
     def scan(self) -> dict[str, bool]:
-        """Finished run id -> whether it failed; see :meth:`finished`."""
+        """Finished run id -> whether to run it again (failed, or no status).
+
+        See :meth:`finished` for what counts as finished.
+        """
         done = {}
         for p in self.parts.glob("*.runs.parquet"):
             run_id = p.name.removesuffix(".runs.parquet")
             tables = self._read(run_id)
-            if tables is not None:
-                status = tables[0].get("status", pd.Series([], dtype=object))
+            if tables is not None:  # no status column: not ours, run it again
+                status = tables[0].get("status", pd.Series(["failed"]))
                 done[run_id] = bool((status == "failed").any())
         return done
 

@@ -61,13 +61,6 @@ class Setup:
         """Parameter names."""
         return tuple(n for n, _ in self.true)
 
-    def truth_key(self, scenario: str) -> str:
-        """What the truth of ``scenario`` depends on."""
-        return stable_hash(
-            [self.model, list(self.identity), self.truth_mesh, self.steps,
-             self._true_key(), scenario]
-        )  # fmt: skip
-
     def _true_key(self) -> Any:
         values = [v for _, v in self.true]
         return values[0] if len(values) == 1 else values

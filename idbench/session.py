@@ -227,7 +227,8 @@ class Session:
         The probed truths (without their states, which runs do not read),
         the reference fits and the direct runs, by (kind, key); pass them to
         another session's :meth:`adopt` (the worker pool does, so a worker
-        neither builds the truth model nor repeats what another worker did).
+        neither probes a truth the parent prepared nor repeats what another
+        worker did).
         """
         out: dict[tuple[str, str], Any] = {
             ("truth", k): dataclasses.replace(v, states=_NO_STATES)
@@ -240,14 +241,15 @@ class Session:
     def products(self, spec: RunSpec) -> set[tuple[str, str]]:
         """The keys (see :meth:`shared`) of what running ``spec`` computes if new.
 
-        Its data's reference fit and its direct runs (its scenario's and the
-        transfer scenario's).
+        Its data's reference fit, its direct runs and probed truths (its
+        scenario's and the transfer scenario's).
         """
         keys = {("reference", spec.reference_key())}
         target = self.registry.scenario(spec.scenario).transfer
         for scenario in (spec.scenario, target):
             if scenario:
                 keys.add(("direct", spec.direct_key(scenario)))
+                keys.add(("truth", spec.truth_product_key(scenario)))
         return keys
 
     def adopt(self, shared: dict[tuple[str, str], Any]) -> None:

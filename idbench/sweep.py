@@ -358,12 +358,16 @@ def _compare(
 
 
 def prepare(runs: list[RunSpec], session: Session) -> None:
-    """Compute each truth the runs need once, here, so workers load it from disk."""
+    """Compute and probe each truth the runs need once, here.
+
+    Workers then receive them probed (:meth:`Session.shared`); a truth the
+    disk cache lacks is simulated once, not once per worker.
+    """
     seen = set()
     for spec in runs:
         scen = session.registry.scenario(spec.scenario)
         for name in (spec.scenario, scen.transfer):
-            key = spec.setup.truth_key(name)
+            key = spec.truth_product_key(name) if name else None
             if name and key not in seen:
                 seen.add(key)
                 try:

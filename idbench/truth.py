@@ -50,12 +50,15 @@ class Truth:
     probes
         The model's named outputs per step, name -> (K,) (empty if the model
         has no ``probes``).
+    nodes
+        The truth model's ``n_nodes`` (NaN if it does not say).
     """
 
     states: FloatArray
     observations: FloatArray
     grid: FloatArray
     probes: dict[str, FloatArray]
+    nodes: float = float("nan")
 
 
 def truth_key(model: ForwardModel, theta: FloatArray) -> str:
@@ -107,6 +110,7 @@ def probe(model: ForwardModel, states: FloatArray) -> Truth:
         observations=np.array([model.observe(s) for s in states]),
         grid=np.array([model.grid(s) for s in states]),
         probes={name: np.array(values) for name, values in named.items()},
+        nodes=float(getattr(model, "n_nodes", float("nan"))),
     )
 
 

@@ -215,3 +215,19 @@ def test_line_residuals_equal_assembled_ones():
     ok_far_ref, _, _ = _residuals(model, u_a + far[:, None] * s * 40, mods_far, f_ext)
     np.testing.assert_array_equal(ok_far, ok_far_ref)
     assert not ok_far[-1]
+
+
+def test_line_residuals_when_every_prediction_is_the_anchor():
+    from idbench_skfem.batched import _line_residuals, _residuals
+
+    model = _beam("8x2x2")
+    u_a = _path(model, [E_TRUE], 2)[-1]
+    f_ext = model.external_force(2)
+    s = np.full(model.n_state, 1e9)  # any scale: t = 0 never uses it
+    t = np.zeros(12)
+    ok, norms, res = _line_residuals(model, u_a, s, t, E_TRUE + t, f_ext)
+    mods = np.stack([model._modulus(np.array([E_TRUE]), 2)] * 12)
+    ok_ref, _, res_ref = _residuals(model, np.tile(u_a, (12, 1)), mods, f_ext)
+    np.testing.assert_array_equal(ok, ok_ref)
+    np.testing.assert_allclose(res, res_ref, rtol=0, atol=1e-14)
+    assert np.all(norms <= model.rtol * np.linalg.norm(f_ext))  # converged

@@ -202,6 +202,27 @@ def test_sensitivity_matches_finite_differences(options):
     assert np.all(np.isfinite(other))
 
 
+@pytest.mark.parametrize("scenario", [STRETCH_X, MIXED_60])
+def test_sensitivity_after_chord_steps_is_as_good_as_a_fresh_factorization(scenario):
+    # stretching converges after one Newton update and chord steps: the
+    # factorization held is then a whole load increment old, so sensitivity()
+    # must factor K(u) itself rather than refine from it (a 2e-5 error before)
+    m = SvkBeam(mesh.parse("12x3x3"), scenario, n_steps=3, markers=5)
+    theta = E_TRUE
+    u = _run(m, theta)
+    reused = m.sensitivity(theta, 3, u)
+    m.step(theta * 1.1, 3, u)  # something else factored: the next one is fresh
+    exact = m.sensitivity(theta, 3, u)
+    scale = np.abs(exact).max()
+    np.testing.assert_allclose(reused, exact, rtol=0, atol=1e-7 * scale)
+
+
+def test_chord_ratio_must_be_below_one():
+    for bad in (-0.1, 1.0, 2.0):
+        with pytest.raises(ValueError, match="chord_ratio"):
+            SvkBeam(mesh.parse("4x1x1"), STRETCH_X, options={"chord_ratio": bad})
+
+
 def test_inclusion_with_background_slabs():
     """The box is the last region; the rest is split into ``regions`` slabs."""
     box = (0.08, 0.12, 0.0075, 0.0225, 0.0075, 0.0225)

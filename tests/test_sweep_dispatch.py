@@ -18,6 +18,8 @@ import itertools
 import multiprocessing as mp
 import os
 import signal
+import subprocess
+import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -143,7 +145,7 @@ def test_other_estimates_follow_their_settings(registry):
     batch = registry.estimator("batch-ls")
     assert batch().estimate_solves(100, 1, 6) == 5 * 6  # one fit, ~5 paths
     assert batch(max_nfev=2).estimate_solves(100, 1, 6) == 2 * 6  # capped
-    assert batch(refit="each").estimate_solves(100, 1, 6) == 6 * 5 * 6
+    assert batch(refit="each").estimate_solves(100, 1, 6) == 5 * (6 * 7 // 2)
 
 
 def test_plan_sums_the_estimates_and_weighs_them_by_state_size(all_plan, registry):
@@ -326,8 +328,10 @@ def test_shared_names_each_product_by_kind_and_key(computed):
     kinds = sorted(kind for kind, _ in shared)
     assert kinds == ["direct", "direct", "reference", "truth"]  # the fit's data
     assert ("reference", spec.reference_key()) in shared
-    assert {key for kind, key in shared if kind != "truth"} == {
-        key for _, key in session.products(spec)
+    products = session.products(spec)
+    assert set(shared) <= products  # the transfer truth was not needed here
+    assert {k for k in shared if k[0] != "truth"} == {
+        k for k in products if k[0] != "truth"
     }
     truth = shared[("truth", spec.truth_product_key(spec.scenario))]
     assert truth.states.size == 0  # runs do not read the states: not shipped
@@ -500,49 +504,51 @@ def test_the_pool_starts_from_the_parents_shared_products(cache_env, registry, r
 
 def test_the_next_pool_takes_the_started_workers(cache_env, registry, runs):
     chosen = [r for r in runs if r.estimator == "rls" and r.mesh == "4x1x1"]
-    assert executors._SPARE == []
+    assert executors._spares() == []
     with executors.started(2):
-        spare = list(executors._SPARE)
+        spare = list(executors._spares())
         assert len(spare) == 2 and all(w.proc.is_alive() for w in spare)
         rows = [row for row, _ in execute_all(chosen, Session(registry), jobs=2)]
         assert [row["status"] for row in rows] == ["ok", "ok"]
-        assert executors._SPARE == []  # taken, not left for the end of the block
+        assert executors._spares() == []  # taken, not left for the end of the block
         assert not any(w.proc.is_alive() for w in spare)  # and closed with the pool
-    assert executors._SPARE == []
+    assert executors._spares() == []
 
 
-def test_a_pool_takes_only_the_workers_it_needs(cache_env, registry, runs):
+def test_a_pool_takes_only_the_workers_it_needs_and_stops_the_rest(
+    cache_env, registry, runs
+):
     one = [next(r for r in runs if r.estimator == "rls" and r.mesh == "4x1x1")]
     with executors.started(2):
-        first, second = executors._SPARE
+        first, second = executors._spares()
         rows = [row for row, _ in execute_all(one, Session(registry), jobs=2)]
         assert [row["status"] for row in rows] == ["ok"]
-        assert executors._SPARE == [second] and second.proc.is_alive()
-        assert not first.proc.is_alive()
-    assert executors._SPARE == []
-    assert not second.proc.is_alive()
+        # the one it did not need was stopped when the pool was built
+        assert executors._spares() == []
+        assert not first.proc.is_alive() and not second.proc.is_alive()
+    assert executors._spares() == []
 
 
 def test_a_dead_started_worker_is_replaced(cache_env, registry, runs):
     one = [next(r for r in runs if r.estimator == "rls" and r.mesh == "4x1x1")]
     with executors.started(1):
-        (dead,) = executors._SPARE
+        (dead,) = executors._spares()
         dead.proc.kill()
         dead.proc.join(5)
         rows = [row for row, _ in execute_all(one, Session(registry), jobs=1,
                                               timeout=60.0)]  # fmt: skip
         assert [row["status"] for row in rows] == ["ok"]
-        assert executors._SPARE == []
+        assert executors._spares() == []
 
 
 def test_workers_no_pool_took_are_stopped_at_the_end_of_the_block():
     with executors.started(2):
-        spare = list(executors._SPARE)
+        spare = list(executors._spares())
         assert len(spare) == 2 and all(w.proc.is_alive() for w in spare)
-    assert executors._SPARE == []
+    assert executors._spares() == []
     assert not any(w.proc.is_alive() for w in spare)
     with executors.started(0):
-        assert executors._SPARE == []
+        assert executors._spares() == []
 
 
 def test_a_sweep_that_fails_planning_leaves_no_process(cache_env, tmp_path):
@@ -550,7 +556,7 @@ def test_a_sweep_that_fails_planning_leaves_no_process(cache_env, tmp_path):
     config = small(estimators=("rls", "no-such-filter"))
     with pytest.raises(ConfigError, match="no-such-filter"):
         compare(config, tmp_path / "out", jobs=2)
-    assert executors._SPARE == []
+    assert executors._spares() == []
     for child in set(mp.active_children()) - before:
         child.join(1)
     assert set(mp.active_children()) <= before
@@ -646,19 +652,71 @@ def test_a_free_worker_skips_runs_whose_inputs_another_is_computing(runs, regist
     # the first queued run shares its data's reference fit (or direct run) with
     # the run a busy worker is on: the free worker takes the next one instead
     session = Session(registry)
+    # the truths, as in a sweep, were prepared by the parent: known
+    prepared = {k: None for r in runs for k in session.products(r) if k[0] == "truth"}
     busy_spec = next(r for r in runs if own_reference(r))
-    same = [
-        r
-        for r in runs
-        if r is not busy_spec and session.products(r) & session.products(busy_spec)
-    ]
-    other = [r for r in runs if not session.products(r) & session.products(busy_spec)]
+
+    def fresh(r: Any) -> set[Any]:
+        return session.products(r) - prepared.keys()
+
+    same = [r for r in runs if r is not busy_spec and fresh(r) & fresh(busy_spec)]
+    other = [r for r in runs if not fresh(r) & fresh(busy_spec)]
     assert same and other
     busy = [SimpleNamespace(spec=busy_spec)]
     queue = [same[0], other[0]]
-    assert executors._next(queue, busy, {}, session.products) == 1  # type: ignore[arg-type]
+    products = session.products
+    assert executors._next(queue, busy, prepared, products) == 1  # type: ignore[arg-type]
     # once what it computes is known, the order stands
-    known = {key: None for key in session.products(busy_spec)}
-    assert executors._next(queue, busy, known, session.products) == 0  # type: ignore[arg-type]
+    known = {**prepared, **{key: None for key in products(busy_spec)}}
+    assert executors._next(queue, busy, known, products) == 0  # type: ignore[arg-type]
     # nothing free of conflicts within the look-ahead: the first
-    assert executors._next([same[0]], busy, {}, session.products) == 0  # type: ignore[arg-type]
+    assert executors._next([same[0]], busy, prepared, products) == 0  # type: ignore[arg-type]
+
+
+def test_started_workers_are_per_thread(cache_env, registry, runs):
+    # a pool in another thread does not take this thread's spares
+    one = [next(r for r in runs if r.estimator == "rls" and r.mesh == "4x1x1")]
+    with executors.started(1):
+        (mine,) = executors._spares()
+        rows: list[Any] = []
+
+        def other() -> None:
+            rows.extend(row for row, _ in execute_all(one, Session(registry), jobs=2))
+
+        thread = threading.Thread(target=other)
+        thread.start()
+        thread.join(120)
+        assert [row["status"] for row in rows] == ["ok"]
+        assert executors._spares() == [mine] and mine.proc.is_alive()
+    assert not mine.proc.is_alive()
+
+
+def test_a_worker_starting_ignores_ctrl_c_until_the_parent_says(tmp_path):
+    # started with SIGINT ignored (inherited): a Ctrl-C while the workers
+    # import is the parent's, with no traceback from the children
+    script = tmp_path / "ctrl_c.py"
+    script.write_text(
+        "import os, signal, time\n"
+        "from idbench import executors\n"
+        "with executors.started(2):\n"
+        "    time.sleep(0.3)\n"
+        "    os.killpg(0, signal.SIGINT)\n"
+        "    time.sleep(2)\n"
+    )
+    done = subprocess.run(
+        [sys.executable, str(script)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        start_new_session=True,
+    )
+    assert done.returncode != 0  # the parent got its KeyboardInterrupt
+    assert done.stderr.count("KeyboardInterrupt") == 1, done.stderr
+
+
+def test_a_part_without_a_status_is_run_again(tmp_path):
+    store = ResultStore(tmp_path / "out", {"x": 1}, {})
+    store.write({"run_id": "a", "status": "ok"}, [{"run_id": "a", "step": 1}])
+    store.write({"run_id": "b", "E_final": 1.0}, [{"run_id": "b", "step": 1}])
+    assert store.scan() == {"a": False, "b": True}
+    assert store.failed() == {"b"}

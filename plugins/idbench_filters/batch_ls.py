@@ -98,9 +98,13 @@ class BatchLs(Settings):
             )
 
     def estimate_solves(self, n_state: int, p: int, steps: int) -> int:
-        """A few path simulations a fit (one fit, or one an observed step)."""
-        fits = 1 if self.refit == "end" else steps
-        return fits * min(TYPICAL_EVALUATIONS, self.max_nfev) * steps
+        """A few path simulations a fit: one fit of K steps, or one at each step.
+
+        With ``refit = "each"`` the fit at step k simulates k steps (at most;
+        only observed steps fit): K (K + 1) / 2 steps a round of evaluations.
+        """
+        path = steps if self.refit == "end" else steps * (steps + 1) // 2
+        return min(TYPICAL_EVALUATIONS, self.max_nfev) * path
 
     def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run: no observations yet; report the prior until the first fit."""

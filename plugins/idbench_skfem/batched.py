@@ -313,7 +313,13 @@ def _line_residuals(
     """
     asm = model._asm
     r = len(t)
-    h = float(np.max(np.abs(t))) or 1.0
+    h = float(np.max(np.abs(t), initial=0.0))
+    if h == 0.0:  # every prediction is u_a itself
+        kin = asm.kinematics(u_a, np.ones(asm.n_elements))
+        g, good = asm.forces(kin), bool(np.all(kin.det > 0))
+        residuals = thetas[:, None] * g - f_ext
+        ok = np.full(r, good)
+        return ok, np.where(ok, np.linalg.norm(residuals, axis=1), np.inf), residuals
     nodes = h * np.cos(np.pi * (np.arange(4) + 0.5) / 4)  # Chebyshev, in [-h, h]
     unit = np.ones(asm.n_elements)
     forces, dets = [], []

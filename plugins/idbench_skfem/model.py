@@ -32,7 +32,6 @@ FloatArray = NDArray[np.float64]
 MODEL_VERSION = "svk-beam/2"
 """Changes when a solution changes beyond round-off (the truth cache keys on it);
 2: chord steps in Newton (same tolerance, solutions differ by about 1e-10)."""
-"""Bump when the numerics change: part of :meth:`SvkBeam.describe` (cache key)."""
 
 RTOL = 1e-8
 """Newton tolerance on ||residual|| relative to ||external force|| of the step."""
@@ -98,6 +97,10 @@ class SvkBeam(NewtonSolve):
         self.max_iterations = int(opts.get("max_iterations", MAX_ITERATIONS))
         self.sensitivity_refine = bool(opts.get("sensitivity_refine", True))
         self.chord_ratio = float(opts.get("chord_ratio", CHORD_RATIO))
+        if not 0.0 <= self.chord_ratio < 1.0:
+            raise ValueError(
+                f"chord_ratio {self.chord_ratio!r}: must be in [0, 1) (0: plain Newton)"
+            )
         self.backend = resolve_backend(opts.get("solver"))
 
         points, tets = beam.points, beam.tets
@@ -168,12 +171,10 @@ class SvkBeam(NewtonSolve):
             self.scenario.traction(k - 1, self.n_steps),
             self.scenario.traction(k, self.n_steps),
         )
-        factored = False
         for j in range(1, substeps + 1):
             traction = t0 + (j / substeps) * (t1 - t0)
-            u, its = self._newton(modulus, self._load(traction), u, k)
-            factored = factored or its > 0
-        if factored:
+            u, _ = self._newton(modulus, self._load(traction), u, k)
+        if self.last_update_factored:  # else sensitivity() factors K(u) itself
             self._factored_key = (
                 np.asarray(theta, dtype=np.float64).tobytes(),
                 u.tobytes(),
@@ -233,8 +234,9 @@ class SvkBeam(NewtonSolve):
         modulus. Reuses the last Newton factorization when ``state`` and
         ``theta`` are those of the step just solved (plus one step of iterative
         refinement with K(u), option ``sensitivity_refine``, default on: the
-        factorization is of an iterate before the last, off by O(|the updates
-        since|)), else factors K(u) once.
+        factorization is of the iterate before the solution, off by O(|last
+        update|)) if that step ended with a Newton update, else factors K(u)
+        once (after chord updates the factorization held is older).
         """
         modulus = self._modulus(theta, k)
         u = np.asarray(state, dtype=np.float64)
@@ -249,7 +251,7 @@ class SvkBeam(NewtonSolve):
         du = -self._solver.solve(g)
         self._cost[2] += self.parameters.p
         if not exact and self.sensitivity_refine:
-            # the factorization is of the last Newton iterate, not of K(u): one
+            # the factorization is of the iterate before u, not of K(u): one
             # step of iterative refinement with K(u) removes that O(|du|) error
             data = self._asm.tangent_data(kin, modulus, self._pattern)
             du += self._solver.solve(-g - self._pattern.matvec(data, du))

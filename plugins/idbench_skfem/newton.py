@@ -1,10 +1,11 @@
 """Newton's method for one quasi-static load, shared by the beam and the solid.
 
 The models keep their own assembly (a ``kinematics(u, modulus)`` / ``forces``
-/ ``tangent_data`` assembler), sparse pattern and linear solver; this mixin
-owns the iteration: the residual test against ``max(rtol |f_ext|, atol)``,
-the divergence and iteration-limit checks, the factorization and solve, and
-the halving of the update while an element would invert (det F <= 0).
+/ ``tangent_data`` assembler); this mixin builds the sparse pattern and the
+linear solver on first use and owns the iteration: the residual test against
+``max(rtol |f_ext|, atol)``, the divergence and iteration-limit checks, the
+factorization (or a chord step, see :data:`CHORD_RATIO`) and solve, and the
+halving of the update while an element would invert (det F <= 0).
 """
 
 from __future__ import annotations
@@ -54,6 +55,10 @@ class NewtonSolve:
     last_residuals: list[float]
     factorizations: int = 0
     chord_ratio: float = CHORD_RATIO
+    last_update_factored: bool = False
+    """Whether the last load solved ended with a Newton (not chord) update:
+    then the solver holds K at the iterate before the solution, close enough
+    for one step of iterative refinement (the models' sensitivities)."""
 
     @functools.cached_property
     def _pattern(self) -> Any:
@@ -110,6 +115,7 @@ class NewtonSolve:
         kin = asm.kinematics(u, modulus)
         if not np.all(kin.det > 0):
             raise ModelFailure("the starting state has inverted elements", step=k)
+        self.last_update_factored = fresh = False
         for it in range(self.max_iterations + 1):
             r = asm.forces(kin) - f_ext
             norm = float(np.linalg.norm(r))
@@ -120,6 +126,7 @@ class NewtonSolve:
                 )
             if norm <= tol:
                 self._cost[1] += it
+                self.last_update_factored = fresh
                 return u, it
             if it == self.max_iterations or norm > 1e10 * max(res[0], tol):
                 self._cost[1] += it
@@ -128,7 +135,8 @@ class NewtonSolve:
                     f"> tol {tol:.3e} (first |r| = {res[0]:.3e})",
                     step=k,
                 )
-            if it == 0 or norm > self.chord_ratio * res[-2]:
+            fresh = it == 0 or norm > self.chord_ratio * res[-2]
+            if fresh:
                 self._factor(kin, modulus, k)
             du = self._solver.solve(-r)
             self._cost[2] += 1

@@ -65,7 +65,6 @@ IntArray = NDArray[np.int64]
 MODEL_VERSION = "solid/2"
 """Changes when a solution changes beyond round-off (the truth cache keys on it);
 2: chord steps in Newton (same tolerance)."""
-"""Bump when the numerics change: part of :meth:`SolidModel.describe`."""
 
 RTOL = 1e-8
 ATOL = 1e-12
@@ -192,12 +191,10 @@ class SolidModel(NewtonSolve):
             raise ValueError(f"state has shape {u.shape}, expected ({self.n_state},)")
         self._cost[0] += 1
         self._factored_key = None
-        factored = False
         for j in range(1, substeps + 1):
             t = (k - 1 + j / substeps) / self.n_steps
-            u, its = self._newton(modulus, t * self._f_end, u, k)
-            factored = factored or its > 0
-        if factored:
+            u, _ = self._newton(modulus, t * self._f_end, u, k)
+        if self.last_update_factored:  # else sensitivity() factors K(u) itself
             self._factored_key = (np.asarray(theta, float).tobytes(), u.tobytes())
         return u
 
