@@ -447,28 +447,35 @@ def _execute_processes(
     if not queue:
         return
     known = dict(known)
+
+    def refill() -> None:
+        for w in pool.idle():
+            if queue:
+                spec = queue.pop(_next(queue, pool.busy(), known, products))
+                try:
+                    w.give(spec, known)
+                except OSError:  # it died between the check and now
+                    w.spec = None
+                    queue.insert(0, spec)
+
     with _single_thread_environ():
         pool = _Pool(min(jobs, len(queue)) or 1, timeout)
         try:
             while queue or pool.busy():
-                for w in pool.idle():
-                    if queue:
-                        spec = queue.pop(_next(queue, pool.busy(), known, products))
-                        try:
-                            w.give(spec, known)
-                        except OSError:  # it died between the check and now
-                            w.spec = None
-                            queue.insert(0, spec)
+                refill()
                 if not pool.busy():  # every hand-over failed: try again
                     continue
                 pool.wait()
+                finished = []
                 for w in pool.busy():
                     news = pool.attend(w, queue)
                     if news is None:
                         continue
-                    spec, result, added = news
+                    _, result, added = news
                     known.update(added)
                     if result is not None:
-                        yield result
+                        finished.append(result)
+                refill()  # before the caller stores the results: no worker waits
+                yield from finished
         finally:
             pool.close()
