@@ -291,7 +291,9 @@ def compare(
     isolate = registry is None  # workers can rebuild only an installed registry
     session = Session(registry or build_registry())
     # local workers start importing while this process plans and prepares
-    with started(jobs if isolate and jobs > 1 and not scheduler else 0):
+    # (at most one a core: a pool that needs more starts them itself)
+    ahead = min(jobs, os.cpu_count() or 1) if isolate and jobs > 1 else 0
+    with started(0 if scheduler else ahead):
         the_plan = plan(config, session)
         args = (session, jobs, scheduler, progress, isolate)
         if out is None:
