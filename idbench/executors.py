@@ -204,8 +204,8 @@ def _sigint_ignored() -> Iterator[None]:
         return
     try:
         yield
-    finally:
-        signal.signal(signal.SIGINT, old)
+    finally:  # None: set outside Python; the default is the closest
+        signal.signal(signal.SIGINT, signal.SIG_DFL if old is None else old)
 
 
 def _send(conn: Connection, message: Any) -> None:
@@ -223,7 +223,7 @@ def _send(conn: Connection, message: Any) -> None:
     try:
         conn.send(message)
     finally:
-        signal.signal(signal.SIGPIPE, old)
+        signal.signal(signal.SIGPIPE, signal.SIG_DFL if old is None else old)
 
 
 def _spares() -> list[_Worker]:
