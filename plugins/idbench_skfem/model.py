@@ -135,7 +135,6 @@ class SvkBeam(NewtonSolve):
 
         self.last_residuals: list[float] = []
         self._cost = [0, 0, 0]
-        self._factored_key: tuple[bytes, bytes] | None = None
 
     # -- the ForwardModel protocol -------------------------------------------
 
@@ -174,11 +173,7 @@ class SvkBeam(NewtonSolve):
         for j in range(1, substeps + 1):
             traction = t0 + (j / substeps) * (t1 - t0)
             u, _ = self._newton(modulus, self._load(traction), u, k)
-        if self.last_update_factored:  # else sensitivity() factors K(u) itself
-            self._factored_key = (
-                np.asarray(theta, dtype=np.float64).tobytes(),
-                u.tobytes(),
-            )
+        self._remember_factorization(theta, u)
         return u
 
     # -- batched steps (idbench.BatchModel) -----------------------------------
@@ -240,22 +235,9 @@ class SvkBeam(NewtonSolve):
         """
         modulus = self._modulus(theta, k)
         u = np.asarray(state, dtype=np.float64)
-        key = (np.asarray(theta, dtype=np.float64).tobytes(), u.tobytes())
-        kin = self._asm.kinematics(u, modulus)
-        exact = key != self._factored_key
-        if exact:
-            self._factor(kin, modulus, k)
-            self._factored_key = key
         kin_unit = self._asm.kinematics(u, np.ones(self._asm.n_elements))
         g = self._asm.region_forces(kin_unit, self._regions, self.parameters.p)
-        du = -self._solver.solve(g)
-        self._cost[2] += self.parameters.p
-        if not exact and self.sensitivity_refine:
-            # the factorization is of the iterate before u, not of K(u): one
-            # step of iterative refinement with K(u) removes that O(|du|) error
-            data = self._asm.tangent_data(kin, modulus, self._pattern)
-            du += self._solver.solve(-g - self._pattern.matvec(data, du))
-            self._cost[2] += self.parameters.p
+        du = self._state_sensitivity(theta, k, u, modulus, g, self.sensitivity_refine)
         return np.asarray(self._obs @ du.reshape(self.n_state, -1))
 
     def cost(self) -> Cost:

@@ -74,6 +74,50 @@ class NewtonSolve:
         """The linear solver on :attr:`_pattern`, made on first use."""
         return make_solver(self.backend, self._pattern.indptr, self._pattern.indices)
 
+    _factored_key: tuple[bytes, bytes] | None = None
+
+    def _key(self, theta: FloatArray, u: FloatArray) -> tuple[bytes, bytes]:
+        return np.asarray(theta, dtype=np.float64).tobytes(), u.tobytes()
+
+    def _remember_factorization(self, theta: FloatArray, u: FloatArray) -> None:
+        """After a step to ``u``: note whether its factorization can serve it.
+
+        It can if the last Newton update was one (see
+        :attr:`last_update_factored`); :meth:`_state_sensitivity` reuses it then.
+        """
+        self._factored_key = self._key(theta, u) if self.last_update_factored else None
+
+    def _state_sensitivity(
+        self,
+        theta: FloatArray,
+        k: int,
+        u: FloatArray,
+        modulus: FloatArray,
+        g: FloatArray,
+        refine: bool = True,
+    ) -> FloatArray:
+        """du/dtheta = -K(u)^-1 g (n, p) at the converged ``u``.
+
+        Reuses the factorization of the step just solved to ``u`` with
+        ``theta`` (held at the iterate before ``u``; with ``refine``, one step
+        of iterative refinement with K(u) removes that O(|last update|)
+        error), else factors K(u).
+        """
+        key = self._key(theta, u)
+        kin = self._asm.kinematics(u, modulus)
+        exact = key != self._factored_key
+        if exact:
+            self._factor(kin, modulus, k)
+            self._factored_key = key
+        p = g.shape[1]
+        du = -self._solver.solve(g)
+        self._cost[2] += p
+        if not exact and refine:
+            data = self._asm.tangent_data(kin, modulus, self._pattern)
+            du += self._solver.solve(-g - self._pattern.matvec(data, du))
+            self._cost[2] += p
+        return np.asarray(du)
+
     def _theta(self, theta: FloatArray, k: int | None) -> FloatArray:
         """Theta as a flat (p,) array, checked.
 

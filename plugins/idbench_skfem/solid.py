@@ -161,7 +161,6 @@ class SolidModel(NewtonSolve):
         self._grid = _interpolation(mesh, self.grid_points, f2f)
         self._reference = reference.path
         self._cost = [0, 0, 0]
-        self._factored_key: tuple[bytes, bytes] | None = None
         self.last_residuals: list[float] = []
 
     # -- the ForwardModel protocol -------------------------------------------
@@ -194,8 +193,7 @@ class SolidModel(NewtonSolve):
         for j in range(1, substeps + 1):
             t = (k - 1 + j / substeps) / self.n_steps
             u, _ = self._newton(modulus, t * self._f_end, u, k)
-        if self.last_update_factored:  # else sensitivity() factors K(u) itself
-            self._factored_key = (np.asarray(theta, float).tobytes(), u.tobytes())
+        self._remember_factorization(theta, u)
         return u
 
     def observe(self, state: FloatArray) -> FloatArray:
@@ -213,29 +211,16 @@ class SolidModel(NewtonSolve):
     def sensitivity(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
         """D observe / d theta at the converged ``state``, shape (3M, p).
 
-        du/dtheta_r = -K(u)^-1 g_r(u). Reuses the factorization of the step just
-        solved (one step of iterative refinement with K(u) removes the
-        O(|last update|) error of factoring the last iterate), else factors
-        K(u).
+        du/dtheta_r = -K(u)^-1 g_r(u), by :meth:`_state_sensitivity`: the
+        factorization of the step just solved plus one step of iterative
+        refinement if it ended with a Newton update, else K(u) factored.
         """
         modulus = self._modulus(theta, k)
         u = np.asarray(state, dtype=np.float64)
-        key = (np.asarray(theta, float).tobytes(), u.tobytes())
-        kin = self._asm.kinematics(u, modulus)
-        exact = key != self._factored_key
-        if exact:
-            self._factor(kin, modulus, k)
-            self._factored_key = key
-        p = self.parameters.p
         g = self._asm.region_forces(
-            self._asm.kinematics(u, self._factors), self._regions, p
+            self._asm.kinematics(u, self._factors), self._regions, self.parameters.p
         )
-        du = -self._solver.solve(g)
-        self._cost[2] += p
-        if not exact:
-            data = self._asm.tangent_data(kin, modulus, self._pattern)
-            du += self._solver.solve(-g - self._pattern.matvec(data, du))
-            self._cost[2] += p
+        du = self._state_sensitivity(theta, k, u, modulus, g)
         return np.asarray(self._obs @ du.reshape(self.n_state, -1))
 
     def cost(self) -> Cost:
