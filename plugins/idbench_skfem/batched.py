@@ -52,6 +52,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from idbench import ModelFailure
+from idbench_skfem.helpers import Helper, HelperLost
 
 if TYPE_CHECKING:
     from idbench_skfem.assembly import Kinematics
@@ -71,6 +72,9 @@ than 0.1 a refactorization pays for itself. Measured on the RO-UKF path
 MAX_MODIFIED = 6
 """Modified-Newton iterations in a row before the tangent is refactored."""
 
+
+FAR = 10.0
+"""A prediction whose residual exceeds FAR |f_ext| is compared with the given state."""
 
 BATCH_ELEMENTS = 50_000
 """Elements (rows x tets) per vectorised residual evaluation of predictions."""
@@ -115,6 +119,9 @@ class _Anchor:
         only if nothing else has refactored since.
     increment
         The previous call's anchor increment, if that call was at step k - 1.
+    unsettled
+        Whether no other pair met the tolerance at its prediction (then the
+        next call hands pairs to helper processes before the anchor solves).
     """
 
     k: int
@@ -123,6 +130,7 @@ class _Anchor:
     theta_f: FloatArray
     factorizations: int
     increment: FloatArray | None = None
+    unsettled: bool = False
 
 
 def _central(log_thetas: FloatArray) -> int:
@@ -176,8 +184,7 @@ def step_many(
     f_ext = model._load(model.scenario.traction(k, model.n_steps))
     tol = max(model.rtol * float(np.linalg.norm(f_ext)), model.atol)
     log_th = np.log(th)
-    weights = np.bincount(model._regions, weights=asm.volumes, minlength=p)
-    weights = weights / weights.sum()
+    weights = _region_weights(model)
 
     # 1. the anchor: when the previous call was at step k - 1, from the
     # extrapolated increment by chord iterations with the factorization that
@@ -190,10 +197,21 @@ def step_many(
         prev = None  # not the previous step of the same path: start afresh
     start = X[a]
     kin = None
+    others = np.flatnonzero(np.arange(r) != a)
+    early: list[tuple[Helper, NDArray[np.intp]]] = []
     if prev is not None:
         incr = prev.final - prev.start
         if prev.increment is not None:
             incr = 2.0 * incr - prev.increment
+        if prev.unsettled and len(others) > 1:
+            # no prediction settled a pair last step: the helpers start now
+            # from the anchor's predicted increment, while the anchor solves
+            helpers = model._step_helpers()
+            shares = np.array_split(others, min(len(others), len(helpers) + 1))
+            for helper, share in zip(helpers, shares[:-1], strict=False):
+                helper.submit(k, Rows(th[share], X[share] + incr, X[share]))
+                early.append((helper, share))
+            others = shares[-1]
         kin = asm.kinematics(X[a] + incr, moduli[a])
         if np.all(kin.det > 0):
             start = X[a] + incr
@@ -227,8 +245,9 @@ def step_many(
         model._cost[2] += p
 
     # 3. the others: predictions, their residuals in batches (most sigma
-    # points of a full UKF already meet the tolerance there), then chords
-    others = np.flatnonzero(np.arange(r) != a)
+    # points of a full UKF already meet the tolerance there), then chords,
+    # shared with the helper processes (option ``processes``) if any
+    unsettled = False
     if len(others):
         assert S is not None
         preds = u_a + (th[others] - th[a]) @ S.T
@@ -239,22 +258,35 @@ def step_many(
         else:
             mods = np.stack([moduli[i] for i in others])
             ok, norms, residuals = _residuals(model, preds, mods, f_ext)
-        for j, i in enumerate(others):
-            if ok[j] and norms[j] <= tol:
-                stats.converged_at_prediction += 1
-                out[i] = preds[j]
-                continue
-            kin = None
-            if ok[j]:
-                pred, res = preds[j], residuals[j]
-            else:
-                pred = X[i]
-                kin = asm.kinematics(pred, moduli[i])
-                res = asm.forces(kin) - f_ext
-            out[i], theta_f = _modified_newton(
-                model, th[i], moduli[i], f_ext, pred, kin, res, tol, k, theta_f,
-                weights,
-            )  # fmt: skip
+        done = ok & (norms <= tol)
+        stats.converged_at_prediction += int(done.sum())
+        unsettled = not done.any()
+        out[others[done]] = preds[done]
+        todo = np.flatnonzero(~done)
+        rows = Rows(th[others], preds, X[others], residuals, ok)
+        helpers = model._step_helpers() if len(todo) > 1 and not early else []
+        # contiguous shares, the larger ones to the helpers (this process
+        # has solved the anchor); fixed by the order, not by timing
+        shares = np.array_split(todo, min(len(todo), len(helpers) + 1) or 1)
+        sent = []
+        for helper, share in zip(helpers, shares[:-1], strict=False):
+            helper.submit(k, rows.take(share))
+            sent.append((helper, share))
+        try:
+            out[others[shares[-1]]], theta_f = solve_rows(
+                model, k, rows.take(shares[-1]), theta_f
+            )
+        finally:
+            for helper, share in sent:
+                out[others[share]], theta_f = _collect(
+                    model, k, helper, rows.take(share), theta_f
+                )
+    # the helpers' answers (after an exception here they are left pending,
+    # and a helper's next submit discards them)
+    for helper, share in early:
+        rows = Rows(th[share], X[share] + incr, X[share])
+        out[share], theta_f = _collect(model, k, helper, rows, theta_f)
+    assert theta_f is not None
     model._batch_anchor = _Anchor(
         k,
         X[a].copy(),
@@ -262,8 +294,122 @@ def step_many(
         theta_f.copy(),
         model.factorizations,
         None if prev is None else prev.final - prev.start,
+        unsettled,
     )
     return out
+
+
+@dataclass
+class Rows:
+    """Pairs still to converge: what :func:`solve_rows` (and a helper) needs.
+
+    Attributes
+    ----------
+    thetas, preds, starts
+        Parameters (r, p), predicted states (r, n) and the given states
+        (r, n), where a row starts if its prediction inverts an element.
+    residuals, ok
+        The predictions' residuals (r, n) and whether they invert no element
+        (r,), if known (else :func:`solve_rows` evaluates them).
+    """
+
+    thetas: FloatArray
+    preds: FloatArray
+    starts: FloatArray
+    residuals: FloatArray | None = None
+    ok: NDArray[np.bool_] | None = None
+
+    def take(self, index: NDArray[np.intp]) -> Rows:
+        """The rows ``index``."""
+        known = self.residuals is not None and self.ok is not None
+        return Rows(
+            self.thetas[index], self.preds[index], self.starts[index],
+            self.residuals[index] if known else None,  # type: ignore[index]
+            self.ok[index] if known else None,  # type: ignore[index]
+        )  # fmt: skip
+
+
+def solve_rows(
+    model: SvkBeam, k: int, rows: Rows, theta_f: FloatArray | None
+) -> tuple[FloatArray, FloatArray | None]:
+    """Converge each row by chord iterations from its prediction (or its start).
+
+    Returns the states and the theta of the factorization then held
+    (``theta_f`` None: none yet, the first row factors).
+    """
+    asm = model._asm
+    f_ext = model._load(model.scenario.traction(k, model.n_steps))
+    tol = max(model.rtol * float(np.linalg.norm(f_ext)), model.atol)
+    weights = _region_weights(model)
+    out = np.empty_like(rows.preds)
+    for j, theta in enumerate(rows.thetas):
+        modulus = model._modulus(theta, k)
+        kin = None
+        if rows.ok is None or rows.residuals is None:
+            kin = asm.kinematics(rows.preds[j], modulus)
+            ok, res = bool(np.all(kin.det > 0)), asm.forces(kin) - f_ext
+        else:
+            ok, res = bool(rows.ok[j]), rows.residuals[j]
+        u = rows.preds[j]
+        if not ok or np.linalg.norm(res) > FAR * np.linalg.norm(f_ext):
+            # a prediction worse than no displacement at all (parameters far
+            # from the anchor's): start from the given state if that is better
+            kin0 = asm.kinematics(rows.starts[j], modulus)
+            res0 = asm.forces(kin0) - f_ext
+            if not ok or np.linalg.norm(res0) < np.linalg.norm(res):
+                u, kin, res = rows.starts[j], kin0, res0
+        out[j], theta_f = _modified_newton(
+            model, theta, modulus, f_ext, u, kin, res, tol, k, theta_f, weights
+        )
+    return out, theta_f
+
+
+Work = tuple[list[int], int, int]
+"""A helper's work: cost counter increments, factorizations, chord iterations."""
+
+
+def helper_solve(model: SvkBeam, k: int, rows: Rows) -> tuple[FloatArray, Work]:
+    """:func:`solve_rows` in a helper process, from no factorization.
+
+    Returns the states and the work done, which the caller adds to its model's
+    counters (:func:`_add_work`).
+    """
+    cost, fac, mod = list(model._cost), model.factorizations, model.batch_stats.modified
+    states, _ = solve_rows(model, k, rows, None)
+    work = (
+        [a - b for a, b in zip(model._cost, cost, strict=True)],
+        model.factorizations - fac,
+        model.batch_stats.modified - mod,
+    )
+    return states, work
+
+
+def _collect(
+    model: SvkBeam, k: int, helper: Helper, rows: Rows, theta_f: FloatArray | None
+) -> tuple[FloatArray, FloatArray | None]:
+    """A helper's states for ``rows`` (solved here if the helper is lost)."""
+    try:
+        states, work = helper.collect()
+    except HelperLost:  # solved here instead, as without helpers
+        return solve_rows(model, k, rows, theta_f)
+    _add_work(model, work)
+    return states, theta_f
+
+
+def _add_work(model: SvkBeam, work: Work) -> None:
+    """Count a helper's work as the model's own."""
+    cost, fac, mod = work
+    for i, c in enumerate(cost):
+        model._cost[i] += c
+    model.factorizations += fac
+    model.batch_stats.modified += mod
+
+
+def _region_weights(model: SvkBeam) -> FloatArray:
+    """Volume fraction of each parameter region, (p,)."""
+    asm = model._asm
+    w = np.bincount(model._regions, weights=asm.volumes, minlength=model.parameters.p)
+    return np.asarray(w / w.sum())
 
 
 def _residuals(
@@ -350,14 +496,15 @@ def _modified_newton(
     res: FloatArray,
     tol: float,
     k: int,
-    theta_f: FloatArray,
+    theta_f: FloatArray | None,
     weights: FloatArray,
-) -> tuple[FloatArray, FloatArray]:
+) -> tuple[FloatArray, FloatArray | None]:
     """Chord iterations with the factored tangent, refactoring when they are slow.
 
     ``kin`` and ``res`` are the kinematics (None: computed when needed) and the
-    residual at the start ``u``. Returns the converged state and the theta of
-    the factorization now held.
+    residual at the start ``u``; ``theta_f`` is the theta of the factorization
+    held (None: none, the first iteration factors). Returns the converged state
+    and the theta of the factorization now held.
     """
     asm = model._asm
     stats = model.batch_stats
@@ -365,7 +512,7 @@ def _modified_newton(
     if norm <= tol:
         return u, theta_f
     first = norm
-    refactor = False
+    refactor = theta_f is None
     modified = full = in_row = 0
     while True:
         if refactor:
@@ -377,6 +524,7 @@ def _modified_newton(
             full += 1
             in_row = 0
         else:
+            assert theta_f is not None  # refactor starts True without one
             in_row += 1
             scale = float(np.exp(weights @ np.log(theta / theta_f)))
             modified += 1

@@ -52,6 +52,7 @@ def max_nodes() -> int:
     except ValueError:
         raise ValueError(f"{MAX_NODES_ENV}={text!r}: need a whole number") from None
 
+
 _OTHER_SOLIDS = {
     "hexahedron", "hexahedron20", "hexahedron24", "hexahedron27", "wedge",
     "wedge15", "pyramid", "pyramid13", "pyramid14", "tetra10", "tetra20",

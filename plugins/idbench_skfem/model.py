@@ -7,7 +7,9 @@ clamped at x = min x and loaded by a dead uniform traction on x = max x.
 
 from __future__ import annotations
 
+import functools
 import logging
+import weakref
 from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
@@ -16,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from idbench import Cost, ModelSpec, ParameterSpec, Scenario
-from idbench_skfem import batched
+from idbench_skfem import batched, helpers
 from idbench_skfem import mesh as meshes
 from idbench_skfem.assembly import Assembler
 from idbench_skfem.newton import CHORD_RATIO, NewtonSolve
@@ -66,7 +68,9 @@ class SvkBeam(NewtonSolve):
         ``sensitivity_refine``, ``chord_ratio`` (see
         :data:`idbench_skfem.newton.CHORD_RATIO`; 0: plain Newton), ``solver``
         (``"pardiso"``/``"scipy"``; default
-        from ``IDBENCH_SOLVER``).
+        from ``IDBENCH_SOLVER``), ``processes`` (default 1; n > 1: n - 1
+        helper processes share the pairs of :meth:`step_many`, see
+        :mod:`idbench_skfem.helpers`).
 
     Attributes
     ----------
@@ -77,7 +81,7 @@ class SvkBeam(NewtonSolve):
     def __init__(
         self,
         beam: meshes.BeamMesh,
-        scenario: Scenario,
+        scenario: Scenario | EndTraction,
         n_steps: int = 20,
         nu: float = 0.45,
         markers: int = 2,
@@ -102,6 +106,18 @@ class SvkBeam(NewtonSolve):
                 f"chord_ratio {self.chord_ratio!r}: must be in [0, 1) (0: plain Newton)"
             )
         self.backend = resolve_backend(opts.get("solver"))
+        self.processes = opts.get("processes", 1)
+        if isinstance(self.processes, bool) or not isinstance(self.processes, int) \
+                or self.processes < 1:  # fmt: skip
+            raise ValueError(
+                f"processes {self.processes!r}: need a whole number >= 1 "
+                "(1: no helper processes)"
+            )
+        self._recipe = functools.partial(
+            SvkBeam, beam, self.scenario, self.n_steps, self.nu, markers, grid,
+            parameters, {**opts, "processes": 1},
+        )  # fmt: skip
+        self._helpers: list[helpers.Helper] = []
 
         points, tets = beam.points, beam.tets
         free = np.ones(len(points), dtype=bool)
@@ -198,6 +214,22 @@ class SvkBeam(NewtonSolve):
         """
         return batched.step_many(self, thetas, k, states)
 
+    def _step_helpers(self) -> list[helpers.Helper]:
+        """The live helper processes (``processes - 1``, started on first use)."""
+        if not self._helpers and self.processes > 1:
+            self._helpers = [
+                helpers.Helper(self._recipe, batched.helper_solve)
+                for _ in range(self.processes - 1)
+            ]
+            for h in self._helpers:
+                weakref.finalize(self, h.close)
+        return [h for h in self._helpers if h.alive]
+
+    def close(self) -> None:
+        """Stop the helper processes, if any (they also stop with this process)."""
+        for h in self._helpers:
+            h.close()
+
     @property
     def batch_stats(self) -> batched.BatchStats:
         """Factorizations and iterations of :meth:`step_many` so far."""
@@ -257,7 +289,11 @@ class SvkBeam(NewtonSolve):
             "nu": self.nu,
             "parameters": self._parameter_kind,
             "parameter_names": list(self.parameters.names),
-            "options": {k: v for k, v in sorted(self.options.items()) if k != "solver"},
+            "options": {
+                k: v
+                for k, v in sorted(self.options.items())
+                if k not in ("solver", "processes")
+            },
             "markers": len(self.marker_points),
             "grid": list(self.grid_counts),
             "scenario": {"name": s.name, "direction": list(s.direction),
