@@ -81,6 +81,8 @@ class Helper:
         self._ready = False
         self._pending = False
         self.alive = True
+        self.calls = 0
+        """Calls answered (for tests and benchmarks)."""
         try:
             self._conn.send((build, solve))
         except OSError as exc:
@@ -117,6 +119,7 @@ class Helper:
             self._lost(exc)
             raise HelperLost("the helper process is gone") from exc
         if kind == "ok":
+            self.calls += 1
             return value
         if kind == "failure":
             message, step = value

@@ -1,0 +1,213 @@
+"""Helper processes of the beam's batched steps (model option ``processes``)."""
+
+from __future__ import annotations
+
+import gc
+import logging
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from idbench import ModelFailure, Observation, Prior
+from idbench_filters import RoUkf
+from idbench_skfem import batched, mesh
+from idbench_skfem.helpers import Helper, HelperLost
+from idbench_skfem.model import SvkBeam
+from idbench_skfem.scenarios import SCENARIOS
+from idbench_skfem.settings import BeamSettings
+
+SPREAD = 0.3
+"""Log-normal spread of the regional moduli: far enough apart that the
+anchor's predictions settle no pair, so the helpers get work."""
+
+
+def _beam(processes: int = 1) -> SvkBeam:
+    return SvkBeam(
+        mesh.parse("8x2x2"), SCENARIOS[0], n_steps=4, parameters="E_regions",
+        options={"regions": 4, "processes": processes},
+    )  # fmt: skip
+
+
+def _thetas(seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return 5000.0 * np.exp(SPREAD * rng.normal(size=(5, 4)))
+
+
+def _path(model: SvkBeam, thetas: np.ndarray, steps: int = 3) -> list[np.ndarray]:
+    """step_many over the first ``steps`` load steps from the reference state."""
+    states = np.tile(model.reset(), (len(thetas), 1))
+    out = []
+    for k in range(1, steps + 1):
+        states = model.step_many(thetas, k, states)
+        out.append(states)
+    return out
+
+
+def _assert_converged(model: SvkBeam, thetas, k, states) -> None:
+    """Every row meets the Newton test of step() at load k."""
+    f = np.linalg.norm(model.external_force(k))
+    for theta, u in zip(thetas, states, strict=True):
+        r = np.linalg.norm(model.residual(theta, k, u))
+        assert r <= max(model.rtol * f, model.atol) * (1 + 1e-12)
+
+
+@pytest.fixture(scope="module")
+def two():
+    """A model with one helper and its path (the helper starts once)."""
+    model = _beam(processes=2)
+    thetas = _thetas()
+    states = _path(model, thetas)
+    yield model, thetas, states
+    model.close()
+
+
+def test_helper_does_work_and_every_pair_converges(two):
+    model, thetas, states = two
+    (helper,) = model._helpers
+    # the first step hands pairs over after the anchor, the later ones early
+    assert helper.alive and helper.calls == 3
+    assert model._batch_anchor.unsettled  # so steps 2 and 3 sent pairs early
+    for k, s in enumerate(states, start=1):
+        _assert_converged(model, thetas, k, s)
+
+
+def test_results_equal_one_process_to_the_tolerance(two):
+    model, thetas, states = two
+    one = _beam(processes=1)
+    for a, b in zip(_path(one, thetas), states, strict=True):
+        scale = np.abs(a).max()
+        assert np.abs(a - b).max() <= 1e-6 * scale
+    # the same work is counted: one forward solve a pair
+    assert model.cost().forward_solves == one.cost().forward_solves == 15
+
+
+def test_ro_ukf_estimates_equal_one_process_to_the_tolerance():
+    estimates = []
+    for processes in (1, 2):
+        model = _beam(processes)
+        theta = np.array([5000.0, 4000.0, 6000.0, 5000.0])
+        u, obs = model.reset(), {}
+        for k in range(1, 5):
+            u = model.step(theta, k, u)
+            obs[k] = Observation(values=model.observe(u), noise_std=1e-4, step=k)
+        est = RoUkf()
+        est.start(model, Prior((2500.0,) * 4, (2500.0,) * 4))
+        for k in range(1, 5):
+            e = est.update(k, obs[k])
+        estimates.append(e.mean)
+        if processes == 2:
+            assert model._helpers[0].calls >= 3
+        model.close()
+    np.testing.assert_allclose(estimates[1], estimates[0], rtol=1e-6)
+
+
+def test_results_do_not_depend_on_timing(two):
+    _, thetas, states = two
+    other = _beam(processes=2)
+    try:
+        for a, b in zip(_path(other, thetas), states, strict=True):
+            np.testing.assert_array_equal(a, b)
+    finally:
+        other.close()
+
+
+def test_a_lost_helper_is_replaced_by_this_process(caplog):
+    model = _beam(processes=2)
+    thetas = _thetas(1)
+    states = np.tile(model.reset(), (5, 1))
+    states = model.step_many(thetas, 1, states)
+    (helper,) = model._helpers
+    assert helper.calls == 1
+    helper._process.kill()
+    helper._process.wait()
+    with caplog.at_level(logging.WARNING, logger="idbench_skfem.helpers"):
+        new = model.step_many(thetas, 2, states)
+    assert "helper process was lost" in caplog.text
+    assert not helper.alive and model._step_helpers() == []
+    _assert_converged(model, thetas, 2, new)
+    _assert_converged(model, thetas, 3, model.step_many(thetas, 3, new))
+    model.close()
+
+
+def _model_recipe() -> SvkBeam:
+    return _beam()
+
+
+def test_helper_reports_model_failures_and_errors():
+    helper = Helper(_model_recipe, batched.helper_solve)
+    try:
+        model = _beam()
+        n = model.n_state
+        rows = batched.Rows(np.full((1, 4), -1.0), np.zeros((1, n)), np.zeros((1, n)))
+        helper.submit(2, rows)
+        with pytest.raises(ModelFailure, match="not positive") as info:
+            helper.collect()
+        assert info.value.step == 2
+        good = batched.Rows(np.full((1, 4), 5000.0), np.zeros((1, n)), np.zeros((1, n)))
+        helper.submit(1, good)
+        states, work = helper.collect()
+        _assert_converged(model, good.thetas, 1, states)
+        assert work[1] >= 1  # it factored
+        bad = batched.Rows(np.full((1, 4), 5000.0), np.zeros((1, 3)), np.zeros((1, 3)))
+        helper.submit(1, bad)  # wrong shapes: an error, not a model failure
+        with pytest.raises(HelperLost):
+            helper.collect()
+        assert not helper.alive
+    finally:
+        helper.close()
+
+
+def test_close_and_garbage_collection_end_the_process():
+    model = _beam(processes=2)
+    model.step_many(_thetas(2), 1, np.tile(model.reset(), (5, 1)))
+    process = model._helpers[0]._process
+    model.close()
+    assert process.poll() is not None
+    model = _beam(processes=2)
+    model.step_many(_thetas(2), 1, np.tile(model.reset(), (5, 1)))
+    process = model._helpers[0]._process
+    del model
+    gc.collect()
+    assert process.wait(timeout=10) is not None
+
+
+def test_a_script_without_a_main_guard_can_use_helpers(tmp_path):
+    script = tmp_path / "user_script.py"
+    script.write_text(
+        textwrap.dedent(
+            """
+            import numpy as np
+            from idbench_skfem import mesh
+            from idbench_skfem.model import SvkBeam
+            from idbench_skfem.scenarios import SCENARIOS
+
+            m = SvkBeam(mesh.parse("6x2x2"), SCENARIOS[0], n_steps=2,
+                        parameters="E_regions", options={"regions": 4, "processes": 2})
+            th = 5000.0 * np.exp(0.3 * np.random.default_rng(0).normal(size=(5, 4)))
+            u = m.step_many(th, 1, np.tile(m.reset(), (5, 1)))
+            print("calls", m._helpers[0].calls)
+            """
+        )
+    )
+    done = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    assert "calls 1" in done.stdout
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5, True, "2"])
+def test_processes_must_be_a_whole_number(bad):
+    with pytest.raises(ValueError, match=f"processes {bad!r}: need a whole number"):
+        _beam(processes=bad)
+    with pytest.raises(ValueError, match=f"processes {bad!r}: need a whole number"):
+        BeamSettings(processes=bad)
+
+
+def test_processes_is_not_part_of_the_identity():
+    assert BeamSettings(processes=2).identity() == BeamSettings().identity()
+    assert BeamSettings(processes=2).options()["processes"] == 2
+    assert "processes" not in _beam(processes=2).describe()["options"]
