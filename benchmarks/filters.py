@@ -7,8 +7,11 @@ Prints, on the bend-y path (K = 20, noise 1e-4, an observation every step):
   ``model.step`` along the path with E_true, warm started as the filter is),
   the filter's wall time a step with the sigma points batched through
   ``model.step_many`` and looped through ``model.step`` (the model without
-  ``step_many``), each as a multiple of one forward solve (targets: <= 1.3 for
-  p = 1, <= 2 for p = 4), steps per second, and tangent factorizations a step;
+  ``step_many``), and for p = 4 also batched with ``--processes`` (model
+  option ``processes``: helper processes take shares of the sigma points),
+  each as a multiple of one forward solve over the whole path and over its
+  second half (targets: <= 1.3 for p = 1, <= 2 for p = 4), steps per second,
+  and tangent factorizations a step (the helpers' included);
 - the full UKF's wall time a step over its first ``--ukf-steps`` steps,
   batched and looped, at each ``--ukf-meshes`` size (target 10x).
 
@@ -46,9 +49,12 @@ class Looped:
         return getattr(self._model, name)
 
 
-def build(mesh: str, scenario: str, n_steps: int, p: int = 1):
+def build(mesh: str, scenario: str, n_steps: int, p: int = 1, processes: int = 1):
     reg = idbench.build_registry()
-    kw = {"settings": {"parameters": "E_regions", "regions": p}} if p > 1 else {}
+    settings = {"parameters": "E_regions", "regions": p} if p > 1 else {}
+    if processes > 1:
+        settings["processes"] = processes
+    kw = {"settings": settings} if settings else {}
     spec = ModelSpec(mesh=mesh, scenario=reg.scenario(scenario), n_steps=n_steps, **kw)
     return reg.model("svk-beam")(spec)
 
@@ -69,24 +75,33 @@ def truth_path(model, noise: float, seed: int = 0):
 
 
 def time_filter(est, model, obs, n_steps: int):
-    """Wall seconds a step, tangent factorizations a step and the last estimate."""
+    """Wall seconds a step (mean over all steps, and over the second half),
+    tangent factorizations a step and the last estimate."""
     p = model.parameters.p
     f0 = model.factorizations
     est.start(model, Prior((2500.0,) * p, (2500.0,) * p))
-    t = time.perf_counter()
+    seconds = []
     for k in range(1, n_steps + 1):
+        t = time.perf_counter()
         e = est.update(k, obs.get(k))
-    wall = (time.perf_counter() - t) / n_steps
-    return wall, (model.factorizations - f0) / n_steps, e
+        seconds.append(time.perf_counter() - t)
+    wall, late = float(np.mean(seconds)), float(np.mean(seconds[n_steps // 2 :]))
+    return wall, (model.factorizations - f0) / n_steps, e, late
 
 
 def ro_ukf_rows(mesh, p, args):
     model = build(mesh, args.scenario, args.steps, p)
     obs, t_solve = truth_path(model, args.noise)
-    best = {"batched": (np.inf,), "looped": (np.inf,)}
+    variants = {"batched": model, "looped": Looped(model)}
+    if p > 1 and args.processes > 1:
+        # sigma points shared with helper processes (one run first starts them)
+        two = build(mesh, args.scenario, args.steps, p, args.processes)
+        time_filter(RoUkf(), two, obs, 1)
+        variants[f"{args.processes} procs"] = two
+    best = {name: (np.inf,) for name in variants}
     for _ in range(args.repeat):  # interleaved: machine load drifts
         t_solve = min(t_solve, truth_path(model, args.noise)[1])
-        for name, m in (("batched", model), ("looped", Looped(model))):
+        for name, m in variants.items():
             row = time_filter(RoUkf(), m, obs, args.steps)
             if row[0] < best[name][0]:
                 best[name] = row
@@ -94,23 +109,25 @@ def ro_ukf_rows(mesh, p, args):
         f"RO-UKF simplex, {mesh!r} ({model.n_nodes} nodes, {model.n_state} dofs), "
         f"p = {p}: one forward solve {1e3 * t_solve:.2f} ms"
     )
-    for name in ("batched", "looped"):
-        wall, fac, e = best[name]
+    for name in variants:
+        wall, fac, e, late = best[name]
         print(
             f"  {name:8s} {1e3 * wall:8.2f} ms a step = {wall / t_solve:5.2f} x solve"
-            f"  {1 / wall:6.1f} Hz  {fac:5.1f} factorizations a step"
-            f"  E = {e.mean[0]:.2f}"
+            f" (second half {late / t_solve:4.2f})  {1 / wall:6.1f} Hz"
+            f"  {fac:5.1f} factorizations a step  E = {e.mean[0]:.2f}"
         )
     speed = best["looped"][0] / best["batched"][0]
     print(f"  step_many speed-up {speed:.2f}x")
+    for m in variants.values():
+        getattr(m, "close", lambda: None)()
 
 
 def ukf_rows(mesh, args):
     model = build(mesh, args.scenario, args.steps)
     obs, _ = truth_path(model, args.noise)
     ukf = Ukf(max_solves=10**6)
-    wall_b, _, eb = time_filter(ukf, model, obs, args.ukf_steps)
-    wall_l, _, el = time_filter(ukf, Looped(model), obs, args.ukf_steps)
+    wall_b, _, eb, _ = time_filter(ukf, model, obs, args.ukf_steps)
+    wall_l, _, el, _ = time_filter(ukf, Looped(model), obs, args.ukf_steps)
     diff = abs(eb.mean[0] / el.mean[0] - 1)
     print(
         f"Full UKF on {mesh!r} ({model.n_nodes} nodes, {2 * model.n_state + 3} "
@@ -128,6 +145,9 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--ukf-steps", type=int, default=2)
     parser.add_argument("--regions", type=int, default=4)
+    parser.add_argument(
+        "--processes", type=int, default=2, help="for p > 1 also with this many"
+    )
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--noise", type=float, default=1e-4)
     parser.add_argument("--quick", action="store_true", help="small meshes")
