@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import signal
 import subprocess
 import sys
 import textwrap
@@ -114,7 +115,15 @@ def test_results_do_not_depend_on_timing(two):
         other.close()
 
 
-def test_a_lost_helper_is_replaced_by_this_process(caplog):
+@pytest.fixture
+def sigpipe_default():
+    """SIGPIPE at its default (kill), as gmsh leaves it once imported."""
+    old = signal.signal(signal.SIGPIPE, signal.SIG_DFL)
+    yield
+    signal.signal(signal.SIGPIPE, old)
+
+
+def test_a_lost_helper_is_replaced_by_this_process(caplog, sigpipe_default):
     model = _beam(processes=2)
     thetas = _thetas(1)
     states = np.tile(model.reset(), (5, 1))

@@ -30,12 +30,14 @@ from __future__ import annotations
 
 import logging
 import os
+import pickle
+import select
 import signal
 import socket
+import struct
 import subprocess
 import sys
 from collections.abc import Callable
-from multiprocessing.connection import Connection
 from typing import Any
 
 import numpy as np
@@ -77,7 +79,7 @@ class Helper:
             start_new_session=True,  # Ctrl-C goes to the parent only
         )  # fmt: skip
         theirs.close()
-        self._conn = Connection(ours.detach())
+        self._conn = Channel(ours)
         self._ready = False
         self._pending = False
         self.alive = True
@@ -172,6 +174,51 @@ class Helper:
             self._process.wait()
 
 
+class Channel:
+    """Pickled messages over a stream socket, each after its length (8 bytes).
+
+    Writes never raise SIGPIPE (MSG_NOSIGNAL, or SO_NOSIGPIPE on macOS): Python
+    ignores the signal, but a library may restore its default (gmsh does), and
+    a write to a helper that just died would then kill this process; here it
+    raises OSError instead, and the helper counts as lost.
+    """
+
+    _FLAGS = getattr(socket, "MSG_NOSIGNAL", 0)
+
+    def __init__(self, sock: socket.socket) -> None:
+        self._sock = sock
+        if hasattr(socket, "SO_NOSIGPIPE"):  # pragma: no cover (macOS)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_NOSIGPIPE, 1)
+
+    def send(self, message: Any) -> None:
+        """Send one message (OSError if the other end is gone)."""
+        data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+        self._sock.sendall(struct.pack("!Q", len(data)) + data, self._FLAGS)
+
+    def recv(self) -> Any:
+        """The next message (EOFError if the other end closed)."""
+        (size,) = struct.unpack("!Q", self._read(8))
+        return pickle.loads(self._read(size))
+
+    def poll(self, timeout: float) -> bool:
+        """Whether a message (or EOF) is ready within ``timeout`` seconds."""
+        return bool(select.select([self._sock], [], [], timeout)[0])
+
+    def close(self) -> None:
+        """Close this end (the other end then reads EOF)."""
+        self._sock.close()
+
+    def _read(self, size: int) -> bytes:
+        buf = bytearray(size)
+        view, got = memoryview(buf), 0
+        while got < size:
+            n = self._sock.recv_into(view[got:], size - got)
+            if n == 0:
+                raise EOFError("the other end closed")
+            got += n
+        return bytes(buf)
+
+
 def _failure(message: str, step: int) -> ModelFailure:
     """A ModelFailure with ``message`` as its full text and ``step`` set."""
     exc = ModelFailure(message)
@@ -179,7 +226,7 @@ def _failure(message: str, step: int) -> ModelFailure:
     return exc
 
 
-def _serve(conn: Connection) -> None:
+def _serve(conn: Channel) -> None:
     """The helper's loop: build the model, then answer calls until None or EOF."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
@@ -207,4 +254,4 @@ def _serve(conn: Connection) -> None:
 
 
 if __name__ == "__main__":
-    _serve(Connection(int(sys.argv[1])))
+    _serve(Channel(socket.socket(fileno=int(sys.argv[1]))))
