@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import logging
 import os
-import pickle
 import select
 import signal
 import socket
@@ -38,6 +37,7 @@ import struct
 import subprocess
 import sys
 from collections.abc import Callable
+from multiprocessing.reduction import ForkingPickler
 from typing import Any
 
 import numpy as np
@@ -175,7 +175,12 @@ class Helper:
 
 
 class Channel:
-    """Pickled messages over a stream socket, each after its length (8 bytes).
+    """Messages over a stream socket, each after its length (8 bytes).
+
+    Messages are serialised as multiprocessing's own connections do
+    (:class:`multiprocessing.reduction.ForkingPickler`), between this process
+    and the helper it started, over a private socket pair; nothing is read from
+    disk or from anyone else.
 
     Writes never raise SIGPIPE (MSG_NOSIGNAL, or SO_NOSIGPIPE on macOS): Python
     ignores the signal, but a library may restore its default (gmsh does), and
@@ -192,13 +197,13 @@ class Channel:
 
     def send(self, message: Any) -> None:
         """Send one message (OSError if the other end is gone)."""
-        data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+        data = bytes(ForkingPickler.dumps(message))
         self._sock.sendall(struct.pack("!Q", len(data)) + data, self._FLAGS)
 
     def recv(self) -> Any:
         """The next message (EOFError if the other end closed)."""
         (size,) = struct.unpack("!Q", self._read(8))
-        return pickle.loads(self._read(size))
+        return ForkingPickler.loads(self._read(size))
 
     def poll(self, timeout: float) -> bool:
         """Whether a message (or EOF) is ready within ``timeout`` seconds."""
