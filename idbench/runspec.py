@@ -31,7 +31,8 @@ class Setup:
     model
         Registered model name.
     model_settings
-        The model's settings, all of them (defaults filled in), as sorted items.
+        The model's settings (defaults filled in) but its execution settings,
+        as sorted items.
     identity
         What of the settings identifies the data (the settings dataclass's
         ``identity()`` if it has one, else all of them), JSON-able.
@@ -45,6 +46,10 @@ class Setup:
         Prior (mean, std) of every parameter.
     reference
         Estimator whose fit gives the reference value.
+    execution
+        The model's execution settings (see
+        :func:`idbench.session.execution_names`), as sorted items: passed to the
+        model, left out of every key and of the run id.
     """
 
     model: str
@@ -55,6 +60,7 @@ class Setup:
     true: Items
     prior: tuple[float, float]
     reference: str
+    execution: Items = ()
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -94,6 +100,7 @@ class RunSpec:
         fields = dataclasses.asdict(self)
         fields.pop("timeout")
         fields.pop("posterior")
+        fields["setup"].pop("execution")
         return stable_hash(fields)
 
     @property

@@ -88,10 +88,35 @@ def estimator_arguments(cls: type, settings: Any, seed: int) -> dict[str, Any]:
 
 
 def settings_items(settings: Any) -> tuple[tuple[str, Any], ...]:
-    """Sorted (name, value) items of a settings object (empty for None)."""
+    """Sorted (name, value) items of a settings object (empty for None).
+
+    Its execution settings (:func:`execution_names`) are left out.
+    """
     if settings is None:
         return ()
-    return tuple(sorted(dataclasses.asdict(settings).items()))
+    skip = set(execution_names(settings))
+    return tuple(sorted(i for i in dataclasses.asdict(settings).items()
+                        if i[0] not in skip))  # fmt: skip
+
+
+def execution_names(settings: Any) -> tuple[str, ...]:
+    """The settings that change where or how fast work runs, not its results.
+
+    A settings dataclass names them in a class attribute ``EXECUTION`` (a
+    tuple of field names; e.g. helper processes). They reach the model but
+    are left out of run ids, model keys, result rows and the check that an
+    output folder holds the same comparison, so changing them resumes a
+    comparison instead of starting another.
+    """
+    return tuple(getattr(settings, "EXECUTION", ()))
+
+
+def execution_items(settings: Any) -> tuple[tuple[str, Any], ...]:
+    """Sorted (name, value) items of the execution settings (empty for None)."""
+    if settings is None:
+        return ()
+    names = execution_names(settings)
+    return tuple(sorted((n, getattr(settings, n)) for n in names))
 
 
 def settings_identity(settings: Any) -> tuple[Any, ...]:
@@ -158,7 +183,9 @@ class Session:
         if key not in self._models:
             setup = spec.setup
             settings = model_settings(
-                self.registry, setup.model, dict(setup.model_settings)
+                self.registry,
+                setup.model,
+                {**dict(setup.model_settings), **dict(setup.execution)},
             )
             ms = ModelSpec(
                 mesh=mesh,

@@ -31,6 +31,7 @@ from idbench.results import ResultStore
 from idbench.runspec import RunSpec, Setup, expand
 from idbench.session import (
     Session,
+    execution_items,
     model_settings,
     settings_identity,
     settings_items,
@@ -105,6 +106,7 @@ def plan(config: CompareConfig, session: Session) -> Plan:
     setup = Setup(
         model=config.model,
         model_settings=settings_items(settings),
+        execution=execution_items(settings),
         identity=settings_identity(settings),
         truth_mesh=config.truth_mesh,
         steps=config.steps,
@@ -222,6 +224,18 @@ def _known(kind: str, names: Any, table: dict[str, Any], reg: Registry) -> None:
             )
 
 
+def _identity(config: CompareConfig, the_plan: Plan) -> dict[str, Any]:
+    """The configuration an output folder must match: without execution settings."""
+    settings = config.to_dict()
+    names = {n for n, _ in the_plan.runs[0].setup.execution} if the_plan.runs else set()
+    given = settings.get("model_settings", {}).get(config.model, {})
+    for name in names & set(given):
+        del given[name]
+    if not given and config.model in settings.get("model_settings", {}):
+        del settings["model_settings"][config.model]
+    return settings
+
+
 def manifest(config: CompareConfig) -> dict[str, Any]:
     """Versions, solver backend and thread settings, for the results folder."""
     versions: dict[str, str | None] = {}
@@ -312,7 +326,7 @@ def _compare(
     isolate: bool,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     config = the_plan.config
-    store = ResultStore(out, config.to_dict(), manifest(config))
+    store = ResultStore(out, _identity(config, the_plan), manifest(config))
     stored = store.scan()
     done = {run_id for run_id, failed in stored.items() if not failed}
     if len(done) < len(stored):

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import gc
 import logging
+import random
 import signal
 import subprocess
 import sys
 import textwrap
+import time
 
 import numpy as np
 import pytest
@@ -105,14 +107,86 @@ def test_ro_ukf_estimates_equal_one_process_to_the_tolerance():
     np.testing.assert_allclose(estimates[1], estimates[0], rtol=1e-6)
 
 
-def test_results_do_not_depend_on_timing(two):
-    _, thetas, states = two
-    other = _beam(processes=2)
-    try:
-        for a, b in zip(_path(other, thetas), states, strict=True):
+def _delayed_solve(model, k, rows):
+    """batched.helper_solve after a random pause (0-40 ms, unseeded on purpose)."""
+    time.sleep(0.04 * random.random())
+    return batched.helper_solve(model, k, rows)
+
+
+def test_results_do_not_depend_on_timing():
+    """Two helpers answering after random pauses: bitwise the same states."""
+    thetas = _thetas(3)
+    runs = []
+    for delayed in (False, True, True):
+        model = _beam(processes=3)
+        if delayed:
+            model._helpers[:] = [Helper(model._recipe, _delayed_solve) for _ in "ab"]
+        runs.append(_path(model, thetas, steps=4))
+        assert [h.calls for h in model._helpers] == [4, 4]
+        model.close()
+    for other in runs[1:]:
+        for a, b in zip(runs[0], other, strict=True):
             np.testing.assert_array_equal(a, b)
-    finally:
-        other.close()
+
+
+def test_ctrl_c_while_waiting_loses_the_helper_not_the_results(monkeypatch):
+    """A KeyboardInterrupt while a helper's answer is awaited must not leave that
+    answer to be read as the next call's (the states would be another step's)."""
+    model = _beam(processes=2)
+    thetas = _thetas(4)
+    states = model.step_many(thetas, 1, np.tile(model.reset(), (5, 1)))
+    (helper,) = model._helpers
+    real = helper._conn.recv
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(helper._conn, "recv", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        model.step_many(thetas, 2, states)
+    monkeypatch.setattr(helper._conn, "recv", real)
+    assert not helper.alive
+    new = model.step_many(thetas * 1.1, 2, states)  # other thetas: other answers
+    _assert_converged(model, thetas * 1.1, 2, new)
+    model.close()
+
+
+def test_one_models_helpers_run_at_a_time():
+    a, b = _beam(processes=2), _beam(processes=2)
+    thetas, start = _thetas(5), np.tile(a.reset(), (5, 1))
+    a.step_many(thetas, 1, start)
+    (first,) = a._helpers
+    b.step_many(thetas, 1, start)
+    assert first.closed and first._process.poll() is not None
+    assert b._helpers[0].alive
+    _assert_converged(a, thetas, 1, a.step_many(thetas, 1, start))
+    assert a._helpers[0] is not first and a._helpers[0].alive  # started again
+    assert b._helpers[0].closed
+    a.close()
+    b.close()
+
+
+def test_processes_leaves_run_ids_and_output_folders_alone(tmp_path):
+    from idbench.config import CompareConfig
+    from idbench.sweep import compare, runs_of
+
+    def config(**options):
+        return CompareConfig(
+            estimators=("rls",), meshes=("6x2x2",), truth_mesh="9x2x2", seeds=1,
+            steps=3, model_settings={"svk-beam": options},
+        )  # fmt: skip
+
+    ids = {r.run_id for r in runs_of(config())}
+    assert {r.run_id for r in runs_of(config(processes=2))} == ids
+    assert {r.run_id for r in runs_of(config(nu=0.3))} != ids
+    (two,) = runs_of(config(processes=2))
+    assert dict(two.setup.execution) == {"processes": 2}
+    runs, _ = compare(config(), tmp_path)
+    ran = []
+    again, _ = compare(  # resumes the same comparison: nothing left to run
+        config(processes=2), tmp_path, progress=lambda *a: ran.append(a)
+    )
+    assert ran == [] and list(again.run_id) == list(runs.run_id)
 
 
 @pytest.fixture

@@ -28,6 +28,7 @@ the parent as itself.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import select
@@ -36,6 +37,7 @@ import socket
 import struct
 import subprocess
 import sys
+import weakref
 from collections.abc import Callable
 from multiprocessing.reduction import ForkingPickler
 from typing import Any
@@ -51,6 +53,9 @@ FloatArray = NDArray[np.float64]
 
 START_SECONDS = 120.0
 """How long a helper may take to import and build its model."""
+
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+"""Set to 1 in a helper's environment unless set already: a helper is one core."""
 
 
 class HelperLost(RuntimeError):
@@ -73,31 +78,41 @@ class Helper:
         ours, theirs = socket.socketpair()
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)
-        self._process = subprocess.Popen(
-            [sys.executable, "-m", __name__, str(theirs.fileno())],
-            pass_fds=(theirs.fileno(),), env=env, stdin=subprocess.DEVNULL,
-            start_new_session=True,  # Ctrl-C goes to the parent only
-        )  # fmt: skip
-        theirs.close()
+        for name in THREAD_VARIABLES:  # one core's worth of work
+            env.setdefault(name, "1")
+        try:
+            self._process = subprocess.Popen(
+                [sys.executable, "-m", __name__, str(theirs.fileno())],
+                pass_fds=(theirs.fileno(),), env=env, stdin=subprocess.DEVNULL,
+                start_new_session=True,  # Ctrl-C goes to the parent only
+            )  # fmt: skip
+        finally:
+            theirs.close()
         self._conn = Channel(ours)
         self._ready = False
         self._pending = False
         self.alive = True
+        self.closed = False
+        """Whether :meth:`close` stopped it (not lost: it may be started again)."""
         self.calls = 0
         """Calls answered (for tests and benchmarks)."""
-        try:
-            self._conn.send((build, solve))
-        except OSError as exc:
-            self._lost(exc)
+        self._io(self._conn.send, (build, solve))
 
     def submit(self, *args: Any) -> None:
         """Send one call; :meth:`collect` returns its result."""
-        self._drain()
-        try:
-            self._wait_ready()
-            self._conn.send(args)
-        except (OSError, EOFError, HelperLost) as exc:
-            self._lost(exc)
+        if self._pending:  # the caller raised before collecting the last one
+            self._io(self._conn.recv)
+            self._pending = False
+        if not self._ready and self.alive:
+            if not self._conn.poll(START_SECONDS):
+                self._lost(f"no answer within {START_SECONDS:.0f} s of starting")
+            else:
+                kind, value = self._io(self._conn.recv) or (None, None)
+                if kind == "ready":
+                    self._ready = True
+                elif self.alive:
+                    self._lost(str(value))
+        self._io(self._conn.send, args)
         self._pending = True
 
     def collect(self) -> Any:
@@ -112,30 +127,25 @@ class Helper:
         """
         if not self._pending:
             raise RuntimeError("collect() without submit()")
+        answer = self._io(self._conn.recv)
         self._pending = False
         if not self.alive:
             raise HelperLost("the helper process is gone")
-        try:
-            kind, value = self._conn.recv()
-        except (OSError, EOFError) as exc:
-            self._lost(exc)
-            raise HelperLost("the helper process is gone") from exc
+        kind, value = answer
         if kind == "ok":
             self.calls += 1
             return value
         if kind == "failure":
             message, step = value
             raise ModelFailure(message) if step is None else _failure(message, step)
-        self._lost(RuntimeError(value))
+        self._lost(str(value))
         raise HelperLost(value)
 
     def close(self) -> None:
-        """Stop the process (idempotent)."""
+        """Stop the process and close the socket (idempotent)."""
         if self._process.poll() is None:
-            try:
-                self._conn.send(None)
-            except (OSError, ValueError):
-                pass
+            if self.alive:
+                self._io(self._conn.send, None)
             try:
                 self._process.wait(timeout=2.0)
             except subprocess.TimeoutExpired:
@@ -143,35 +153,71 @@ class Helper:
                 self._process.wait()
         self._conn.close()
         self.alive = False
+        self.closed = True
 
-    def _drain(self) -> None:
-        """Discard an uncollected result (the caller raised before collecting)."""
-        if self._pending and self.alive:
-            self._pending = False
-            try:
-                self._conn.recv()
-            except (OSError, EOFError) as exc:
-                self._lost(exc)
+    def _io(self, op: Callable[..., Any], *args: Any) -> Any:
+        """``op(*args)`` on the socket; the helper is lost if it does not complete.
 
-    def _wait_ready(self) -> None:
-        if self._ready:
-            return
+        Any exception (a dead helper, a garbled message, or a KeyboardInterrupt
+        half way through a message, which would leave the stream out of step)
+        loses the helper, so its pairs run here from then on; a
+        KeyboardInterrupt is raised again.
+        """
         if not self.alive:
-            raise HelperLost("the helper process is gone")
-        if not self._conn.poll(START_SECONDS):
-            raise HelperLost(f"no answer within {START_SECONDS:.0f} s of starting")
-        kind, value = self._conn.recv()
-        if kind != "ready":
-            raise HelperLost(str(value))
-        self._ready = True
+            return None
+        try:
+            return op(*args)
+        except BaseException as exc:
+            self._lost(f"{type(exc).__name__}: {exc}")
+            if not isinstance(exc, Exception):
+                raise
+            return None
 
-    def _lost(self, exc: BaseException) -> None:
+    def _lost(self, why: str) -> None:
         if self.alive:
-            log.warning("a step helper process was lost (%s): solving in one", exc)
+            log.warning("a step helper process was lost (%s): solving here", why)
         self.alive = False
         if self._process.poll() is None:
             self._process.kill()
             self._process.wait()
+        self._conn.close()
+
+
+_running: tuple[weakref.ref[Any], list[Helper]] | None = None
+"""The owner of the helpers running in this process, and the helpers."""
+
+
+def start(
+    owner: Any, count: int, build: Callable[[], Any], solve: Callable[..., Any]
+) -> list[Helper]:
+    """Start ``count`` helpers for ``owner``, stopping those of any other owner.
+
+    One owner's helpers run at a time in a process, so a sweep that caches
+    many models keeps ``count`` helpers, not ``count`` a model; an owner whose
+    helpers were stopped starts them again when it needs them. Returns []
+    (with a warning) if a process cannot be started.
+    """
+    global _running
+    if _running is not None and _running[0]() is not owner:
+        for helper in _running[1]:
+            helper.close()
+    helpers: list[Helper] = []
+    try:
+        for _ in range(count):
+            helpers.append(Helper(build, solve))
+    except OSError as exc:
+        log.warning("cannot start a step helper process (%s): solving here", exc)
+        for helper in helpers:
+            helper.close()
+        helpers = []
+    _running = (weakref.ref(owner), helpers)
+    return helpers
+
+
+def close_all(helpers: list[Helper]) -> None:
+    """Close every helper of ``helpers``."""
+    for helper in helpers:
+        helper.close()
 
 
 class Channel:
@@ -232,30 +278,28 @@ def _failure(message: str, step: int) -> ModelFailure:
 
 
 def _serve(conn: Channel) -> None:
-    """The helper's loop: build the model, then answer calls until None or EOF."""
+    """The helper's loop: build the model, then answer calls until None or EOF.
+
+    Ends quietly when the parent is gone (EOF, or a failed write).
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         build, solve = conn.recv()
         model = build()
-    except EOFError:
+        conn.send(("ready", None))
+        while (args := conn.recv()) is not None:
+            try:
+                answer = ("ok", solve(model, *args))
+            except ModelFailure as exc:
+                answer = ("failure", (str(exc), exc.step))
+            except Exception as exc:  # reported to the parent
+                answer = ("error", f"{type(exc).__name__}: {exc}")
+            conn.send(answer)
+    except (EOFError, OSError):
         return
-    except Exception as exc:  # reported to the parent
-        conn.send(("error", f"building the model failed: {exc!r}"))
-        return
-    conn.send(("ready", None))
-    while True:
-        try:
-            args = conn.recv()
-        except (EOFError, OSError):
-            return
-        if args is None:
-            return
-        try:
-            conn.send(("ok", solve(model, *args)))
-        except ModelFailure as exc:
-            conn.send(("failure", (str(exc), exc.step)))
-        except Exception as exc:  # reported to the parent
-            conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    except Exception as exc:  # building failed: reported to the parent
+        with contextlib.suppress(OSError):
+            conn.send(("error", f"building the model failed: {exc!r}"))
 
 
 if __name__ == "__main__":

@@ -215,20 +215,26 @@ class SvkBeam(NewtonSolve):
         return batched.step_many(self, thetas, k, states)
 
     def _step_helpers(self) -> list[helpers.Helper]:
-        """The live helper processes (``processes - 1``, started on first use)."""
-        if not self._helpers and self.processes > 1:
-            self._helpers = [
-                helpers.Helper(self._recipe, batched.helper_solve)
-                for _ in range(self.processes - 1)
-            ]
-            for h in self._helpers:
-                weakref.finalize(self, h.close)
-        return [h for h in self._helpers if h.alive]
+        """The live helper processes (``processes - 1``, started on first use).
+
+        One model's helpers run at a time in a process (see
+        :func:`idbench_skfem.helpers.start`); this model's start again if
+        another model's stopped them. Lost helpers are not replaced.
+        """
+        box = self._helpers
+        if self.processes > 1 and (not box or all(h.closed for h in box)):
+            if not box:  # the first start: stop them with the model
+                weakref.finalize(self, helpers.close_all, box)
+            box[:] = helpers.start(
+                self, self.processes - 1, self._recipe, batched.helper_solve
+            )
+            if not box:  # could not start one: do not try at every step
+                self.processes = 1
+        return [h for h in box if h.alive]
 
     def close(self) -> None:
         """Stop the helper processes, if any (they also stop with this process)."""
-        for h in self._helpers:
-            h.close()
+        helpers.close_all(self._helpers)
 
     @property
     def batch_stats(self) -> batched.BatchStats:

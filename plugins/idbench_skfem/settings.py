@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -70,6 +70,9 @@ class BeamSettings:
     sensitivity_refine: bool | None = None
     solver: str | None = None
     processes: int | None = None
+
+    EXECUTION: ClassVar[tuple[str, ...]] = ("processes",)
+    """Settings that change where work runs, not results (left out of run ids)."""
 
     def __post_init__(self) -> None:
         if not _number(self.nu) or not -1.0 < self.nu < 0.5:
