@@ -25,9 +25,19 @@ s K(u_f; theta_f) with the scalar s = prod_r (theta_r / theta_{f,r})^{w_r}
 2. the sensitivity S = du/dtheta = -K^-1 [g_1 ... g_p] at the anchor's
    solution u_a costs p back-substitutions with the factorization in hand;
 3. every other pair i starts from the prediction u_a + S (theta_i - theta_a)
-   (its given state if that inverts an element); the residuals of all
-   predictions are evaluated together (vectorised over pairs), and only the
-   pairs whose prediction misses the tolerance iterate.
+   (from its given state if that inverts an element, or if the prediction's
+   residual exceeds ``FAR`` |f_ext| and the given state's is smaller: far
+   from the anchor, the linear prediction can be worse than no move at all);
+   the residuals of all predictions are evaluated together (vectorised over
+   pairs), and only the pairs whose prediction misses the tolerance iterate.
+
+With the model option ``processes = n > 1`` (:mod:`idbench_skfem.helpers`)
+the pairs that iterate are split in n contiguous shares, fixed by their
+order: n - 1 helper processes solve theirs (from no factorization) while this
+process solves the last share. When the previous call's predictions settled
+no pair (typical of several regions: the sensitivity predicts them poorly),
+the helpers' shares go out before the anchor solves, predicted as state_i + d
+(the anchor's extrapolated increment), so the anchor overlaps them.
 
 The chord (modified Newton) iteration is u <- u - K_f^-1 r(u) / s_i with the
 last factorization K_f, testing the *true* residual r(u) = f_int(u; theta_i)
@@ -178,6 +188,7 @@ def step_many(
     stats = model.batch_stats
     stats.calls += 1
     stats.pairs += r
+    settled_before = stats.converged_at_prediction
     model._cost[0] += r
     model._factored_key = None
     asm = model._asm
@@ -247,7 +258,6 @@ def step_many(
     # 3. the others: predictions, their residuals in batches (most sigma
     # points of a full UKF already meet the tolerance there), then chords,
     # shared with the helper processes (option ``processes``) if any
-    unsettled = False
     if len(others):
         assert S is not None
         preds = u_a + (th[others] - th[a]) @ S.T
@@ -260,7 +270,6 @@ def step_many(
             ok, norms, residuals = _residuals(model, preds, mods, f_ext)
         done = ok & (norms <= tol)
         stats.converged_at_prediction += int(done.sum())
-        unsettled = not done.any()
         out[others[done]] = preds[done]
         todo = np.flatnonzero(~done)
         rows = Rows(th[others], preds, X[others], residuals, ok)
@@ -294,7 +303,7 @@ def step_many(
         theta_f.copy(),
         model.factorizations,
         None if prev is None else prev.final - prev.start,
-        unsettled,
+        r > 1 and stats.converged_at_prediction == settled_before,
     )
     return out
 
@@ -351,7 +360,9 @@ def solve_rows(
         else:
             ok, res = bool(rows.ok[j]), rows.residuals[j]
         u = rows.preds[j]
-        if not ok or np.linalg.norm(res) > FAR * np.linalg.norm(f_ext):
+        if ok and np.linalg.norm(res) <= tol:
+            model.batch_stats.converged_at_prediction += 1
+        elif not ok or np.linalg.norm(res) > FAR * np.linalg.norm(f_ext):
             # a prediction worse than no displacement at all (parameters far
             # from the anchor's): start from the given state if that is better
             kin0 = asm.kinematics(rows.starts[j], modulus)
@@ -364,8 +375,9 @@ def solve_rows(
     return out, theta_f
 
 
-Work = tuple[list[int], int, int]
-"""A helper's work: cost counter increments, factorizations, chord iterations."""
+Work = tuple[list[int], int, int, int]
+"""A helper's work: cost counter increments, factorizations, chord iterations,
+pairs converged at their prediction."""
 
 
 def helper_solve(model: SvkBeam, k: int, rows: Rows) -> tuple[FloatArray, Work]:
@@ -374,12 +386,15 @@ def helper_solve(model: SvkBeam, k: int, rows: Rows) -> tuple[FloatArray, Work]:
     Returns the states and the work done, which the caller adds to its model's
     counters (:func:`_add_work`).
     """
-    cost, fac, mod = list(model._cost), model.factorizations, model.batch_stats.modified
+    stats = model.batch_stats
+    cost, fac = list(model._cost), model.factorizations
+    mod, settled = stats.modified, stats.converged_at_prediction
     states, _ = solve_rows(model, k, rows, None)
     work = (
         [a - b for a, b in zip(model._cost, cost, strict=True)],
         model.factorizations - fac,
-        model.batch_stats.modified - mod,
+        stats.modified - mod,
+        stats.converged_at_prediction - settled,
     )
     return states, work
 
@@ -398,11 +413,12 @@ def _collect(
 
 def _add_work(model: SvkBeam, work: Work) -> None:
     """Count a helper's work as the model's own."""
-    cost, fac, mod = work
+    cost, fac, mod, settled = work
     for i, c in enumerate(cost):
         model._cost[i] += c
     model.factorizations += fac
     model.batch_stats.modified += mod
+    model.batch_stats.converged_at_prediction += settled
 
 
 def _region_weights(model: SvkBeam) -> FloatArray:

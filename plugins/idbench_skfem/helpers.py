@@ -1,12 +1,14 @@
 """Helper processes that solve some of a batched step's pairs (option ``processes``).
 
 With ``processes = n > 1`` a model's :func:`~idbench_skfem.batched.step_many`
-hands the pairs its predictions do not settle to ``n - 1`` helper processes
-and itself, in contiguous shares fixed by their order (so results do not
-depend on timing). Each helper is a spawned process holding its own copy of
-the model (rebuilt from the constructor's arguments) and its own
-factorizations; a call ships predictions, residuals and thetas (a few vectors
-of n floats) and gets the converged states and the work done back.
+splits the pairs it must iterate between ``n - 1`` helper processes and
+itself, in contiguous shares fixed by their order (so results do not depend
+on timing; see :mod:`idbench_skfem.batched` for which pairs and when). Each
+helper is a process holding its own copy of the model (rebuilt from the
+constructor's arguments) and its own factorizations; a call ships thetas,
+predictions and given states (a few vectors of n floats) and gets the
+converged states and the work done back. One model's helpers run at a time
+in a process (:func:`start`).
 
 Threads do not pay here: a residual evaluation is some 40 numpy calls on
 arrays of a few thousand elements, and two threads contending for the GIL run
@@ -19,11 +21,12 @@ A helper is ``python -m idbench_skfem.helpers`` on one end of a socket pair
 script, which a user's script without an ``if __name__ == "__main__"`` guard
 cannot survive). It starts on first use (about a second to import and build
 the model; the call waits for it, so the shares never depend on timing),
-ignores SIGINT (the parent owns Ctrl-C) and ends when the parent closes its
-end of the socket, or dies. If one
-dies, its pairs are solved in the parent and it is not used again (a
-warning says so); a :class:`~idbench.ModelFailure` in a helper is raised in
-the parent as itself.
+ignores SIGINT (the parent owns Ctrl-C), runs one BLAS thread, and ends
+quietly when the parent closes its end of the socket, or dies. If a helper
+dies or a message to or from it is cut short (also by a Ctrl-C while the
+parent waits), its pairs are solved in the parent and it is not used again
+(a warning says so); a :class:`~idbench.ModelFailure` in a helper is raised
+in the parent as itself.
 """
 
 from __future__ import annotations

@@ -205,7 +205,8 @@ class SvkBeam(NewtonSolve):
         :mod:`idbench_skfem.batched`. In :meth:`cost`, each pair counts as a
         forward solve and each chord (modified Newton) iteration as a Newton
         iteration and a linear solve; :attr:`factorizations` counts the
-        factorizations they share.
+        factorizations they share (with option ``processes``, the helper
+        processes' too).
 
         Raises
         ------
