@@ -51,7 +51,7 @@ class BeamSettings:
         installed).
     processes
         Processes that solve a batched step's sigma points (None: 1). With 2,
-        a helper process takes half of the pairs a step cannot predict: 1.6x
+        a helper process takes half of the pairs a step cannot predict: 1.5x
         faster RO-UKF steps with 4 regions on an idle 2-core machine; leave it
         at 1 in sweeps with ``--jobs`` (their runs already fill the cores).
         Results equal those of one process to the Newton tolerance; not part
