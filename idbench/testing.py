@@ -140,12 +140,20 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
 
 
 def check_model_settings(cls: type) -> None:
-    """Check a model's settings class: a dataclass, every field with a default."""
+    """Check a model's settings class.
+
+    It must be a dataclass with a default for every field, whose
+    ``EXECUTION`` (if any) names some of its fields.
+    """
     assert dataclasses.is_dataclass(cls), "model settings must be a dataclass"
+    names = set()
     for f in dataclasses.fields(cls):
         has = f.default is not dataclasses.MISSING
         has = has or f.default_factory is not dataclasses.MISSING
         assert has, f"setting {f.name!r} needs a default"
+        names.add(f.name)
+    unknown = set(getattr(cls, "EXECUTION", ())) - names
+    assert not unknown, f"EXECUTION names settings that are not fields: {unknown}"
     cls()
 
 

@@ -102,3 +102,24 @@ def test_step_many_that_miscounts_is_caught():
     )
     with pytest.raises(AssertionError, match="forward solves"):
         check_batch_model(model, np.array([[1.0], [2.0]]))
+
+
+def test_execution_must_name_fields():
+    import dataclasses
+    from typing import ClassVar
+
+    from idbench.testing import check_model_settings
+
+    @dataclasses.dataclass
+    class Good:
+        workers: int = 1
+        EXECUTION: ClassVar[tuple[str, ...]] = ("workers",)
+
+    @dataclasses.dataclass
+    class Bad:
+        workers: int = 1
+        EXECUTION: ClassVar[tuple[str, ...]] = ("threads",)
+
+    check_model_settings(Good)
+    with pytest.raises(AssertionError, match="threads"):
+        check_model_settings(Bad)
