@@ -24,8 +24,11 @@ s K(u_f; theta_f) with the scalar s = prod_r (theta_r / theta_{f,r})^{w_r}
    on what ran before it on the same model;
 2. the sensitivity S = du/dtheta = -K^-1 [g_1 ... g_p] at the anchor's
    solution u_a costs p back-substitutions with the factorization in hand;
-3. every other pair i starts from the prediction u_a + S (theta_i - theta_a)
-   (from its given state if that inverts an element, or if the prediction's
+3. every other pair i starts from the prediction
+   u_a + S (theta_a / theta_i) (theta_i - theta_a), linear in 1 / theta (exact
+   for a linear model with one modulus, where u is proportional to 1 / E;
+   for regions in series, like the beam's slabs, compliances add), from its
+   given state if that inverts an element, or if the prediction's
    residual exceeds ``FAR`` |f_ext| and the given state's is smaller: far
    from the anchor, the linear prediction can be worse than no move at all);
    the residuals of all predictions are evaluated together (vectorised over
@@ -260,10 +263,12 @@ def step_many(
     # shared with the helper processes (option ``processes``) if any
     if len(others):
         assert S is not None
-        preds = u_a + (th[others] - th[a]) @ S.T
+        # linear in 1 / theta: exact for a linear model with one modulus
+        steps = th[a] * (th[others] - th[a]) / th[others]
+        preds = u_a + steps @ S.T
         if p == 1 and len(others) > POLYNOMIAL_ABOVE:
             ok, norms, residuals = _line_residuals(
-                model, u_a, S[:, 0], th[others, 0] - th[a, 0], th[others, 0], f_ext
+                model, u_a, S[:, 0], steps[:, 0], th[others, 0], f_ext
             )
         else:
             mods = np.stack([moduli[i] for i in others])
