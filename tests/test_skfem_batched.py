@@ -231,3 +231,29 @@ def test_line_residuals_when_every_prediction_is_the_anchor():
     np.testing.assert_array_equal(ok, ok_ref)
     np.testing.assert_allclose(res, res_ref, rtol=0, atol=1e-14)
     assert np.all(norms <= model.rtol * np.linalg.norm(f_ext))  # converged
+
+
+@pytest.mark.parametrize("beta", [0.0, 1.0, 2.0, 0.5])
+def test_prediction_steps_agree_to_first_order(beta):
+    from idbench_skfem.batched import _prediction_steps
+
+    theta_a = np.array([5000.0, 3000.0])
+    h = np.array([[1e-4, -2e-4]]) * theta_a
+    t = _prediction_steps(theta_a, theta_a + h, beta)
+    np.testing.assert_allclose(t, h, rtol=5e-4)
+
+
+def test_prediction_in_inverse_theta_is_exact_for_a_linear_model():
+    """u = c / theta: S = -u_a / theta_a, and u_a + S t equals u(theta) for any
+    theta, however far (the linear-in-theta prediction does not)."""
+    from idbench_skfem.batched import _prediction_steps
+
+    c, theta_a = np.array([2.0, -1.0, 0.5]), np.array([5000.0])
+    u_a = c / theta_a
+    S = (-u_a / theta_a)[:, None]
+    thetas = np.array([[1000.0], [5000.0], [40000.0]])
+    exact = c / thetas
+    pred = u_a + _prediction_steps(theta_a, thetas, 2.0) @ S.T
+    np.testing.assert_allclose(pred, exact, rtol=1e-12)
+    linear = u_a + _prediction_steps(theta_a, thetas, 0.0) @ S.T
+    assert np.abs(linear - exact).max() > 0.5 * np.abs(exact).max()

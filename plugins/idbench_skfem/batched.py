@@ -24,13 +24,12 @@ s K(u_f; theta_f) with the scalar s = prod_r (theta_r / theta_{f,r})^{w_r}
    on what ran before it on the same model;
 2. the sensitivity S = du/dtheta = -K^-1 [g_1 ... g_p] at the anchor's
    solution u_a costs p back-substitutions with the factorization in hand;
-3. every other pair i starts from the prediction
-   u_a + S (theta_a / theta_i) (theta_i - theta_a), linear in 1 / theta (exact
-   for a linear model with one modulus, where u is proportional to 1 / E;
-   for regions in series, like the beam's slabs, compliances add), from its
-   given state if that inverts an element, or if the prediction's
-   residual exceeds ``FAR`` |f_ext| and the given state's is smaller: far
-   from the anchor, the linear prediction can be worse than no move at all);
+3. every other pair i starts from the prediction u_a + S t_i, t_i a step
+   that is theta_i - theta_a to the first order (:func:`_prediction_steps`):
+   linear in theta for one parameter, in 1 / theta for several (the slabs'
+   compliances add), or from its given state if that inverts an element, or
+   if the prediction's residual exceeds ``FAR`` |f_ext| and the given state's
+   is smaller (far from the anchor, a prediction can be worse than no move);
    the residuals of all predictions are evaluated together (vectorised over
    pairs), and only the pairs whose prediction misses the tolerance iterate.
 
@@ -85,6 +84,18 @@ than 0.1 a refactorization pays for itself. Measured on the RO-UKF path
 MAX_MODIFIED = 6
 """Modified-Newton iterations in a row before the tangent is refactored."""
 
+
+BETA = 2.0
+"""The form of the predictions with several parameters (:func:`_prediction_steps`):
+linear in 1 / theta, as the tip deflection of slabs in series (their
+compliances add). On the RO-UKF path with 4 slabs (benchmarks/filters.py):
+6.3 factorizations a step, against 6.7 in log theta and 7.25 linear in theta."""
+
+BETA_ONE = 0.0
+"""The form with one parameter: linear in theta. A large deflection stiffens
+the beam, so 1 / E overshoots far from the anchor (the RO-UKF's first step
+from rest: residual 9e9 x tol against 3e8; 2.1 factorizations a step against
+1.55 over the path); near it the forms agree to 1%."""
 
 FAR = 10.0
 """A prediction whose residual exceeds FAR |f_ext| is compared with the given state."""
@@ -263,8 +274,7 @@ def step_many(
     # shared with the helper processes (option ``processes``) if any
     if len(others):
         assert S is not None
-        # linear in 1 / theta: exact for a linear model with one modulus
-        steps = th[a] * (th[others] - th[a]) / th[others]
+        steps = _prediction_steps(th[a], th[others], BETA_ONE if p == 1 else BETA)
         preds = u_a + steps @ S.T
         if p == 1 and len(others) > POLYNOMIAL_ABOVE:
             ok, norms, residuals = _line_residuals(
@@ -311,6 +321,25 @@ def step_many(
         r > 1 and stats.converged_at_prediction == settled_before,
     )
     return out
+
+
+def _prediction_steps(
+    theta_a: FloatArray, thetas: FloatArray, beta: float
+) -> FloatArray:
+    """Steps t (r, p) of the predictions u_a + S t from the anchor's theta_a.
+
+    u is predicted linearly in theta^(1 - beta) (in log theta for beta = 1),
+    scaled to the first order of theta: t = theta_a ((theta /
+    theta_a)^(1 - beta) - 1) / (1 - beta). Beta = 0 is linear in theta, 2
+    linear in 1 / theta (exact for a linear model with one modulus, where u is
+    proportional to 1 / E, and for regions in series, whose compliances add).
+    """
+    if beta == 0.0:
+        return np.asarray(thetas - theta_a)
+    ratio = thetas / theta_a
+    if beta == 1.0:
+        return np.asarray(theta_a * np.log(ratio))
+    return np.asarray(theta_a * (ratio ** (1.0 - beta) - 1.0) / (1.0 - beta))
 
 
 @dataclass
