@@ -193,6 +193,10 @@ def _results_settings(settings: Any) -> Any:
         for key, default in ADDED.items():
             if plain.get(key, default) == default:
                 plain.pop(key, None)
+        for table in ("model_settings", "estimator_settings"):
+            # an empty table means the defaults, as no table does
+            if isinstance(plain.get(table), dict):
+                plain[table] = {k: v for k, v in plain[table].items() if v != {}}
     return plain
 
 

@@ -106,7 +106,9 @@ def execution_names(settings: Any) -> tuple[str, ...]:
     tuple of field names; e.g. helper processes). They reach the model but
     are left out of run ids, model keys, result rows and the check that an
     output folder holds the same comparison, so changing them resumes a
-    comparison instead of starting another.
+    comparison instead of starting another. A settings class that defines
+    ``identity()`` must leave them out of it, and the model out of its
+    ``describe()`` (both key data and caches).
     """
     return tuple(getattr(settings, "EXECUTION", ()))
 
@@ -179,7 +181,9 @@ class Session:
     ) -> ForwardModel:
         """The forward model of ``mesh`` on ``scenario`` (one per role)."""
         scenario = scenario or spec.scenario
-        key = spec.model_key(mesh, scenario, role)
+        # execution settings (not in model_key) still pick the model object: a
+        # long-lived session must not serve a later sweep an earlier one's
+        key = spec.model_key(mesh, scenario, role) + repr(spec.setup.execution)
         if key not in self._models:
             setup = spec.setup
             settings = model_settings(

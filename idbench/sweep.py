@@ -231,8 +231,6 @@ def _identity(config: CompareConfig, the_plan: Plan) -> dict[str, Any]:
     given = settings.get("model_settings", {}).get(config.model, {})
     for name in names & set(given):
         del given[name]
-    if not given and config.model in settings.get("model_settings", {}):
-        del settings["model_settings"][config.model]
     return settings
 
 
@@ -326,7 +324,10 @@ def _compare(
     isolate: bool,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     config = the_plan.config
-    store = ResultStore(out, _identity(config, the_plan), manifest(config))
+    execution = dict(the_plan.runs[0].setup.execution) if the_plan.runs else {}
+    store = ResultStore(
+        out, _identity(config, the_plan), {**manifest(config), "execution": execution}
+    )
     stored = store.scan()
     done = {run_id for run_id, failed in stored.items() if not failed}
     if len(done) < len(stored):

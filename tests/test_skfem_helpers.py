@@ -187,6 +187,90 @@ def test_processes_leaves_run_ids_and_output_folders_alone(tmp_path):
         config(processes=2), tmp_path, progress=lambda *a: ran.append(a)
     )
     assert ran == [] and list(again.run_id) == list(runs.run_id)
+    # an empty settings table means what no table means
+    plain = CompareConfig(
+        estimators=("rls",), meshes=("6x2x2",), truth_mesh="9x2x2", seeds=1, steps=3
+    )
+    compare(plain, tmp_path, progress=lambda *a: ran.append(a))
+    assert ran == []
+
+
+def test_processes_reach_the_model_and_pick_it_in_a_session():
+    from idbench.config import CompareConfig
+    from idbench.session import Session
+    from idbench.sweep import runs_of
+
+    def spec(**options):
+        config = CompareConfig(
+            estimators=("rls",), meshes=("6x2x2",), truth_mesh="9x2x2", seeds=1,
+            steps=3, model_settings={"svk-beam": options},
+        )  # fmt: skip
+        return runs_of(config)[0]
+
+    session = Session()
+    two = session.model(spec(processes=2), "6x2x2")
+    one = session.model(spec(), "6x2x2")
+    assert two.processes == 2 and one.processes == 1
+    assert session.model(spec(processes=2), "6x2x2") is two
+
+
+def test_helpers_of_models_in_two_threads_do_not_stop_each_other(caplog):
+    import threading
+
+    thetas = _thetas(6)
+    errors, models = [], []
+
+    def run():
+        try:
+            model = _beam(processes=2)
+            models.append(model)
+            _path(model, thetas, steps=3)
+        except Exception as exc:  # reported below
+            errors.append(exc)
+
+    with caplog.at_level(logging.WARNING, logger="idbench_skfem.helpers"):
+        threads = [threading.Thread(target=run) for _ in range(2)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    assert errors == [] and "lost" not in caplog.text
+    for model in models:
+        assert model._helpers[0].alive and model._helpers[0].calls == 3
+        model.close()
+
+
+@pytest.mark.parametrize(("p", "beta"), [(1, 0.0), (4, 2.0)])
+def test_predictions_take_the_form_of_the_parameters(monkeypatch, p, beta):
+    seen = []
+    real = batched._prediction_steps
+
+    def spy(theta_a, thetas, b):
+        seen.append(b)
+        return real(theta_a, thetas, b)
+
+    monkeypatch.setattr(batched, "_prediction_steps", spy)
+    if p == 1:
+        model = SvkBeam(mesh.parse("8x2x2"), SCENARIOS[0], n_steps=4)
+        thetas = np.array([[4000.0], [5000.0], [6000.0]])
+    else:
+        model, thetas = _beam(), _thetas()
+    model.step_many(thetas, 1, np.tile(model.reset(), (len(thetas), 1)))
+    assert seen == [beta]
+
+
+def test_a_helper_counts_pairs_settled_at_their_prediction():
+    model = _beam()
+    thetas = _thetas(7)[:2]
+    start = np.tile(model.reset(), (2, 1))
+    done = model.step_many(thetas, 1, start)
+    rows = batched.Rows(thetas, done, start)  # predictions already converged
+    states, work = batched.helper_solve(_beam(), 1, rows)
+    np.testing.assert_array_equal(states, done)
+    assert work[3] == 2 and work[1] == 0
+    before = model.batch_stats.converged_at_prediction
+    batched._add_work(model, work)
+    assert model.batch_stats.converged_at_prediction == before + 2
 
 
 @pytest.fixture

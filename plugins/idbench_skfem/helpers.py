@@ -31,7 +31,6 @@ in the parent as itself.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
 import select
@@ -40,6 +39,7 @@ import socket
 import struct
 import subprocess
 import sys
+import threading
 import weakref
 from collections.abc import Callable
 from multiprocessing.reduction import ForkingPickler
@@ -79,6 +79,7 @@ class Helper:
 
     def __init__(self, build: Callable[[], Any], solve: Callable[..., Any]) -> None:
         ours, theirs = socket.socketpair()
+        self._conn = Channel(ours)
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)
         for name in THREAD_VARIABLES:  # one core's worth of work
@@ -89,9 +90,11 @@ class Helper:
                 pass_fds=(theirs.fileno(),), env=env, stdin=subprocess.DEVNULL,
                 start_new_session=True,  # Ctrl-C goes to the parent only
             )  # fmt: skip
+        except BaseException:
+            self._conn.close()
+            raise
         finally:
             theirs.close()
-        self._conn = Channel(ours)
         self._ready = False
         self._pending = False
         self.alive = True
@@ -104,10 +107,10 @@ class Helper:
     def submit(self, *args: Any) -> None:
         """Send one call; :meth:`collect` returns its result."""
         if self._pending:  # the caller raised before collecting the last one
-            self._io(self._conn.recv)
             self._pending = False
+            self._io(self._conn.recv)
         if not self._ready and self.alive:
-            if not self._conn.poll(START_SECONDS):
+            if not self._io(self._conn.poll, START_SECONDS):
                 self._lost(f"no answer within {START_SECONDS:.0f} s of starting")
             else:
                 kind, value = self._io(self._conn.recv) or (None, None)
@@ -115,8 +118,8 @@ class Helper:
                     self._ready = True
                 elif self.alive:
                     self._lost(str(value))
+        self._pending = True  # before sending: an answer is never left unclaimed
         self._io(self._conn.send, args)
-        self._pending = True
 
     def collect(self) -> Any:
         """The result of the last :meth:`submit`.
@@ -130,8 +133,8 @@ class Helper:
         """
         if not self._pending:
             raise RuntimeError("collect() without submit()")
+        self._pending = False  # before reading: an answer is never read twice
         answer = self._io(self._conn.recv)
-        self._pending = False
         if not self.alive:
             raise HelperLost("the helper process is gone")
         kind, value = answer
@@ -186,8 +189,9 @@ class Helper:
         self._conn.close()
 
 
-_running: tuple[weakref.ref[Any], list[Helper]] | None = None
-"""The owner of the helpers running in this process, and the helpers."""
+_RUNNING = threading.local()
+"""Per thread (sessions and their models are per thread): ``owner``, a weak
+reference to the model whose helpers run, and ``helpers``."""
 
 
 def start(
@@ -195,25 +199,23 @@ def start(
 ) -> list[Helper]:
     """Start ``count`` helpers for ``owner``, stopping those of any other owner.
 
-    One owner's helpers run at a time in a process, so a sweep that caches
-    many models keeps ``count`` helpers, not ``count`` a model; an owner whose
-    helpers were stopped starts them again when it needs them. Returns []
-    (with a warning) if a process cannot be started.
+    One owner's helpers run at a time in a thread, so a sweep that caches
+    many models keeps ``count`` helpers a thread, not ``count`` a model; an
+    owner whose helpers were stopped starts them again when it needs them.
+    Returns [] (with a warning) if a process cannot be started.
     """
-    global _running
-    if _running is not None and _running[0]() is not owner:
-        for helper in _running[1]:
-            helper.close()
+    running = getattr(_RUNNING, "owner", None)
+    if running is not None and running() is not owner:
+        close_all(_RUNNING.helpers)
     helpers: list[Helper] = []
     try:
         for _ in range(count):
             helpers.append(Helper(build, solve))
-    except OSError as exc:
+    except Exception as exc:  # reported, and the model solves alone
         log.warning("cannot start a step helper process (%s): solving here", exc)
-        for helper in helpers:
-            helper.close()
+        close_all(helpers)
         helpers = []
-    _running = (weakref.ref(owner), helpers)
+    _RUNNING.owner, _RUNNING.helpers = weakref.ref(owner), helpers
     return helpers
 
 
@@ -287,8 +289,14 @@ def _serve(conn: Channel) -> None:
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
-        build, solve = conn.recv()
-        model = build()
+        try:
+            build, solve = conn.recv()
+            model = build()
+        except (EOFError, OSError):
+            raise
+        except Exception as exc:  # reported to the parent
+            conn.send(("error", f"building the model failed: {exc!r}"))
+            return
         conn.send(("ready", None))
         while (args := conn.recv()) is not None:
             try:
@@ -300,9 +308,6 @@ def _serve(conn: Channel) -> None:
             conn.send(answer)
     except (EOFError, OSError):
         return
-    except Exception as exc:  # building failed: reported to the parent
-        with contextlib.suppress(OSError):
-            conn.send(("error", f"building the model failed: {exc!r}"))
 
 
 if __name__ == "__main__":

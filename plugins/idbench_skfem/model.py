@@ -218,9 +218,10 @@ class SvkBeam(NewtonSolve):
     def _step_helpers(self) -> list[helpers.Helper]:
         """The live helper processes (``processes - 1``, started on first use).
 
-        One model's helpers run at a time in a process (see
-        :func:`idbench_skfem.helpers.start`); this model's start again if
-        another model's stopped them. Lost helpers are not replaced.
+        One model's helpers run at a time in a thread (see
+        :func:`idbench_skfem.helpers.start`); this model's start again once
+        all of them were closed (by :meth:`close` or by another model's
+        start). A lost helper is not replaced while others of this model live.
         """
         box = self._helpers
         if self.processes > 1 and (not box or all(h.closed for h in box)):
