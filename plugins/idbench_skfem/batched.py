@@ -296,15 +296,13 @@ def step_many(
         for helper, share in zip(helpers, shares[:-1], strict=False):
             helper.submit(k, rows.take(share))
             sent.append((helper, share))
-        try:
-            out[others[shares[-1]]], theta_f = solve_rows(
-                model, k, rows.take(shares[-1]), theta_f
+        out[others[shares[-1]]], theta_f = solve_rows(
+            model, k, rows.take(shares[-1]), theta_f
+        )
+        for helper, share in sent:
+            out[others[share]], theta_f = _collect(
+                model, k, helper, rows.take(share), theta_f
             )
-        finally:
-            for helper, share in sent:
-                out[others[share]], theta_f = _collect(
-                    model, k, helper, rows.take(share), theta_f
-                )
     # the helpers' answers (after an exception here they are left pending,
     # and a helper's next submit discards them)
     for helper, share in early:
