@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import gc
 import logging
-import random
 import signal
 import subprocess
 import sys
@@ -107,9 +106,13 @@ def test_ro_ukf_estimates_equal_one_process_to_the_tolerance():
     np.testing.assert_allclose(estimates[1], estimates[0], rtol=1e-6)
 
 
+_PAUSES = np.random.default_rng(20261130)
+"""Pauses of the delayed helpers (each helper process draws its own sequence)."""
+
+
 def _delayed_solve(model, k, rows):
-    """batched.helper_solve after a random pause (0-40 ms, unseeded on purpose)."""
-    time.sleep(0.04 * random.random())
+    """batched.helper_solve after a random pause of 0-40 ms."""
+    time.sleep(0.04 * _PAUSES.random())
     return batched.helper_solve(model, k, rows)
 
 
