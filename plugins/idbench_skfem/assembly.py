@@ -136,6 +136,9 @@ class Assembler:
     j-th free node and component c.
     """
 
+    STACKS = True
+    """:meth:`kinematics` and :meth:`forces` take a stack of states (r, n)."""
+
     def __init__(
         self,
         points: FloatArray,

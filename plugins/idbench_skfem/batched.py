@@ -19,9 +19,10 @@ s K(u_f; theta_f) with the scalar s = prod_r (theta_r / theta_{f,r})^{w_r}
    from the two previous increments when there are two, and is solved by
    chord iterations (below) with the factorization the previous call left,
    if nothing has refactored since; otherwise the model's own Newton
-   (:meth:`SvkBeam._newton`) solves it from its given state. Nothing carries
-   over a restart of the load path, so a filter run's results do not depend
-   on what ran before it on the same model;
+   (:meth:`~idbench_skfem.newton.NewtonSolve._newton`) solves it from its
+   given state. Nothing carries over a restart of the load path, so a
+   filter run's results do not depend on what ran before it on the same
+   model;
 2. the sensitivity S = du/dtheta = -K^-1 [g_1 ... g_p] at the anchor's
    solution u_a costs p back-substitutions with the factorization in hand;
 3. every other pair i starts from the prediction u_a + S t_i, t_i a step
@@ -43,7 +44,7 @@ the helpers' shares go out before the anchor solves, predicted as state_i + d
 
 The chord (modified Newton) iteration is u <- u - K_f^-1 r(u) / s_i with the
 last factorization K_f, testing the *true* residual r(u) = f_int(u; theta_i)
-- f_ext against the same tolerance as :meth:`SvkBeam.step`. When an iteration
+- f_ext against the same tolerance as the model's ``step``. When an iteration
 reduces |r| by less than a factor ``SLOW``, or after ``MAX_MODIFIED`` in a
 row, the tangent is refactored at the current iterate (a full Newton step);
 that factorization then serves the later pairs and the next call.
@@ -57,18 +58,22 @@ the caller may fall back to ``step`` (with its sub-step retries).
 
 from __future__ import annotations
 
+import functools
+import weakref
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from idbench import ModelFailure
+from idbench_skfem import helpers
 from idbench_skfem.helpers import Helper, HelperLost
+from idbench_skfem.newton import NewtonSolve
 
 if TYPE_CHECKING:
     from idbench_skfem.assembly import Kinematics
-    from idbench_skfem.model import SvkBeam
 
 FloatArray = NDArray[np.float64]
 
@@ -157,6 +162,114 @@ class _Anchor:
     unsettled: bool = False
 
 
+class BatchedSteps(NewtonSolve):
+    """Mixin: :meth:`step_many` for a Newton model whose force is linear in theta.
+
+    The model provides, besides :class:`~idbench_skfem.newton.NewtonSolve`'s
+    needs, ``n_state``, ``n_steps``, ``_regions`` (each element's parameter,
+    (T,)), ``external_force(k)``, ``_modulus(theta, k)`` (the elements'
+    moduli, linear in theta), ``step`` and ``force_is_cubic`` (True where the
+    internal force is a cubic polynomial of the state, as for SVK: then
+    :func:`_line_residuals` serves many predictions with one parameter); its
+    assembler says in ``STACKS`` whether it evaluates a stack of states at
+    once. Its ``__init__`` calls :meth:`_init_batched`.
+    """
+
+    n_state: int
+    n_steps: int
+    _regions: NDArray[np.int64]
+    force_is_cubic: bool = False
+    processes: int = 1
+    _recipe: Callable[[], Any] | None = None
+    _batch_anchor: _Anchor | None = None
+    _batch_stats: BatchStats | None = None
+
+    def external_force(self, k: int) -> FloatArray:  # pragma: no cover
+        """External force on the free dofs at load step ``k``, (n_state,)."""
+        raise NotImplementedError
+
+    def _modulus(  # pragma: no cover
+        self, theta: FloatArray, k: int | None
+    ) -> FloatArray:
+        raise NotImplementedError
+
+    def _init_batched(self, processes: Any, recipe: Callable[[], Any]) -> None:
+        """Check ``processes`` and keep the recipe that rebuilds the model.
+
+        ``recipe`` is a picklable callable returning an equal model with one
+        process (a helper builds its copy with it).
+
+        Raises
+        ------
+        ValueError
+            If ``processes`` is not a whole number >= 1.
+        """
+        if isinstance(processes, bool) or not isinstance(processes, int) \
+                or processes < 1:  # fmt: skip
+            raise ValueError(
+                f"processes {processes!r}: need a whole number >= 1 "
+                "(1: no helper processes)"
+            )
+        self.processes = processes
+        self._recipe = recipe
+        self._helpers: list[Helper] = []
+
+    @functools.cached_property
+    def _unit_modulus(self) -> FloatArray:
+        """The elements' moduli at theta = 1, (T,).
+
+        f_int(u; theta) = sum_r theta_r g_r(u), g_r evaluated at these moduli.
+        """
+        return self._modulus(np.ones(self.parameters.p), None)
+
+    def step_many(self, thetas: FloatArray, k: int, states: FloatArray) -> FloatArray:
+        """Solve load step ``k`` for r parameter/state pairs, sharing factorizations.
+
+        ``thetas`` (r, p), ``states`` (r, n) -> states (r, n); row i equals
+        ``step(thetas[i], k, states[i])`` to the Newton tolerance. See
+        :mod:`idbench_skfem.batched`. In ``cost()``, each pair counts as a
+        forward solve and each chord (modified Newton) iteration as a Newton
+        iteration and a linear solve; ``factorizations`` counts the
+        factorizations they share (with option ``processes``, the helper
+        processes' too).
+
+        Raises
+        ------
+        ModelFailure
+            If any pair fails (the caller may retry pairs with ``step``).
+        """
+        return step_many(self, thetas, k, states)
+
+    def _step_helpers(self) -> list[Helper]:
+        """The live helper processes (``processes - 1``, started on first use).
+
+        One model's helpers run at a time in a thread (see
+        :func:`idbench_skfem.helpers.start`); this model's start again once
+        all of them were closed (by :meth:`close` or by another model's
+        start). A lost helper is not replaced while others of this model live.
+        """
+        box = self._helpers
+        if self.processes > 1 and (not box or all(h.closed for h in box)):
+            assert self._recipe is not None
+            if not box:  # the first start: stop them with the model
+                weakref.finalize(self, helpers.close_all, box)
+            box[:] = helpers.start(self, self.processes - 1, self._recipe, helper_solve)
+            if not box:  # could not start one: do not try at every step
+                self.processes = 1
+        return [h for h in box if h.alive]
+
+    def close(self) -> None:
+        """Stop the helper processes, if any (they also stop with this process)."""
+        helpers.close_all(self._helpers)
+
+    @property
+    def batch_stats(self) -> BatchStats:
+        """Factorizations and iterations of :meth:`step_many` so far."""
+        if self._batch_stats is None:
+            self._batch_stats = BatchStats()
+        return self._batch_stats
+
+
 def _central(log_thetas: FloatArray) -> int:
     """Index of the row nearest (L1) to the median of the rows, the first if tied."""
     d = np.abs(log_thetas - np.median(log_thetas, axis=0)).sum(axis=1)
@@ -164,7 +277,7 @@ def _central(log_thetas: FloatArray) -> int:
 
 
 def step_many(
-    model: SvkBeam, thetas: FloatArray, k: int, states: FloatArray
+    model: BatchedSteps, thetas: FloatArray, k: int, states: FloatArray
 ) -> FloatArray:
     """Advance r parameter/state pairs to load step ``k``; see the module docstring.
 
@@ -206,7 +319,7 @@ def step_many(
     model._cost[0] += r
     model._factored_key = None
     asm = model._asm
-    f_ext = model._load(model.scenario.traction(k, model.n_steps))
+    f_ext = model.external_force(k)
     tol = max(model.rtol * float(np.linalg.norm(f_ext)), model.atol)
     log_th = np.log(th)
     weights = _region_weights(model)
@@ -263,7 +376,7 @@ def step_many(
     # the factorization in hand: only a predictor, so it need not be exact
     S = None
     if r > 1:
-        kin_unit = asm.kinematics(u_a, np.ones(asm.n_elements))
+        kin_unit = asm.kinematics(u_a, model._unit_modulus)
         g = asm.region_forces(kin_unit, model._regions, p)
         scale = float(np.exp(weights @ np.log(th[a] / theta_f)))
         S = -model._solver.solve(g).reshape(n, p) / scale
@@ -276,7 +389,7 @@ def step_many(
         assert S is not None
         steps = _prediction_steps(th[a], th[others], BETA_ONE if p == 1 else BETA)
         preds = u_a + steps @ S.T
-        if p == 1 and len(others) > POLYNOMIAL_ABOVE:
+        if p == 1 and len(others) > POLYNOMIAL_ABOVE and model.force_is_cubic:
             ok, norms, residuals = _line_residuals(
                 model, u_a, S[:, 0], steps[:, 0], th[others, 0], f_ext
             )
@@ -371,7 +484,7 @@ class Rows:
 
 
 def solve_rows(
-    model: SvkBeam, k: int, rows: Rows, theta_f: FloatArray | None
+    model: BatchedSteps, k: int, rows: Rows, theta_f: FloatArray | None
 ) -> tuple[FloatArray, FloatArray | None]:
     """Converge each row by chord iterations from its prediction (or its start).
 
@@ -379,7 +492,7 @@ def solve_rows(
     (``theta_f`` None: none yet, the first row factors).
     """
     asm = model._asm
-    f_ext = model._load(model.scenario.traction(k, model.n_steps))
+    f_ext = model.external_force(k)
     tol = max(model.rtol * float(np.linalg.norm(f_ext)), model.atol)
     weights = _region_weights(model)
     out = np.empty_like(rows.preds)
@@ -412,7 +525,7 @@ Work = tuple[list[int], int, int, int]
 pairs converged at their prediction."""
 
 
-def helper_solve(model: SvkBeam, k: int, rows: Rows) -> tuple[FloatArray, Work]:
+def helper_solve(model: BatchedSteps, k: int, rows: Rows) -> tuple[FloatArray, Work]:
     """:func:`solve_rows` in a helper process, from no factorization.
 
     Returns the states and the work done, which the caller adds to its model's
@@ -432,7 +545,7 @@ def helper_solve(model: SvkBeam, k: int, rows: Rows) -> tuple[FloatArray, Work]:
 
 
 def _collect(
-    model: SvkBeam, k: int, helper: Helper, rows: Rows, theta_f: FloatArray | None
+    model: BatchedSteps, k: int, helper: Helper, rows: Rows, theta_f: FloatArray | None
 ) -> tuple[FloatArray, FloatArray | None]:
     """A helper's states for ``rows`` (solved here if the helper is lost)."""
     try:
@@ -443,7 +556,7 @@ def _collect(
     return states, theta_f
 
 
-def _add_work(model: SvkBeam, work: Work) -> None:
+def _add_work(model: BatchedSteps, work: Work) -> None:
     """Count a helper's work as the model's own."""
     cost, fac, mod, settled = work
     for i, c in enumerate(cost):
@@ -453,31 +566,45 @@ def _add_work(model: SvkBeam, work: Work) -> None:
     model.batch_stats.converged_at_prediction += settled
 
 
-def _region_weights(model: SvkBeam) -> FloatArray:
-    """Volume fraction of each parameter region, (p,)."""
-    asm = model._asm
-    w = np.bincount(model._regions, weights=asm.volumes, minlength=model.parameters.p)
+def _region_weights(model: BatchedSteps) -> FloatArray:
+    """Stiffness fraction of each parameter region, (p,).
+
+    A region's volume weighted by its elements' moduli at unit parameters
+    (its volume fraction where those are all 1).
+    """
+    w = np.bincount(
+        model._regions,
+        weights=model._asm.volumes * model._unit_modulus,
+        minlength=model.parameters.p,
+    )
     return np.asarray(w / w.sum())
 
 
 def _residuals(
-    model: SvkBeam, states: FloatArray, moduli: FloatArray, f_ext: FloatArray
+    model: BatchedSteps, states: FloatArray, moduli: FloatArray, f_ext: FloatArray
 ) -> tuple[NDArray[np.bool_], FloatArray, FloatArray]:
     """Residuals f_int - f_ext of each row (r, n), their norms (r,), det F > 0 (r,).
 
-    Vectorised over rows in chunks of about ``BATCH_ELEMENTS`` elements; rows
-    with an inverted element get an infinite norm.
+    Vectorised over rows in chunks of about ``BATCH_ELEMENTS`` elements (one
+    row at a time if the assembler's ``STACKS`` is false); rows with an
+    inverted element get an infinite norm.
     """
     asm = model._asm
     r = len(states)
     ok = np.zeros(r, dtype=bool)
     norms = np.full(r, np.inf)
     residuals = np.empty_like(states)
-    step = max(1, BATCH_ELEMENTS // asm.n_elements)
+    stacks = asm.STACKS
+    step = max(1, BATCH_ELEMENTS // asm.n_elements) if stacks else 1
     for lo in range(0, r, step):
-        kin = asm.kinematics(states[lo : lo + step], moduli[lo : lo + step])
-        good = np.all(kin.det > 0, axis=1)
-        res = asm.forces(kin) - f_ext
+        if stacks:
+            kin = asm.kinematics(states[lo : lo + step], moduli[lo : lo + step])
+            good = np.all(kin.det > 0, axis=1)
+            res = asm.forces(kin) - f_ext
+        else:  # an assembler of one state at a time
+            kin = asm.kinematics(states[lo], moduli[lo])
+            good = np.array([np.all(kin.det > 0)])
+            res = (asm.forces(kin) - f_ext)[None, :]
         ok[lo : lo + step] = good
         norms[lo : lo + step] = np.where(good, np.linalg.norm(res, axis=1), np.inf)
         residuals[lo : lo + step] = res
@@ -485,7 +612,7 @@ def _residuals(
 
 
 def _line_residuals(
-    model: SvkBeam,
+    model: BatchedSteps,
     u_a: FloatArray,
     s: FloatArray,
     t: FloatArray,
@@ -509,13 +636,13 @@ def _line_residuals(
     r = len(t)
     h = float(np.max(np.abs(t), initial=0.0))
     if h == 0.0:  # every prediction is u_a itself
-        kin = asm.kinematics(u_a, np.ones(asm.n_elements))
+        kin = asm.kinematics(u_a, model._unit_modulus)
         g, good = asm.forces(kin), bool(np.all(kin.det > 0))
         residuals = thetas[:, None] * g - f_ext
         ok = np.full(r, good)
         return ok, np.where(ok, np.linalg.norm(residuals, axis=1), np.inf), residuals
     nodes = h * np.cos(np.pi * (np.arange(4) + 0.5) / 4)  # Chebyshev, in [-h, h]
-    unit = np.ones(asm.n_elements)
+    unit = model._unit_modulus
     forces, dets = [], []
     for x in nodes:
         kin = asm.kinematics(u_a + x * s, unit)
@@ -535,7 +662,7 @@ def _line_residuals(
 
 
 def _modified_newton(
-    model: SvkBeam,
+    model: BatchedSteps,
     theta: FloatArray,
     modulus: FloatArray,
     f_ext: FloatArray,

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import functools
 import logging
-import weakref
 from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
@@ -18,10 +17,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from idbench import Cost, ModelSpec, ParameterSpec, Scenario
-from idbench_skfem import batched, helpers
 from idbench_skfem import mesh as meshes
 from idbench_skfem.assembly import Assembler
-from idbench_skfem.newton import CHORD_RATIO, NewtonSolve
+from idbench_skfem.batched import BatchedSteps
+from idbench_skfem.newton import CHORD_RATIO
 from idbench_skfem.probes import grid_points, interpolation_matrix, marker_points
 from idbench_skfem.regions import parameter_regions
 from idbench_skfem.settings import BeamSettings, EndTraction
@@ -44,7 +43,7 @@ ATOL = 1e-12
 MAX_ITERATIONS = 25
 
 
-class SvkBeam(NewtonSolve):
+class SvkBeam(BatchedSteps):
     """P1 St Venant-Kirchhoff cantilever under an end traction, stepped by Newton.
 
     Parameters
@@ -78,6 +77,8 @@ class SvkBeam(NewtonSolve):
         Residual norms of the Newton iterations of the last (sub-)step solved.
     """
 
+    force_is_cubic = True  # SVK: P = F S is cubic in the displacements
+
     def __init__(
         self,
         beam: meshes.BeamMesh,
@@ -106,18 +107,13 @@ class SvkBeam(NewtonSolve):
                 f"chord_ratio {self.chord_ratio!r}: must be in [0, 1) (0: plain Newton)"
             )
         self.backend = resolve_backend(opts.get("solver"))
-        self.processes = opts.get("processes", 1)
-        if isinstance(self.processes, bool) or not isinstance(self.processes, int) \
-                or self.processes < 1:  # fmt: skip
-            raise ValueError(
-                f"processes {self.processes!r}: need a whole number >= 1 "
-                "(1: no helper processes)"
-            )
-        self._recipe = functools.partial(
-            SvkBeam, beam, self.scenario, self.n_steps, self.nu, markers, grid,
-            parameters, {**opts, "processes": 1},
+        self._init_batched(
+            opts.get("processes", 1),
+            functools.partial(
+                SvkBeam, beam, self.scenario, self.n_steps, self.nu, markers, grid,
+                parameters, {**opts, "processes": 1},
+            ),
         )  # fmt: skip
-        self._helpers: list[helpers.Helper] = []
 
         points, tets = beam.points, beam.tets
         free = np.ones(len(points), dtype=bool)
@@ -191,59 +187,6 @@ class SvkBeam(NewtonSolve):
             u, _ = self._newton(modulus, self._load(traction), u, k)
         self._remember_factorization(theta, u)
         return u
-
-    # -- batched steps (idbench.BatchModel) -----------------------------------
-
-    _batch_anchor: batched._Anchor | None = None
-    _batch_stats: batched.BatchStats | None = None
-
-    def step_many(self, thetas: FloatArray, k: int, states: FloatArray) -> FloatArray:
-        """Solve load step ``k`` for r parameter/state pairs, sharing factorizations.
-
-        ``thetas`` (r, p), ``states`` (r, n) -> states (r, n); row i equals
-        ``step(thetas[i], k, states[i])`` to the Newton tolerance. See
-        :mod:`idbench_skfem.batched`. In :meth:`cost`, each pair counts as a
-        forward solve and each chord (modified Newton) iteration as a Newton
-        iteration and a linear solve; :attr:`factorizations` counts the
-        factorizations they share (with option ``processes``, the helper
-        processes' too).
-
-        Raises
-        ------
-        ModelFailure
-            If any pair fails (the caller may retry pairs with :meth:`step`).
-        """
-        return batched.step_many(self, thetas, k, states)
-
-    def _step_helpers(self) -> list[helpers.Helper]:
-        """The live helper processes (``processes - 1``, started on first use).
-
-        One model's helpers run at a time in a thread (see
-        :func:`idbench_skfem.helpers.start`); this model's start again once
-        all of them were closed (by :meth:`close` or by another model's
-        start). A lost helper is not replaced while others of this model live.
-        """
-        box = self._helpers
-        if self.processes > 1 and (not box or all(h.closed for h in box)):
-            if not box:  # the first start: stop them with the model
-                weakref.finalize(self, helpers.close_all, box)
-            box[:] = helpers.start(
-                self, self.processes - 1, self._recipe, batched.helper_solve
-            )
-            if not box:  # could not start one: do not try at every step
-                self.processes = 1
-        return [h for h in box if h.alive]
-
-    def close(self) -> None:
-        """Stop the helper processes, if any (they also stop with this process)."""
-        helpers.close_all(self._helpers)
-
-    @property
-    def batch_stats(self) -> batched.BatchStats:
-        """Factorizations and iterations of :meth:`step_many` so far."""
-        if self._batch_stats is None:
-            self._batch_stats = batched.BatchStats()
-        return self._batch_stats
 
     def observe(self, state: FloatArray) -> FloatArray:
         """Marker displacements, shape (3M,), ``[p0x, p0y, p0z, p1x, ...]``."""

@@ -23,6 +23,12 @@ when :math:`\|r\| \le \max(\mathrm{rtol} \|f_{ext}(k)\|, \mathrm{atol})`
 with rtol = 1e-8 and atol = 1e-12 times the end force; each update is halved
 (up to 8 times) while an element would have det F <= 0.
 
+Sigma points of a filter step go through :meth:`SolidModel.step_many`
+(:mod:`idbench_skfem.batched`, as the beam's): one pair solved by Newton, the
+others predicted from its sensitivity and corrected by chord steps on its
+scaled factorization (both laws are linear in the moduli), optionally shared
+with helper processes (setting ``processes``).
+
 Markers are the body's, snapped to the reference mesh's surface (the
 comparison's truth) and then projected onto each model mesh's surface;
 shape-error points are placed in the reference mesh and located in each
@@ -36,6 +42,7 @@ import functools
 import hashlib
 import logging
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, cast
 
@@ -47,10 +54,10 @@ from scipy.spatial import cKDTree
 from idbench import Cost, ModelSpec, ParameterSpec, Scenario
 from idbench_skfem import resolve
 from idbench_skfem.assembly import Assembler
+from idbench_skfem.batched import BatchedSteps
 from idbench_skfem.bodies import get_body, get_mesh, mesh_file
 from idbench_skfem.body import Body
 from idbench_skfem.loads import nodal_forces
-from idbench_skfem.newton import NewtonSolve
 from idbench_skfem.probes import _barycentric
 from idbench_skfem.solid_assembly import LawAssembler
 from idbench_skfem.solid_settings import SolidSettings
@@ -73,7 +80,7 @@ _BOUNDS = (1e-3, 1e3)
 """Parameter bounds as multiples of the body's E."""
 
 
-class SolidModel(NewtonSolve):
+class SolidModel(BatchedSteps):
     """A body under one manipulation, on one mesh, stepped by Newton.
 
     Parameters
@@ -112,6 +119,14 @@ class SolidModel(NewtonSolve):
         self.max_iterations = int(s.max_iterations or MAX_ITERATIONS)
         self.backend = resolve_backend(s.solver)
         self.law_name = s.law or body.material.law
+        self.force_is_cubic = self.law_name == "svk"
+        self._init_batched(
+            s.processes or 1,
+            functools.partial(
+                SolidModel, body, mesh, manipulation, reference, n_steps, markers,
+                replace(s, processes=None),
+            ),
+        )  # fmt: skip
         self.nu = float(body.material.nu if s.nu is None else s.nu)
         E = float(body.material.E)
 

@@ -66,6 +66,9 @@ class LawAssembler:
         ``linear_in_modulus``; it is evaluated at unit modulus.
     """
 
+    STACKS = False
+    """One state at a time (:class:`~idbench_skfem.assembly.Assembler` takes stacks)."""
+
     def __init__(
         self, points: FloatArray, tets: IntArray, free: NDArray[np.bool_], law: Material
     ) -> None:

@@ -14,7 +14,7 @@ import logging
 import math
 import os
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from idbench import Scenario
 from idbench_skfem.body import Body
@@ -56,6 +56,9 @@ class SolidSettings:
     load_scale
         Multiplies every manipulation's end load (e.g. to keep SVK in the
         range it can follow).
+    processes
+        Processes that solve a batched step's sigma points (None: 1; see the
+        beam's setting of that name). Not part of the run's identity.
     """
 
     body: str = "liver"
@@ -68,6 +71,10 @@ class SolidSettings:
     solver: str | None = None
     kernel: str = "auto"
     load_scale: float = 1.0
+    processes: int | None = None
+
+    EXECUTION: ClassVar[tuple[str, ...]] = ("processes",)
+    """Settings that change where work runs, not results (left out of run ids)."""
 
     def __post_init__(self) -> None:
         if not isinstance(self.body, str) or not self.body:
@@ -89,12 +96,16 @@ class SolidSettings:
             raise ValueError(f"load_scale {self.load_scale!r}: need a number > 0")
         if self.kernel not in KERNELS:
             raise ValueError(f"kernel {self.kernel!r}: allowed: {', '.join(KERNELS)}")
+        p = self.processes
+        if p is not None and (not isinstance(p, int) or isinstance(p, bool) or p < 1):
+            raise ValueError(f"processes {p!r}: need a whole number >= 1")
 
     def identity(self) -> list[Any]:
         """What of these settings identifies the data (seeds the noise).
 
         ``solver`` and ``kernel`` (the same numbers to the Newton tolerance)
-        are left out; true values (``--true E=...``) are part of a run anyway.
+        and ``processes`` (where work runs) are left out; true values
+        (``--true E=...``) are part of a run anyway.
         """
         out = [self.body, self.law, self.nu, self.reference, self.rtol, self.atol,
                self.max_iterations]  # fmt: skip
