@@ -12,6 +12,11 @@ Prints, on the bend-y path (K = 20, noise 1e-4, an observation every step):
   each as a multiple of one forward solve over the whole path and over its
   second half (targets: <= 1.3 for p = 1, <= 2 for p = 4), steps per second,
   and tangent factorizations a step (the helpers' included);
+- the same RO-UKF rows for two organs of the ``solid`` model at
+  ``--organ-mesh`` nodes (``--no-organs``: skip them): the liver lifted by a
+  grasper (neo-Hookean, p = 1) and the kidney pulled at its pole (E of the
+  parenchyma and of the tumour, p = 2, also with ``--processes``), each from a
+  prior at 0.6 x its true moduli with a standard deviation of half of them;
 - the full UKF's wall time a step over its first ``--ukf-steps`` steps,
   batched and looped, at each ``--ukf-meshes`` size (target 10x).
 
@@ -26,6 +31,7 @@ covariance is several times slower than the single-threaded one).
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import time
 
 import numpy as np
@@ -59,10 +65,23 @@ def build(mesh: str, scenario: str, n_steps: int, p: int = 1, processes: int = 1
     return reg.model("svk-beam")(spec)
 
 
-def truth_path(model, noise: float, seed: int = 0):
-    """Observations with E_true plus noise, and the mean time of one step."""
+def organ(body: str, manipulation: str, mesh: str, n_steps: int, processes: int = 1):
+    """A ``solid`` model of a shipped body (its meshes are made on first use)."""
+    reg = idbench.build_registry()
+    settings = {"body": body, "reference": mesh, "processes": processes}
+    spec = ModelSpec(
+        mesh=mesh, scenario=reg.scenario(manipulation), n_steps=n_steps,
+        settings=settings,
+    )  # fmt: skip
+    return reg.model("solid")(spec)
+
+
+def truth_path(model, noise: float, seed: int = 0, theta=None):
+    """Observations with ``theta`` (default E_true) plus noise, and the mean
+    time of one step."""
     rng = np.random.default_rng(seed)
-    theta = np.full(model.parameters.p, E_TRUE)
+    if theta is None:
+        theta = np.full(model.parameters.p, E_TRUE)
     u = model.reset()
     obs, seconds = {}, []
     for k in range(1, model.n_steps + 1):
@@ -74,12 +93,12 @@ def truth_path(model, noise: float, seed: int = 0):
     return obs, float(np.mean(seconds))
 
 
-def time_filter(est, model, obs, n_steps: int):
+def time_filter(est, model, obs, n_steps: int, prior=None):
     """Wall seconds a step (mean over all steps, and over the second half),
     tangent factorizations a step and the last estimate."""
     p = model.parameters.p
     f0 = model.factorizations
-    est.start(model, Prior((2500.0,) * p, (2500.0,) * p))
+    est.start(model, prior or Prior((2500.0,) * p, (2500.0,) * p))
     seconds = []
     for k in range(1, n_steps + 1):
         t = time.perf_counter()
@@ -89,24 +108,27 @@ def time_filter(est, model, obs, n_steps: int):
     return wall, (model.factorizations - f0) / n_steps, e, late
 
 
-def ro_ukf_rows(mesh, p, args):
-    model = build(mesh, args.scenario, args.steps, p)
-    obs, t_solve = truth_path(model, args.noise)
+def ro_ukf_rows(label, make, args, theta=None, prior=None):
+    """Time the RO-UKF on ``make(processes)``'s model: batched, looped and,
+    for p > 1, with ``--processes``."""
+    model = make(1)
+    p = model.parameters.p
+    obs, t_solve = truth_path(model, args.noise, theta=theta)
     variants = {"batched": model, "looped": Looped(model)}
     if p > 1 and args.processes > 1:
         # sigma points shared with helper processes (one run first starts them)
-        two = build(mesh, args.scenario, args.steps, p, args.processes)
-        time_filter(RoUkf(), two, obs, 1)
+        two = make(args.processes)
+        time_filter(RoUkf(), two, obs, 1, prior)
         variants[f"{args.processes} procs"] = two
     best = {name: (np.inf,) for name in variants}
     for _ in range(args.repeat):  # interleaved: machine load drifts
-        t_solve = min(t_solve, truth_path(model, args.noise)[1])
+        t_solve = min(t_solve, truth_path(model, args.noise, theta=theta)[1])
         for name, m in variants.items():
-            row = time_filter(RoUkf(), m, obs, args.steps)
+            row = time_filter(RoUkf(), m, obs, args.steps, prior)
             if row[0] < best[name][0]:
                 best[name] = row
     print(
-        f"RO-UKF simplex, {mesh!r} ({model.n_nodes} nodes, {model.n_state} dofs), "
+        f"RO-UKF simplex, {label} ({model.n_nodes} nodes, {model.n_state} dofs), "
         f"p = {p}: one forward solve {1e3 * t_solve:.2f} ms"
     )
     for name in variants:
@@ -120,6 +142,19 @@ def ro_ukf_rows(mesh, p, args):
     print(f"  step_many speed-up {speed:.2f}x")
     for m in variants.values():
         getattr(m, "close", lambda: None)()
+
+
+def organ_rows(args):
+    """The RO-UKF on the liver (grasp-lift) and the kidney (grasp-pole)."""
+    for body, manipulation in (("liver", "grasp-lift"), ("kidney", "grasp-pole")):
+
+        def make(processes, body=body, manipulation=manipulation):
+            return organ(body, manipulation, args.organ_mesh, args.steps, processes)
+
+        theta = np.array(make(1).parameters.default)
+        prior = Prior(tuple(0.6 * theta), tuple(0.5 * theta))
+        label = f"{body} {manipulation} {args.organ_mesh!r}"
+        ro_ukf_rows(label, make, args, theta, prior)
 
 
 def ukf_rows(mesh, args):
@@ -150,14 +185,25 @@ def main() -> None:
     )
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--noise", type=float, default=1e-4)
+    parser.add_argument("--organ-mesh", default="1000", help="organ mesh spec")
+    parser.add_argument("--no-organs", action="store_true", help="skip the organs")
     parser.add_argument("--quick", action="store_true", help="small meshes")
     args = parser.parse_args()
     if args.quick:
         args.meshes, args.ukf_meshes, args.steps = ["10x2x2"], ["6x1x1"], 10
+        args.organ_mesh = "200"
     for i, mesh in enumerate(args.meshes):
-        ro_ukf_rows(mesh, 1, args)
-        if i == 0 and args.regions > 1:
-            ro_ukf_rows(mesh, args.regions, args)
+        for p in (1, args.regions) if i == 0 and args.regions > 1 else (1,):
+
+            def make(processes, mesh=mesh, p=p):
+                return build(mesh, args.scenario, args.steps, p, processes)
+
+            ro_ukf_rows(repr(mesh), make, args)
+    if not args.no_organs:
+        if importlib.util.find_spec("gmsh") is None:
+            print("organs skipped: their meshes need gmsh (pip install gmsh)")
+        else:
+            organ_rows(args)
     for mesh in args.ukf_meshes:
         ukf_rows(mesh, args)
 
