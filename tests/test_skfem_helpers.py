@@ -369,6 +369,48 @@ def test_a_script_without_a_main_guard_can_use_helpers(tmp_path):
     assert "calls 1" in done.stdout
 
 
+def _gone(pid: int) -> bool:
+    """Whether process ``pid`` has ended (exited, or a zombie nobody reaps)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] in "ZX"
+    except FileNotFoundError:
+        return True
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_a_helper_inside_a_long_solve_ends_with_its_killed_parent(tmp_path):
+    (tmp_path / "sleepy.py").write_text(
+        "import time\n"
+        "def build():\n    return None\n"
+        "def solve(model, seconds):\n    time.sleep(seconds)\n"
+    )
+    parent = tmp_path / "parent.py"
+    parent.write_text(
+        textwrap.dedent(
+            """
+            import os, signal
+            import sleepy
+            from idbench_skfem.helpers import Helper
+
+            helper = Helper(sleepy.build, sleepy.solve)
+            helper.submit(600.0)  # the helper is ready, now in a 10-minute solve
+            print(helper._process.pid, flush=True)
+            os.kill(os.getpid(), signal.SIGKILL)
+            """
+        )
+    )
+    done = subprocess.run(
+        [sys.executable, str(parent)], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == -signal.SIGKILL, done.stderr
+    pid = int(done.stdout.split()[0])
+    deadline = time.monotonic() + 60.0  # it ends within a second; 60 s: slow CI
+    while not _gone(pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert _gone(pid), "the helper outlived its parent"
+
+
 @pytest.mark.parametrize("bad", [0, -1, 1.5, True, "2"])
 def test_processes_must_be_a_whole_number(bad):
     with pytest.raises(ValueError, match=f"processes {bad!r}: need a whole number"):

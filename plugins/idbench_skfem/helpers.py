@@ -22,7 +22,8 @@ script, which a user's script without an ``if __name__ == "__main__"`` guard
 cannot survive). It starts on first use (about a second to import and build
 the model; the call waits for it, so the shares never depend on timing),
 ignores SIGINT (the parent owns Ctrl-C), runs one BLAS thread, and ends
-quietly when the parent closes its end of the socket, or dies. If a helper
+quietly when the parent closes its end of the socket, or dies (also in the
+middle of a solve: a thread checks the parent every half second). If a helper
 dies or a message to or from it is cut short (also by a Ctrl-C while the
 parent waits), its pairs are solved in the parent and it is not used again
 (a warning says so); a :class:`~idbench.ModelFailure` in a helper is raised
@@ -40,6 +41,7 @@ import struct
 import subprocess
 import sys
 import threading
+import time
 import weakref
 from collections.abc import Callable
 from multiprocessing.reduction import ForkingPickler
@@ -56,6 +58,9 @@ FloatArray = NDArray[np.float64]
 
 START_SECONDS = 120.0
 """How long a helper may take to import and build its model."""
+
+WATCH_SECONDS = 0.5
+"""How often a helper checks that its parent is alive."""
 
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 """Set to 1 in a helper's environment unless set already: a helper is one core."""
@@ -310,5 +315,18 @@ def _serve(conn: Channel) -> None:
         return
 
 
+def _watch(parent: int) -> None:
+    """End this process at once when its parent is gone.
+
+    A helper inside a long solve reads nothing, so without this it would
+    outlive a killed parent until its next message; the check costs one
+    ``getppid`` every :data:`WATCH_SECONDS`.
+    """
+    while os.getppid() == parent:
+        time.sleep(WATCH_SECONDS)
+    os._exit(0)
+
+
 if __name__ == "__main__":
+    threading.Thread(target=_watch, args=(os.getppid(),), daemon=True).start()
     _serve(Channel(socket.socket(fileno=int(sys.argv[1]))))
