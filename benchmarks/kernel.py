@@ -4,8 +4,10 @@ Times, at the state of load step 10 of the bend-y path, the v0.1 kernel (12 x 12
 element matrices as B^T D B by batched matmul, reproduced here) and
 :meth:`Assembler.element_tangent_blocks` (10 node-pair blocks, elements last),
 plus the full ``tangent_data`` (kernel and scatter to CSR) and, for scale, the
-kinematics + internal force and one PARDISO factorization. Best of 20; ratios
-against the old kernel in the same run.
+kinematics + internal force (a Newton residual) with numpy and with the
+compiled kernel (:mod:`idbench_skfem.kernels`, if numba is installed) and one
+PARDISO factorization. Best of 20; ratios against the old kernel and the
+numpy residual in the same run.
 
 Run ``python benchmarks/kernel.py [--sizes 525 1116 4000]``.
 """
@@ -68,7 +70,8 @@ def main() -> None:
     args = ap.parse_args()
     print(
         f"{'nodes':>6} {'tets':>6} | {'old ms':>7} {'new ms':>7} {'x':>5} | "
-        f"{'tangent_data':>12} {'kin+f ms':>8} {'factor ms':>9}"
+        f"{'tangent_data':>12} | {'kin+f ms':>8} {'compiled':>8} {'x':>5} | "
+        f"{'factor ms':>9}"
     )
     for size in args.sizes:
         m = SvkBeam(meshes.parse(size), SCENARIOS[0], n_steps=20)
@@ -82,13 +85,19 @@ def main() -> None:
         t_old = best(lambda: old_element_tangents(asm, kin, mod))  # noqa: B023
         t_new = best(lambda: asm.element_tangent_blocks(kin, mod, out=asm._blocks))  # noqa: B023
         t_data = best(lambda: asm.tangent_data(kin, mod, m._pattern))  # noqa: B023
+        compiled, asm.compiled = asm.compiled, False
         t_kf = best(lambda: asm.forces(asm.kinematics(u, mod)))  # noqa: B023
+        asm.compiled = compiled
+        t_kc = np.nan
+        if compiled:  # numba installed and not switched off
+            t_kc = best(lambda: asm.forces(asm.kinematics(u, mod)))  # noqa: B023
         data = asm.tangent_data(kin, mod, m._pattern)
         t_fac = best(lambda: m._solver.factor(data), 10)  # noqa: B023
         print(
             f"{m.n_nodes:>6} {asm.n_elements:>6} | {1e3 * t_old:>7.2f} "
-            f"{1e3 * t_new:>7.2f} {t_old / t_new:>4.1f}x | {1e3 * t_data:>12.2f} "
-            f"{1e3 * t_kf:>8.2f} {1e3 * t_fac:>9.2f}"
+            f"{1e3 * t_new:>7.2f} {t_old / t_new:>4.1f}x | {1e3 * t_data:>12.2f} | "
+            f"{1e3 * t_kf:>8.2f} {1e3 * t_kc:>8.3f} {t_kf / t_kc:>4.1f}x | "
+            f"{1e3 * t_fac:>9.2f}"
         )
 
 

@@ -38,6 +38,8 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from idbench_skfem import kernels
+
 FloatArray = NDArray[np.float64]
 
 CHUNK = 1024
@@ -67,11 +69,16 @@ def shape_gradients(
 
 @dataclass
 class Kinematics:
-    """Per-element state at one displacement, shapes (T, 3, 3) and (T,)."""
+    """Per-element state at one displacement, shapes (T, 3, 3) and (T,).
+
+    ``forces`` is the assembled internal force (n,) when the compiled kernel
+    (:mod:`idbench_skfem.kernels`) computed it in the same pass, else None.
+    """
 
     F: FloatArray
     S: FloatArray
     det: FloatArray
+    forces: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -129,6 +136,10 @@ class Assembler:
         Boolean mask (N,) of the unconstrained nodes.
     nu
         Poisson's ratio.
+    compiled
+        Evaluate kinematics and internal forces with the compiled kernel
+        (:mod:`idbench_skfem.kernels`); None: where numba is installed and
+        ``IDBENCH_NUMBA`` is not 0.
 
     Notes
     -----
@@ -145,7 +156,9 @@ class Assembler:
         tets: NDArray[np.int64],
         free: NDArray[np.bool_],
         nu: float,
+        compiled: bool | None = None,
     ) -> None:
+        self.compiled = kernels.available() if compiled is None else bool(compiled)
         self.n_nodes = len(points)
         self.n_elements = len(tets)
         self.tets = tets
@@ -204,8 +217,15 @@ class Assembler:
         Returns
         -------
         Kinematics
-            F and S (T, 3, 3) and det F (T,), or (r, T, 3, 3) and (r, T).
+            F and S (T, 3, 3) and det F (T,), or (r, T, 3, 3) and (r, T); with
+            the compiled kernel also the internal force.
         """
+        if self.compiled:
+            F, S, det, f = kernels.svk_kinematics(
+                state, modulus, self.element_dofs, self.grads, self.volumes,
+                self.lam, self.mu, self.n_free,
+            )  # fmt: skip
+            return Kinematics(F, S, det, f)
         H = np.matmul(self.element_displacements(state).swapaxes(-1, -2), self.grads)
         Ht = H.swapaxes(-1, -2)
         E = np.matmul(Ht, H)
@@ -233,6 +253,8 @@ class Assembler:
 
     def forces(self, kin: Kinematics) -> FloatArray:
         """Assembled internal force on the free dofs, (n,) (or (r, n) for a batch)."""
+        if kin.forces is not None:  # the compiled kernel's, computed with kin
+            return kin.forces.copy()
         fe = self.element_forces(kin)
         if fe.ndim == 3:
             return self._force_scatter @ fe.ravel()

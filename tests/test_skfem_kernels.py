@@ -1,0 +1,86 @@
+"""The compiled SVK kernel equals the numpy kinematics and forces to round-off."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from idbench_skfem import kernels
+from idbench_skfem import mesh as meshes
+from idbench_skfem.assembly import Assembler
+from idbench_skfem.model import SvkBeam
+from idbench_skfem.scenarios import SCENARIOS
+
+numba = pytest.importorskip("numba")  # in the test extra; optional for users
+
+
+def _pair(spec: str = "6x2x2") -> tuple[Assembler, Assembler]:
+    beam = meshes.parse(spec)
+    free = np.ones(len(beam.points), dtype=bool)
+    free[beam.clamped] = False
+    args = (beam.points, beam.tets, free, 0.45)
+    return Assembler(*args, compiled=True), Assembler(*args, compiled=False)
+
+
+def _close(a: np.ndarray, b: np.ndarray, rtol: float = 1e-13) -> None:
+    assert a.shape == b.shape
+    assert np.abs(a - b).max() <= rtol * np.abs(b).max()
+
+
+@pytest.mark.parametrize("stack", [False, True])
+def test_compiled_kinematics_and_forces_equal_numpy(stack):
+    fast, slow = _pair()
+    rng = np.random.default_rng(7)
+    r = 3 if stack else 1
+    # large strains (|H| ~ 0.1-0.5) and moduli varying by element and row
+    X = 0.02 * rng.standard_normal((r, fast.n_free))
+    mod = 5000.0 * np.exp(0.5 * rng.standard_normal((r, fast.n_elements)))
+    if not stack:
+        X, mod = X[0], mod[0]
+    a, b = fast.kinematics(X, mod), slow.kinematics(X, mod)
+    assert a.forces is not None and b.forces is None
+    for name in ("F", "S", "det"):
+        _close(getattr(a, name), getattr(b, name))
+    _close(fast.forces(a), slow.forces(b))
+    # what builds on F and S (tangent, regional forces) sees the same numbers
+    if not stack:
+        pat = slow.pattern(upper=False)
+        _close(fast.tangent_data(a, mod, pat), slow.tangent_data(b, mod, pat))
+        regions = np.arange(fast.n_elements) % 3
+        _close(fast.region_forces(a, regions, 3), slow.region_forces(b, regions, 3))
+
+
+def test_one_modulus_for_a_stack_of_states():
+    fast, slow = _pair()
+    X = 0.01 * np.random.default_rng(1).standard_normal((4, fast.n_free))
+    mod = np.full(fast.n_elements, 3000.0)
+    _close(fast.forces(fast.kinematics(X, mod)), slow.forces(slow.kinematics(X, mod)))
+
+
+def test_forces_returns_a_copy():
+    fast, _ = _pair()
+    kin = fast.kinematics(np.zeros(fast.n_free) + 1e-3, np.ones(fast.n_elements))
+    f = fast.forces(kin)
+    f += 1.0
+    assert not np.array_equal(fast.forces(kin), f)
+
+
+def test_a_load_path_equals_the_numpy_one(monkeypatch):
+    """Newton with either kernel: the same states to the Newton tolerance."""
+    states = []
+    for flag in ("1", "0"):
+        monkeypatch.setenv(kernels.ENV, flag)
+        model = SvkBeam(meshes.parse("6x2x2"), SCENARIOS[1], n_steps=4)
+        assert model._asm.compiled is (flag == "1")
+        u = model.reset()
+        for k in range(1, 5):
+            u = model.step(np.array([5000.0]), k, u)
+        states.append(u)
+    _close(states[0], states[1], rtol=1e-9)
+
+
+def test_switched_off_by_the_environment(monkeypatch):
+    monkeypatch.setenv(kernels.ENV, "0")
+    assert not kernels.available()
+    monkeypatch.setenv(kernels.ENV, "1")
+    assert kernels.available()
