@@ -263,7 +263,7 @@ class Assembler:
     def region_forces(
         self, kin_unit: Kinematics, regions: NDArray[np.int64], p: int
     ) -> FloatArray:
-        """Assemble each region's internal force at unit modulus, (n, p): g_r."""
+        """Each region's internal force g_r (n, p) at the moduli of ``kin_unit``."""
         fe = self.element_forces(kin_unit).reshape(self.n_elements, 12)
         out = np.empty((self.n_free, p))
         for r in range(p):

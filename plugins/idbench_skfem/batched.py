@@ -1,7 +1,7 @@
-r"""Batched load steps of the SVK beam: one factorization for many sigma points.
+r"""Batched load steps of the beam and solid models: sigma points share factors.
 
-For St Venant-Kirchhoff (any energy linear in the moduli) the internal force
-and tangent of region-wise moduli theta are
+For St Venant-Kirchhoff, neo-Hookean at fixed nu (any energy linear in the
+moduli) the internal force and tangent of region-wise moduli theta are
 
 .. math::
 
@@ -10,7 +10,8 @@ and tangent of region-wise moduli theta are
 
 so near a state u_f where K(u_f; theta_f) is factored, K(u; theta) is about
 s K(u_f; theta_f) with the scalar s = prod_r (theta_r / theta_{f,r})^{w_r}
-(w_r the volume fraction of region r; exact for one region at u = u_f).
+(w_r region r's share of the volume weighted by its elements' moduli at
+unit parameters, :func:`_region_weights`; exact for one region at u = u_f).
 :func:`step_many` advances r parameter/state pairs to load step k:
 
 1. the *anchor*, the pair whose theta is nearest the median: if the
@@ -284,7 +285,7 @@ def step_many(
     Parameters
     ----------
     model
-        The beam (its caches, solver and cost counters are used and updated).
+        The model (its caches, solver and cost counters are used and updated).
     thetas
         Parameters, shape (r, p).
     k
@@ -621,7 +622,7 @@ def _line_residuals(
 ) -> tuple[NDArray[np.bool_], FloatArray, FloatArray]:
     """:func:`_residuals` of the predictions u_a + t_j s at theta_j, for p = 1.
 
-    The SVK internal force at unit modulus is a cubic polynomial of the
+    The SVK internal force at unit parameters is a cubic polynomial of the
     displacement (P = F S, S linear in the Green strain, which is quadratic),
     so along the line u_a + t s it is g(t) = c0 + c1 t + c2 t^2 + c3 t^3
     exactly, and so is det F of each element. Four assemblies at Chebyshev
