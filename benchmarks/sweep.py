@@ -13,11 +13,14 @@ Target: speedup >= 1.8x on 2 cores on the default compare.
 Both sides run one BLAS/MKL thread per process (the workers always do), so the
 ratio measures the pool, not a thread-count difference.
 
-Measured on an idle 2-core machine (``--default``): 30.0 s serial, 17.3 s with
-2 jobs, 1.82x (before #14's second round: 1.50x). What bounds it: the parent
-plans, reads the cached truths and writes the tables serially (about 1 s of a
-30 s default compare), and each worker's first runs build its models before
-the workers share what they compute (about 0.5 s a worker). Workers are
+Measured on an idle 2-core machine (``--default``): 22.2 s serial, 13.6 s with
+2 jobs, 1.64x with the compiled residual kernel (``IDBENCH_NUMBA=0``: 34.0 and
+17.6 s, 1.93x; before #14's second round: 1.50x). What bounds it: each run
+takes about 10% longer beside another worker than alone (shared caches and
+memory bandwidth: 2.2 s over the sweep, with or without numba, a larger share
+of the faster sweep), the parent plans, reads the cached truths and writes the
+tables serially (about 1 s), and each worker's first runs build its models
+before the workers share what they compute (about 0.5 s a worker). Workers are
 started before planning (their imports overlap it), the costliest runs start
 first (no long run left for the end), the parent sends the probed truths,
 workers pass each other reference fits and direct runs, and a free worker
