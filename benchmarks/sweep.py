@@ -15,12 +15,12 @@ ratio measures the pool, not a thread-count difference.
 
 Measured on an idle 2-core machine (``--default``): 22.2 s serial, 13.6 s with
 2 jobs, 1.64x with the compiled residual kernel (``IDBENCH_NUMBA=0``: 34.0 and
-17.6 s, 1.93x; before #14's second round: 1.50x). What bounds it: each run
-takes about 10% longer beside another worker than alone (shared caches and
-memory bandwidth: 2.2 s over the sweep, with or without numba, a larger share
-of the faster sweep), the parent plans, reads the cached truths and writes the
-tables serially (about 1 s), and each worker's first runs build its models
-before the workers share what they compute (about 0.5 s a worker). Workers are
+17.6 s, 1.93x; before #14's second round: 1.50x). What bounds it: the pool
+does about 3.5 s more CPU work than one process (27.2 against 23.8 s): each
+worker imports idbench and builds its own models (about 0.9 s a worker), and
+runs take about 10% longer in a worker than alone, not from the hardware (two
+whole compares side by side do not slow each other); the parent plans, reads
+the cached truths and writes the tables serially (about 1 s). Workers are
 started before planning (their imports overlap it), the costliest runs start
 first (no long run left for the end), the parent sends the probed truths,
 workers pass each other reference fits and direct runs, and a free worker
