@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 
@@ -84,3 +86,52 @@ def test_switched_off_by_the_environment(monkeypatch):
     assert not kernels.available()
     monkeypatch.setenv(kernels.ENV, "1")
     assert kernels.available()
+
+
+@pytest.mark.parametrize("shape", [(5,), (2, 5), (2, 3, 4)])
+def test_a_state_of_the_wrong_size_is_refused(shape):
+    """The kernel reads without bounds checks: a wrong size must not reach it."""
+    fast, _ = _pair()
+    with pytest.raises(ValueError, match="state has shape"):
+        fast.kinematics(np.zeros(shape), np.ones(fast.n_elements))
+
+
+def test_numba_that_does_not_import_means_numpy(tmp_path, monkeypatch):
+    fake = tmp_path / "numba"
+    fake.mkdir()
+    (fake / "__init__.py").write_text(
+        "raise ImportError('Numba needs NumPy 2.3 or less')"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "numba")
+    kernels._numba_works.cache_clear()
+    try:
+        assert not kernels.available()
+        beam = SvkBeam(meshes.parse("4x1x1"), SCENARIOS[1], n_steps=2)
+        assert not beam._asm.compiled
+        beam.step(np.array([5000.0]), 1, beam.reset())
+    finally:
+        kernels._numba_works.cache_clear()
+
+
+def test_nowhere_to_cache_compiles_without_a_cache(monkeypatch):
+    real = numba.njit
+
+    def njit(*args, **kwargs):
+        if kwargs.get("cache"):
+            raise RuntimeError(
+                "cannot cache function '_svk_loop': no locator available"
+            )
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(numba, "njit", njit)
+    kernels._compiled.cache_clear()
+    try:
+        fast, slow = _pair("4x1x1")
+        X = np.full(fast.n_free, 1e-3)
+        mod = np.ones(fast.n_elements)
+        _close(
+            fast.forces(fast.kinematics(X, mod)), slow.forces(slow.kinematics(X, mod))
+        )
+    finally:
+        kernels._compiled.cache_clear()

@@ -12,22 +12,27 @@ of a few thousand elements each: about 11x faster at 500-1,100 nodes
 A residual is half of a batched sigma point's cost, so this is what brings a
 RO-UKF step nearer to one forward step.
 
-numba is optional (the ``fast`` extra, also in ``test``): without it, or with
+numba is optional (the ``fast`` extra, also in ``test``): without it, if it
+does not import (it refuses a NumPy newer than it supports), or with
 ``IDBENCH_NUMBA=0``, the assembler uses its numpy path. Compiled code is
-cached on disk (numba's ``cache=True``), so only the first process on a
-machine pays the compilation (a few seconds).
+cached on disk (numba's ``cache=True``: next to this file, else in the user's
+cache folder; without either, each process compiles), so only the first
+process on a machine pays the compilation (about a second).
 """
 
 from __future__ import annotations
 
 import functools
 import importlib.util
+import logging
 import os
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+log = logging.getLogger(__name__)
 
 FloatArray = NDArray[np.float64]
 
@@ -36,10 +41,23 @@ ENV = "IDBENCH_NUMBA"
 
 
 def available() -> bool:
-    """Whether the compiled kernel is used: numba installed and not switched off."""
+    """Whether the compiled kernel is used: numba works and is not switched off."""
     if os.environ.get(ENV, "1").strip() == "0":
         return False
-    return importlib.util.find_spec("numba") is not None
+    return _numba_works()
+
+
+@functools.cache
+def _numba_works() -> bool:
+    """Whether numba imports (it refuses a NumPy newer than it supports)."""
+    if importlib.util.find_spec("numba") is None:
+        return False
+    try:
+        import numba  # noqa: F401
+    except Exception as exc:  # numba's own check of its dependencies
+        log.warning("numba does not import (%s); using the numpy kernels", exc)
+        return False
+    return True
 
 
 def svk_kinematics(
@@ -75,11 +93,17 @@ def svk_kinematics(
         F and S (..., T, 3, 3), det (..., T), force (..., n), with the leading
         axis of ``state`` (none for one state).
     """
-    u = np.ascontiguousarray(state, dtype=np.float64)
-    single = u.ndim == 1
-    u2 = u.reshape(1, -1) if single else u
+    single = np.ndim(state) == 1
+    # fresh, writable C arrays: the kernel indexes without bounds checks, and
+    # numba compiles one version per array layout and writability
+    u2 = np.array(state, dtype=np.float64, order="C", ndmin=2)
+    if u2.ndim != 2 or u2.shape[1] != n_free:
+        raise ValueError(
+            f"state has shape {np.shape(state)}, expected ({n_free},) or (r, {n_free})"
+        )
     r, T = len(u2), len(dofs)
-    mod = np.ascontiguousarray(np.broadcast_to(modulus, (r, T)), dtype=np.float64)
+    mod = np.empty((r, T))
+    mod[...] = modulus  # (T,) or (r, T); anything else raises here
     F = np.empty((r, T, 3, 3))
     S = np.empty((r, T, 3, 3))
     det = np.empty((r, T))
@@ -95,7 +119,11 @@ def _compiled() -> Callable[..., Any]:
     """The numba kernel, compiled (or loaded from numba's cache) on first use."""
     import numba
 
-    return numba.njit(cache=True, nogil=True)(_svk_loop)  # type: ignore[no-any-return]
+    try:
+        return numba.njit(cache=True, nogil=True)(_svk_loop)  # type: ignore[no-any-return]
+    except RuntimeError as exc:  # nowhere writable to cache: compile each process
+        log.warning("numba cannot cache the kernel (%s); compiling it here", exc)
+        return numba.njit(nogil=True)(_svk_loop)  # type: ignore[no-any-return]
 
 
 def _svk_loop(  # type: ignore[no-untyped-def]
