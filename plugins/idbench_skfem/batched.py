@@ -46,8 +46,9 @@ the helpers' shares go out before the anchor solves, predicted as state_i + d
 The chord (modified Newton) iteration is u <- u - K_f^-1 r(u) / s_i with the
 last factorization K_f, testing the *true* residual r(u) = f_int(u; theta_i)
 - f_ext against the same tolerance as the model's ``step``. When an iteration
-reduces |r| by less than a factor ``SLOW``, or after ``MAX_MODIFIED`` in a
-row, the tangent is refactored at the current iterate (a full Newton step);
+reduces |r| by less than a factor SLOW, or after MAX_MODIFIED in a row
+(:data:`CHORD_LIMITS`: more chords where residuals are compiled), the tangent
+is refactored at the current iterate (a full Newton step);
 that factorization then serves the later pairs and the next call.
 
 Each result therefore meets the convergence test of ``step`` on the same
@@ -78,17 +79,19 @@ if TYPE_CHECKING:
 
 FloatArray = NDArray[np.float64]
 
-SLOW = 0.1
-"""Refactor when a chord iteration reduces |r| by less than this factor.
+CHORD_LIMITS = {False: (0.1, 6), True: (0.5, 15)}
+"""(SLOW, MAX_MODIFIED) by whether the assembler's residuals are compiled.
 
-A chord iteration costs a residual and a back-substitution, about a quarter of
-a Newton iteration at 500 nodes (kernel and factorization); at a rate slower
-than 0.1 a refactorization pays for itself. Measured on the RO-UKF path
-(benchmarks/filters.py): 0.25 and 0.05 cost more.
+A chord iteration is refactored away when it reduces |r| by less than a
+factor SLOW, or after MAX_MODIFIED in a row. It costs a residual and a
+back-substitution: with numpy kernels about a quarter of a Newton iteration
+at 500 nodes (kernel and factorization), and a rate slower than 0.1 does not
+pay; with the compiled kernel (:mod:`idbench_skfem.kernels`) about a
+fifteenth, and chords pay down to 0.5. Measured on the RO-UKF path with p = 4
+(benchmarks/filters.py, one process): numpy 3.38 forward steps a step with
+(0.1, 6), 4.14 with (0.5, 15); compiled 2.62 with (0.1, 6) and 6.3
+factorizations a step, 2.1-2.3 with (0.4-0.6, 15-30) and 3.2-3.4.
 """
-
-MAX_MODIFIED = 6
-"""Modified-Newton iterations in a row before the tangent is refactored."""
 
 
 BETA = 2.0
@@ -684,6 +687,7 @@ def _modified_newton(
     """
     asm = model._asm
     stats = model.batch_stats
+    slow, most = CHORD_LIMITS[asm.compiled]
     norm = float(np.linalg.norm(res))
     if norm <= tol:
         return u, theta_f
@@ -737,5 +741,5 @@ def _modified_newton(
         if norm_new > norm and not refactor:
             refactor = True  # the chord step made it worse: discard it, refactor
             continue
-        refactor = norm_new > SLOW * norm or in_row >= MAX_MODIFIED
+        refactor = norm_new > slow * norm or in_row >= most
         u, kin, res, norm = u_new, kin_new, res_new, norm_new

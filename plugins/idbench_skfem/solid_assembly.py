@@ -69,6 +69,9 @@ class LawAssembler:
     STACKS = False
     """One state at a time (:class:`~idbench_skfem.assembly.Assembler` takes stacks)."""
 
+    compiled = False
+    """Numpy kernels only (the compiled one is SVK's, :mod:`idbench_skfem.kernels`)."""
+
     def __init__(
         self, points: FloatArray, tets: IntArray, free: NDArray[np.bool_], law: Material
     ) -> None:
