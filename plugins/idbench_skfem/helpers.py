@@ -10,9 +10,10 @@ predictions and given states (a few vectors of n floats) and gets the
 converged states and the work done back. One model's helpers run at a time
 in a process (:func:`start`).
 
-Threads do not pay here: a residual evaluation is some 40 numpy calls on
-arrays of a few thousand elements, and two threads contending for the GIL run
-them at half the speed of one (measured at 525 nodes); processes do not
+Threads did not pay here: a numpy residual evaluation is some 40 numpy calls
+on arrays of a few thousand elements, and two threads contending for the GIL
+ran them at half the speed of one (measured at 525 nodes, before the compiled
+kernel of :mod:`idbench_skfem.kernels`, which releases the GIL); processes do not
 share a GIL, and a pair (one factorization and a few chord iterations, ~4 ms at
 525 nodes) is long against a round trip through a pipe (~0.1 ms).
 
