@@ -13,14 +13,13 @@ Target: speedup >= 1.8x on 2 cores on the default compare.
 Both sides run one BLAS/MKL thread per process (the workers always do), so the
 ratio measures the pool, not a thread-count difference.
 
-Measured on an idle 2-core machine (``--default``): 22.2 s serial, 13.6 s with
-2 jobs, 1.64x with the compiled residual kernel (``IDBENCH_NUMBA=0``: 34.0 and
-17.6 s, 1.93x; before #14's second round: 1.50x). What bounds it: the pool
-does about 3.5 s more CPU work than one process (27.2 against 23.8 s): each
-worker imports idbench and builds its own models (about 0.9 s a worker), and
-runs take about 10% longer in a worker than alone, not from the hardware (two
-whole compares side by side do not slow each other); the parent plans, reads
-the cached truths and writes the tables serially (about 1 s). Workers are
+Measured on an idle 2-core machine (``--default``): 23.1 s serial, 13.2 s with
+2 jobs, 1.75x with the compiled residual kernel (``IDBENCH_NUMBA=0``: 34.0 and
+17.6 s, 1.93x; before #14's second round: 1.50x). What bounds it: the first
+run starts 0.9 s after ``compare()`` (spawning workers and their imports
+outlast the parent's 0.5 s of planning), the parent's 1.3 s of CPU (writing
+each run's parts) shares the two cores, and each worker loads the kernel and
+builds its models again; the runs themselves pack the cores to 0.1 s. Workers are
 started before planning (their imports overlap it), the costliest runs start
 first (no long run left for the end), the parent sends the probed truths,
 workers pass each other reference fits and direct runs, and a free worker
