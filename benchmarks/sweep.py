@@ -34,6 +34,7 @@ for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import statistics  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -86,6 +87,32 @@ def timed(config: dict[str, object], out: Path, jobs: int) -> float:
     return float(done.stdout.strip().splitlines()[-1])
 
 
+def side_by_side(config: dict[str, object], root: Path, n: int) -> float:
+    """Mean seconds of ``n`` serial ``compare()`` calls run at once.
+
+    Each in its own fresh process and folder: ``n`` cores doing ``n`` times
+    the serial work with nothing shared and no pool, the most a pool of ``n``
+    jobs could make of this machine (cores that slow each other down, through
+    shared caches or a hypervisor, slow these too).
+    """
+    children = [
+        subprocess.Popen(
+            [sys.executable, "-c", CHILD, repr(config), str(root / f"apart{i}"), "1"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for i in range(n)
+    ]
+    times = []
+    for child in children:
+        out, err = child.communicate()
+        if child.returncode:
+            raise SystemExit(f"a serial compare failed:\n{err}")
+        times.append(float(out.strip().splitlines()[-1]))
+    return sum(times) / n
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--jobs", type=int, default=2)
@@ -105,15 +132,27 @@ def main() -> None:
         the_plan = plan(CompareConfig(**config), session)  # type: ignore[arg-type]
         prepare(the_plan.runs, session)
         print(f"runs: {len(the_plan.runs)}  (truth in the cache)")
-        serial, parallel = [], []
+        serial, parallel, apart = [], [], []
         for i in range(args.repeat):  # alternating: machine load drifts
             serial.append(timed(config, root / f"serial{i}", 1))
             parallel.append(timed(config, root / f"parallel{i}", args.jobs))
-            print(f"  try {i + 1}: serial {serial[-1]:.2f} s, "
-                  f"jobs={args.jobs} {parallel[-1]:.2f} s")  # fmt: skip
+            apart.append(side_by_side(config, root / f"try{i}", args.jobs))
+            pair = serial[-1] / parallel[-1], args.jobs * serial[-1] / apart[-1]
+            print(f"  try {i + 1}: serial {serial[-1]:.2f} s, jobs={args.jobs} "
+                  f"{parallel[-1]:.2f} s ({pair[0]:.2f}x); {args.jobs} serial side "
+                  f"by side {apart[-1]:.2f} s each (bound {pair[1]:.2f}x)")  # fmt: skip
+    speedup = min(serial) / min(parallel)
+    bound = args.jobs * min(serial) / min(apart)
     print(f"serial:   {min(serial):.2f} s (best of {args.repeat})")
     print(f"jobs={args.jobs}:   {min(parallel):.2f} s")
-    print(f"speedup:  {min(serial) / min(parallel):.2f}x")
+    pairs = [s / p for s, p in zip(serial, parallel, strict=True)]
+    print(
+        f"speedup:  {speedup:.2f}x (each try's: median {statistics.median(pairs):.2f}x)"
+    )
+    print(f"bound:    {bound:.2f}x ({args.jobs} serial compares side by side take "
+          f"{min(apart):.2f} s each: what {args.jobs} cores make of "
+          f"{args.jobs} x the work)")  # fmt: skip
+    print(f"speedup / bound: {speedup / bound:.2f}")
 
 
 if __name__ == "__main__":

@@ -23,6 +23,10 @@ class CompareProgress:
     a log file): one line per truth step and per finished run, at most about
     50 run lines per comparison (every run that is not ok is always shown).
     Truth steps arrive as log records of ``idbench.truth``.
+
+    With ``jobs > 1`` the bar is redrawn on each truth step and finished run,
+    not by a thread of its own: this process then runs one thread, and its
+    workers can be forked from it (:func:`idbench.executors.start_method`).
     """
 
     def __init__(self, runs: list[Any], out: Path, jobs: int, quiet: bool) -> None:
@@ -63,6 +67,7 @@ class CompareProgress:
             TimeRemainingColumn(),
             console=self.console,
             disable=not self.terminal,
+            auto_refresh=self.jobs == 1,
         )
         self.bar.__enter__()
         first = self.next_run()
@@ -93,7 +98,7 @@ class CompareProgress:
         """A truth step finished (``message`` from idbench.truth's log)."""
         if self.bar is None:
             return
-        self.bar.update(self.task, description=message)
+        self.bar.update(self.task, description=message, refresh=self.jobs > 1)
         if not self.terminal:
             print(f"[{self.elapsed()}] {message}", file=sys.stderr, flush=True)
 
@@ -111,7 +116,11 @@ class CompareProgress:
         else:
             running = f"running on {self.jobs} workers"
         self.bar.update(
-            self.task, completed=done, total=total, description=f"runs: {running}"
+            self.task,
+            completed=done,
+            total=total,
+            description=f"runs: {running}",
+            refresh=self.jobs > 1,
         )
         if not self.terminal and (
             done % self.every == 0 or done == total or row["status"] != "ok"

@@ -21,7 +21,7 @@ CASES = [
     (["filters.py", "--quick", "--repeat", "1"], "x solve"),
     (["kernel.py", "--sizes", "100"], "tangent_data"),
     (["startup.py", "--repeat", "1"], "ms"),
-    (["sweep.py", "--quick", "--repeat", "1"], "speedup"),
+    (["sweep.py", "--quick", "--repeat", "1"], "speedup / bound"),
     pytest.param(
         ["forward.py", "--sizes", "100"],
         "ratio",

@@ -486,8 +486,16 @@ def test_every_run_on_one_data_set_has_its_reference_runs_e_ref(serial_and_paral
             assert (group["E_ref"] == own).all()
 
 
-def test_the_pool_starts_from_the_parents_shared_products(cache_env, registry, runs):
-    """A worker uses a reference the parent session knows instead of fitting."""
+@pytest.mark.parametrize("method", ["fork", "spawn"])
+def test_the_pool_starts_from_the_parents_shared_products(
+    cache_env, registry, runs, monkeypatch, method
+):
+    """A worker uses a reference the parent session knows instead of fitting.
+
+    Forked, it holds the parent's session from the start (nothing is sent);
+    spawned, it receives the reference with its first run.
+    """
+    monkeypatch.setenv(executors.START_METHOD_ENV, method)
     chosen = [r for r in runs if r.estimator == "rls" and r.mesh == "4x1x1"]
     assert len(chosen) == 2
     parent = Session(registry)
@@ -502,7 +510,19 @@ def test_the_pool_starts_from_the_parents_shared_products(cache_env, registry, r
 # --- workers started ahead ---------------------------------------------------
 
 
-def test_the_next_pool_takes_the_started_workers(cache_env, registry, runs):
+@pytest.fixture
+def spawned(monkeypatch) -> None:
+    """Spawned workers, the ones :func:`executors.started` starts ahead."""
+    monkeypatch.setenv(executors.START_METHOD_ENV, "spawn")
+
+
+def test_forked_workers_are_not_started_ahead(monkeypatch):
+    monkeypatch.setenv(executors.START_METHOD_ENV, "fork")
+    with executors.started(2):
+        assert executors._spares() == []  # forked later, from the planned parent
+
+
+def test_the_next_pool_takes_the_started_workers(spawned, cache_env, registry, runs):
     chosen = [r for r in runs if r.estimator == "rls" and r.mesh == "4x1x1"]
     assert executors._spares() == []
     with executors.started(2):
@@ -516,7 +536,7 @@ def test_the_next_pool_takes_the_started_workers(cache_env, registry, runs):
 
 
 def test_a_pool_takes_only_the_workers_it_needs_and_stops_the_rest(
-    cache_env, registry, runs
+    spawned, cache_env, registry, runs
 ):
     one = [next(r for r in runs if r.estimator == "rls" and r.mesh == "4x1x1")]
     with executors.started(2):
@@ -529,7 +549,7 @@ def test_a_pool_takes_only_the_workers_it_needs_and_stops_the_rest(
     assert executors._spares() == []
 
 
-def test_a_dead_started_worker_is_replaced(cache_env, registry, runs):
+def test_a_dead_started_worker_is_replaced(spawned, cache_env, registry, runs):
     one = [next(r for r in runs if r.estimator == "rls" and r.mesh == "4x1x1")]
     with executors.started(1):
         (dead,) = executors._spares()
@@ -541,7 +561,7 @@ def test_a_dead_started_worker_is_replaced(cache_env, registry, runs):
         assert executors._spares() == []
 
 
-def test_workers_no_pool_took_are_stopped_at_the_end_of_the_block():
+def test_workers_no_pool_took_are_stopped_at_the_end_of_the_block(spawned):
     with executors.started(2):
         spare = list(executors._spares())
         assert len(spare) == 2 and all(w.proc.is_alive() for w in spare)
@@ -673,7 +693,7 @@ def test_a_free_worker_skips_runs_whose_inputs_another_is_computing(runs, regist
     assert executors._next([same[0]], busy, prepared, products) == 0  # type: ignore[arg-type]
 
 
-def test_started_workers_are_per_thread(cache_env, registry, runs):
+def test_started_workers_are_per_thread(spawned, cache_env, registry, runs):
     # a pool in another thread does not take this thread's spares
     one = [next(r for r in runs if r.estimator == "rls" and r.mesh == "4x1x1")]
     with executors.started(1):
@@ -691,7 +711,7 @@ def test_started_workers_are_per_thread(cache_env, registry, runs):
     assert not mine.proc.is_alive()
 
 
-def test_a_worker_starting_ignores_ctrl_c_until_the_parent_says(tmp_path):
+def test_a_worker_starting_ignores_ctrl_c_until_the_parent_says(spawned, tmp_path):
     # started with SIGINT ignored (inherited): a Ctrl-C while the workers
     # import is the parent's, with no traceback from the children
     script = tmp_path / "ctrl_c.py"
