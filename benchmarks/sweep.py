@@ -11,19 +11,23 @@ results folder so no run is skipped; the two sides alternate ``--repeat``
 times and the best of each is reported.
 Target: speedup >= 1.8x on 2 cores on the default compare.
 Both sides run one BLAS/MKL thread per process (the workers always do), so the
-ratio measures the pool, not a thread-count difference.
+ratio measures the pool, not a thread-count difference. Each try also times
+``--jobs`` serial compares side by side (fresh processes, separate folders):
+``jobs`` x serial / that time is the bound, what the cores make of ``jobs``
+times the work with no pool at all (cores that slow each other down slow
+these too); the last line is the pool's share of it.
 
-Measured on an idle 2-core machine (``--default``): 23.1 s serial, 13.2 s with
-2 jobs, 1.75x with the compiled residual kernel (``IDBENCH_NUMBA=0``: 34.0 and
-17.6 s, 1.93x; before #14's second round: 1.50x). What bounds it: the first
-run starts 0.9 s after ``compare()`` (spawning workers and their imports
-outlast the parent's 0.5 s of planning), the parent's 1.3 s of CPU (writing
-each run's parts) shares the two cores, and each worker loads the kernel and
-builds its models again; the runs themselves pack the cores to 0.1 s. Workers are
-started before planning (their imports overlap it), the costliest runs start
-first (no long run left for the end), the parent sends the probed truths,
-workers pass each other reference fits and direct runs, and a free worker
-skips a run whose inputs another worker is computing.
+Measured on an idle 2-core VM (``--default --repeat 4``): serial 22.2 s,
+2 jobs 12.0 s, 1.84x (each try's ratio 1.75-1.84x, median 1.80x); bound
+1.93x (two serial compares side by side 22.9 s each; 1.89-2.00x by try), the
+pool at 0.95 of it. With ``IDBENCH_START_METHOD=spawn``: 1.69x, 0.86 of the
+bound (before workers were forked: 1.75x, first run 0.9 s after
+``compare()``). What bounds it: the parent plans for 0.75 s before it forks
+the workers and writes the final tables for 0.3 s after the last run; the
+runs, costliest first, pack the two cores to 0.1 s. Forked workers start
+with the parent's imports, built models and probed truths; workers pass each
+other reference fits and direct runs, and a free worker skips a run whose
+inputs another worker is computing.
 """
 
 from __future__ import annotations

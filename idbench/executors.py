@@ -14,12 +14,13 @@ thread notices the parent has gone).
 How workers start (:func:`start_method`): on Linux, when this process runs
 one Python thread, they are forked from it once it has planned the sweep, so
 they begin with its imports, its built models and its probed truths (nothing
-to import or build again: 2 jobs 1.8x faster than 1 on the default compare,
-1.6-1.75x spawned); otherwise, or with ``IDBENCH_START_METHOD=spawn``, they
-are spawned, as fresh interpreters that import idbench and the plugins, and
-start ahead of planning (:func:`started`). A forked worker drops what belongs
-to the parent's terminal (its log handlers, a progress bar's hold on
-stdout/stderr) and limits BLAS to one thread, as a spawned one does.
+to import or build again: 2 jobs 1.84x faster than 1 on the default compare,
+1.69x spawned, ``benchmarks/sweep.py``); otherwise, or with
+``IDBENCH_START_METHOD=spawn``, they are spawned, as fresh interpreters that
+import idbench and the plugins, and start ahead of planning (:func:`started`).
+A forked worker drops what belongs to the parent's terminal (its log
+handlers, a progress bar's hold on stdout/stderr) and limits BLAS to one
+thread, as a spawned one does.
 """
 
 from __future__ import annotations
