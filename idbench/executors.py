@@ -33,6 +33,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 from collections.abc import Callable, Generator, Iterator
 from multiprocessing.connection import Connection, wait
 from typing import Any
@@ -55,6 +56,9 @@ MAX_ATTEMPTS = 2
 GRACE_S = 2.0
 """Seconds past ``timeout`` before a run's worker is killed (the run's own
 check, a signal inside the worker, gets the first chance)."""
+
+TICK_S = 1.0
+"""Seconds between calls of :func:`execute_all`'s ``tick``."""
 
 STOP_GRACE_S = 0.05
 """Seconds an idle worker asked to stop gets before it is killed."""
@@ -115,6 +119,7 @@ def execute_all(
     *,
     jobs: int = 1,
     timeout: float | None = None,
+    tick: Callable[[], None] | None = None,
 ) -> Generator[RunResult, None, None]:
     """Execute ``runs`` and yield each result as it finishes.
 
@@ -123,22 +128,26 @@ def execute_all(
     runs
         What to run, in the order to start them.
     session
-        This process's session: in-process runs use it; workers start with
-        what it has to share (:meth:`Session.shared`) and pass on to each
-        other what they compute, so a reference fit or direct run is done
-        again only by a worker that needs it while another is computing it.
+        This process's session: in-process runs use it; forked workers start
+        with a copy of it, spawned ones with what it has to share
+        (:meth:`Session.shared`); workers pass on to each other what they
+        compute, so a reference fit or direct run is done again only by a
+        worker that needs it while another is computing it.
     jobs
         Worker processes; 1 without a timeout runs in this process.
     timeout
         With a timeout, runs always go to worker processes (even ``jobs=1``)
         so that a run hung in compiled code can be killed.
+    tick
+        Called about every ``TICK_S`` seconds while worker processes run (a
+        progress display without a thread of its own redraws its clock).
     """
     if jobs == 1 and timeout is None:
         with one_blas_thread():
             for spec in runs:
                 yield execute(spec, session)
     else:
-        yield from _execute_processes(runs, jobs, timeout, session)
+        yield from _execute_processes(runs, jobs, timeout, session, tick)
 
 
 # --- worker processes ----------------------------------------------------------
@@ -193,14 +202,16 @@ def _worker_main(conn: Connection, parent: int, session: Session | None = None) 
 def _forked(session: Session) -> None:
     """Leave the parent's terminal to the parent and take over its session.
 
-    A forked worker starts with the parent's log handlers and, under a
-    progress bar, the bar's stand-ins for stdout/stderr: it writes to the
-    real streams with no handler (a warning reaches stderr the way it does
-    from a spawned worker). BLAS libraries were loaded by the parent with its
-    thread count: one thread each here, as in a spawned worker.
+    A forked worker starts with the parent's log handlers, its capture of
+    Python warnings and, under a progress bar, the bar's stand-ins for
+    stdout/stderr: it writes to the real streams with no handler and prints
+    warnings itself, as a spawned worker does. BLAS libraries were loaded by
+    the parent with its thread count: one thread each here, as in a spawned
+    worker.
     """
     sys.stdout = sys.__stdout__ or sys.stdout
     sys.stderr = sys.__stderr__ or sys.stderr
+    logging.captureWarnings(False)
     loggers = [logging.getLogger(), *logging.Logger.manager.loggerDict.values()]
     for logger in loggers:
         if isinstance(logger, logging.Logger):
@@ -294,7 +305,7 @@ def started(jobs: int) -> Iterator[None]:
     try:
         with _single_thread_environ():
             for _ in range(jobs):
-                mine.append(_Worker(_context()))
+                mine.append(_Worker())
                 spares.append(mine[-1])
         yield
     finally:
@@ -311,8 +322,11 @@ def start_method() -> str:
     this process runs one Python thread, and spawns otherwise: a fork copies
     a lock another thread may hold at that moment, which the worker could
     then wait on forever (a progress bar's refresh thread, a notebook's
-    kernel threads). macOS forks unsafely (system frameworks), Windows not
-    at all.
+    kernel threads). Decided again for each worker started, so a thread
+    started during a sweep makes its replacement workers spawned. Threads of
+    compiled libraries (BLAS and OpenMP pools, Arrow's) are not counted:
+    those re-initialise in a forked child. macOS forks unsafely (system
+    frameworks), Windows not at all.
 
     Raises
     ------
@@ -330,34 +344,39 @@ def start_method() -> str:
     return choice
 
 
-def _context(method: str = "spawn") -> Any:
-    """The multiprocessing context of workers started by ``method``."""
-    return mp.get_context(method)
+_FORK_WARNING = r".*multi-threaded, use of fork\(\) may lead to deadlocks"
+"""Python 3.12+ warns of a fork while compiled libraries run threads of their
+own (BLAS pools): those are fork-safe, and Python threads were checked."""
 
 
 class _Worker:
     """One worker process and the run it is busy with (``spec``, or None).
 
-    With a ``session``, the process is forked (:func:`start_method`) and
-    works with a copy of it, holding its shared products from the start.
+    With a ``session``, the process is forked from this one and works with a
+    copy of it, holding its shared products from the start; without, it is
+    spawned and builds its own.
     """
 
-    def __init__(self, ctx: Any, session: Session | None = None) -> None:
+    def __init__(self, session: Session | None = None) -> None:
+        ctx: Any = mp.get_context("spawn" if session is None else "fork")
         self.conn, child = ctx.Pipe()
-        forked = session is not None and ctx.get_start_method() == "fork"
-        args = (child, os.getpid(), session) if forked else (child, os.getpid())
+        args: tuple[Any, ...] = (child, os.getpid())
+        if session is not None:
+            args += (session,)
         self.proc = ctx.Process(target=_worker_main, args=args, daemon=True)
-        if forked:  # what is buffered now would be written twice
-            for stream in (sys.stdout, sys.stderr):
+        if session is not None:  # what is buffered now would be written twice
+            for stream in {sys.stdout, sys.stderr, sys.__stdout__, sys.__stderr__}:
                 with contextlib.suppress(Exception):
-                    stream.flush()
-        with _sigint_ignored():  # inherited: a Ctrl-C while it imports is ours
+                    stream.flush()  # type: ignore[union-attr]
+        with _sigint_ignored(), warnings.catch_warnings():
+            # a Ctrl-C while it starts is ours: the child inherits SIGINT ignored
+            warnings.filterwarnings("ignore", _FORK_WARNING, DeprecationWarning)
             self.proc.start()
         child.close()
         self.spec: RunSpec | None = None
         self.deadline: float | None = None
         # keys of the shared products it holds
-        self.has: set[Any] = set(session.shared()) if forked and session else set()
+        self.has: set[Any] = set() if session is None else set(session.shared())
 
     def give(self, spec: RunSpec, known: dict[Any, Any]) -> None:
         """Start ``spec`` on this worker, with the shared products it lacks."""
@@ -392,41 +411,50 @@ class _Pool:
     """``jobs`` workers, each replaced when it dies or overruns its deadline."""
 
     def __init__(self, jobs: int, timeout: float | None, session: Session) -> None:
-        method = start_method()
-        self.ctx = _context(method)
-        # forked workers start from the parent's session; spawned ones build their own
-        self.session = session if method == "fork" else None
+        self.session = session
         self.timeout = timeout
         self.workers: list[_Worker] = []
         spares = _spares()
-        while spares:
-            w = spares.pop(0)
-            if w.proc.is_alive() and len(self.workers) < jobs:
-                self.workers.append(w)
-            else:
-                w.stop()  # dead, or more than this pool needs
-        self.workers += [
-            _Worker(self.ctx, self.session) for _ in range(jobs - len(self.workers))
-        ]
+        try:
+            while spares:
+                w = spares.pop(0)
+                if w.proc.is_alive() and len(self.workers) < jobs:
+                    self.workers.append(w)
+                else:
+                    w.stop()  # dead, or more than this pool needs
+            while len(self.workers) < jobs:
+                self.workers.append(self._new())
+        except BaseException:  # a failed fork, a Ctrl-C: none left running
+            self.close()
+            raise
         self.attempts: dict[str, int] = {}
+
+    def _new(self) -> _Worker:
+        """A new worker: forked from this process if it is safe now, else spawned."""
+        return _Worker(self.session if start_method() == "fork" else None)
 
     def idle(self) -> list[_Worker]:
         """Live workers with nothing to do (dead idle ones are replaced)."""
         for i, w in enumerate(self.workers):
             if w.spec is None and not w.proc.is_alive():
                 w.kill()
-                self.workers[i] = _Worker(self.ctx, self.session)
+                self.workers[i] = self._new()
         return [w for w in self.workers if w.spec is None]
 
     def busy(self) -> list[_Worker]:
         """Workers running a run."""
         return [w for w in self.workers if w.spec is not None]
 
-    def wait(self) -> None:
-        """Block until a busy worker has news or the nearest deadline passes."""
+    def wait(self, most: float | None = None) -> None:
+        """Block until a busy worker has news or the nearest deadline passes.
+
+        ``most``: seconds to wait at most.
+        """
         busy = self.busy()
         deadlines = [w.deadline for w in busy if w.deadline is not None]
         left = max(0.0, min(deadlines) - time.monotonic()) if deadlines else None
+        if most is not None:
+            left = most if left is None else min(left, most)
         wait([w.conn for w in busy] + [w.proc.sentinel for w in busy], left)
 
     def attend(
@@ -481,7 +509,7 @@ class _Pool:
 
     def _replace(self, w: _Worker) -> None:
         w.kill()
-        self.workers[self.workers.index(w)] = _Worker(self.ctx, self.session)
+        self.workers[self.workers.index(w)] = self._new()
 
     def close(self) -> None:
         """Stop every worker (see :meth:`_Worker.stop`)."""
@@ -516,15 +544,15 @@ def _execute_processes(
     jobs: int,
     timeout: float | None,
     session: Session,
+    tick: Callable[[], None] | None = None,
 ) -> Iterator[RunResult]:
     """Run on ``jobs`` worker processes; see the module docstring.
 
-    ``known``: the shared products (truths, reference fits, direct runs) so
-    far, first the ``session``'s; each worker gets those it lacks with its
-    next run and returns what it added. ``products(spec)``: the keys of what
-    a run computes if new; a free worker takes the first queued run (of the
-    next ``LOOKAHEAD``) that would not compute what a busy worker is
-    computing now.
+    The shared products (truths, reference fits, direct runs) known so far,
+    first the ``session``'s: each worker gets those it lacks with its next
+    run and returns what it added. A free worker takes the first queued run
+    (of the next ``LOOKAHEAD``) that would not compute what a busy worker is
+    computing now (:meth:`Session.products`). ``tick``: see :func:`execute_all`.
     """
     queue = list(queue)
     if not queue:
@@ -549,7 +577,9 @@ def _execute_processes(
                 refill()
                 if not pool.busy():  # every hand-over failed: try again
                     continue
-                pool.wait()
+                pool.wait(TICK_S if tick else None)
+                if tick:
+                    tick()
                 finished = []
                 for w in pool.busy():
                     news = pool.attend(w, queue)

@@ -24,9 +24,10 @@ class CompareProgress:
     50 run lines per comparison (every run that is not ok is always shown).
     Truth steps arrive as log records of ``idbench.truth``.
 
-    With ``jobs > 1`` the bar is redrawn on each truth step and finished run,
-    not by a thread of its own: this process then runs one thread, and its
-    workers can be forked from it (:func:`idbench.executors.start_method`).
+    With ``jobs > 1`` the bar is redrawn on each truth step, finished run
+    and :meth:`tick` (about once a second while workers run), not by a thread
+    of its own: this process then runs one thread, and its workers can be
+    forked from it (:func:`idbench.executors.start_method`).
     """
 
     def __init__(self, runs: list[Any], out: Path, jobs: int, quiet: bool) -> None:
@@ -93,6 +94,11 @@ class CompareProgress:
     def elapsed(self) -> str:
         """Seconds since the comparison started, as text."""
         return f"{time.perf_counter() - self.t0:.0f} s"
+
+    def tick(self) -> None:
+        """Redraw the bar (its clock) without a thread: called by the pool."""
+        if self.bar is not None and self.jobs > 1:
+            self.bar.refresh()
 
     def truth(self, message: str) -> None:
         """A truth step finished (``message`` from idbench.truth's log)."""

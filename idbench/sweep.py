@@ -23,7 +23,7 @@ from typing import Any
 import pandas as pd
 
 from idbench.config import CompareConfig, ConfigError, build_settings, suggest
-from idbench.executors import THREAD_ENV, execute_all, started
+from idbench.executors import THREAD_ENV, execute_all, start_method, started
 from idbench.interfaces import ForwardModel, ModelFailure, ModelSpec
 from idbench.plugins import Registry, build_registry
 from idbench.posterior import PosteriorSettings, check_budget
@@ -281,16 +281,19 @@ def compare(
         Results directory; finished runs in it are skipped. Default: a
         temporary directory, removed afterwards.
     jobs
-        Local worker processes (1: serial, in this process).
+        Local worker processes (1: serial, in this process; with a registry
+        built by hand, runs always execute in this process).
     scheduler
         Address of a Dask scheduler (``tcp://host:port``); needs ``distributed``.
     registry
         The plugin registry (default: built from the installed plugins). A
         registry built by hand works only in this process: with it, runs
-        execute here whatever ``timeout`` says (the timeout then interrupts
-        Python code only, not a hang in compiled code).
+        execute here whatever ``jobs`` and ``timeout`` say (the timeout then
+        interrupts Python code only, not a hang in compiled code).
     progress
-        Called as ``progress(done, total, run_row)`` after each run.
+        Called as ``progress(done, total, run_row)`` after each run; if it
+        has a ``tick()`` method, that is called about once a second while
+        worker processes run (to redraw a clock).
 
     Returns
     -------
@@ -301,9 +304,12 @@ def compare(
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise ConfigError(f"jobs {jobs!r}: must be a whole number >= 1")
     isolate = registry is None  # workers can rebuild only an installed registry
+    if isolate and not scheduler and (jobs > 1 or config.timeout is not None):
+        start_method()  # a bad IDBENCH_START_METHOD: refused before any work
     session = Session(registry or build_registry())
-    # local workers start importing while this process plans and prepares
-    # (at most one a core: a pool that needs more starts them itself)
+    # spawned workers start importing while this process plans and prepares
+    # (at most one a core: a pool that needs more starts them itself); forked
+    # ones are forked when the pool needs them (see executors.start_method)
     ahead = min(jobs, os.cpu_count() or 1) if isolate and jobs > 1 else 0
     with started(0 if scheduler else ahead):
         the_plan = plan(config, session)
@@ -351,8 +357,9 @@ def _compare(
         results = execute_all(
             pending,
             session,
-            jobs=jobs,
+            jobs=jobs if isolate else 1,
             timeout=config.timeout if isolate else None,
+            tick=getattr(progress, "tick", None),
         )
     order = [r.run_id for r in the_plan.runs]
     try:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import multiprocessing as mp
 import signal
 import subprocess
 import sys
@@ -423,3 +424,39 @@ def test_processes_is_not_part_of_the_identity():
     assert BeamSettings(processes=2).identity() == BeamSettings().identity()
     assert BeamSettings(processes=2).options()["processes"] == 2
     assert "processes" not in _beam(processes=2).describe()["options"]
+
+
+def _path_in_fork(model: SvkBeam, thetas: np.ndarray, conn) -> None:
+    """In a forked copy of ``model``'s process: its path, and its helper's pid."""
+    states = _path(model, thetas)
+    (helper,) = model._helpers
+    conn.send((helper._process.pid, helper.owned, states[-1]))
+    model.close()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forks on Linux")
+def test_a_forked_copy_starts_its_own_helper_and_leaves_the_parents_alone():
+    # a sweep's forked worker holds a copy of the parent's models
+    model = _beam(processes=2)
+    thetas = _thetas()
+    first = _path(model, thetas)
+    (helper,) = model._helpers
+    calls = helper.calls
+    ctx = mp.get_context("fork")
+    mine, theirs = ctx.Pipe()
+    child = ctx.Process(target=_path_in_fork, args=(model, thetas, theirs))
+    child.start()
+    theirs.close()
+    try:
+        assert mine.poll(120), "the forked copy did not answer"
+        pid, owned, last = mine.recv()
+    finally:
+        child.join(30)
+    assert child.exitcode == 0
+    assert owned and pid != helper._process.pid  # a helper of its own
+    _assert_converged(model, thetas, 3, last)
+    # the parent's helper still serves the parent, in step with it
+    again = _path(model, thetas)
+    assert model._helpers == [helper] and helper.alive and helper.calls > calls
+    np.testing.assert_allclose(again[-1], first[-1], rtol=1e-9, atol=1e-15)
+    model.close()

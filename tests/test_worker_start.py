@@ -13,10 +13,12 @@ import logging
 import multiprocessing as mp
 import sys
 import threading
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from idbench import executors
@@ -24,7 +26,7 @@ from idbench.config import CompareConfig, ConfigError
 from idbench.plugins import build_registry
 from idbench.progress import CompareProgress
 from idbench.session import Session
-from idbench.sweep import compare
+from idbench.sweep import compare, plan
 
 LINUX = sys.platform.startswith("linux")
 
@@ -68,15 +70,59 @@ def test_a_bad_start_method_is_one_line_naming_the_allowed(monkeypatch, tmp_path
     message = "IDBENCH_START_METHOD='thread': allowed are auto, fork, spawn"
     with pytest.raises(ConfigError, match=message):
         executors.start_method()
-    with pytest.raises(ConfigError, match=message):
-        compare(CompareConfig(), tmp_path / "out", jobs=2)
-    assert not (tmp_path / "out").exists()  # refused before anything ran
+    for jobs, timeout in ((2, None), (1, 30.0)):  # a timeout needs workers too
+        with pytest.raises(ConfigError, match=message):
+            compare(CompareConfig(timeout=timeout), tmp_path / "out", jobs=jobs)
+        assert not (tmp_path / "out").exists()  # refused before anything ran
+
+
+def test_a_registry_built_by_hand_runs_in_this_process_whatever_jobs_says(
+    monkeypatch, tmp_path
+):
+    def no_worker(*args: Any) -> None:
+        raise AssertionError("a worker process was started")
+
+    monkeypatch.setattr(executors._Worker, "__init__", no_worker)
+    runs, _ = compare(
+        CompareConfig(**TINY), tmp_path, jobs=2, registry=build_registry()
+    )
+    assert len(runs) == 2 and (runs["status"] == "ok").all()
+
+
+def test_a_worker_started_while_another_thread_runs_is_spawned(monkeypatch):
+    monkeypatch.delenv(executors.START_METHOD_ENV, raising=False)
+    monkeypatch.setattr(executors.threading, "active_count", lambda: 1)
+    pool = executors._Pool(1, None, Session(build_registry()))
+    try:
+        assert pool.workers[0].proc._start_method == ("fork" if LINUX else "spawn")  # type: ignore[attr-defined]
+        monkeypatch.setattr(executors.threading, "active_count", lambda: 2)
+        pool._replace(pool.workers[0])  # as after a worker died mid-sweep
+        assert pool.workers[0].proc._start_method == "spawn"  # type: ignore[attr-defined]
+    finally:
+        pool.close()
+
+
+def test_a_pool_that_fails_to_start_a_worker_leaves_none_running(monkeypatch):
+    made: list[executors._Worker] = []
+    new = executors._Pool._new
+
+    def second_fails(self: executors._Pool) -> executors._Worker:
+        if made:
+            raise OSError("cannot fork: out of memory")
+        made.append(new(self))
+        return made[-1]
+
+    monkeypatch.setattr(executors._Pool, "_new", second_fails)
+    with pytest.raises(OSError, match="cannot fork"):
+        executors._Pool(2, None, Session(build_registry()))
+    assert len(made) == 1 and not made[0].proc.is_alive()
 
 
 def _report_forked_state(session: Session, out: Any) -> None:
     """In a forked child: take over ``session`` and report what it then has."""
     from threadpoolctl import threadpool_info
 
+    captured = warnings.showwarning is logging._showwarning  # type: ignore[attr-defined]
     executors._forked(session)
     loggers = [logging.getLogger(), logging.getLogger("idbench")]
     out.send(
@@ -91,13 +137,15 @@ def _report_forked_state(session: Session, out: Any) -> None:
             "stderr": sys.stderr is sys.__stderr__,
             "blas": [lib["num_threads"] for lib in threadpool_info()],
             "session": executors.worker_session() is session,
-            "spares": executors._spares(),
+            "warnings": captured and warnings.showwarning is not logging._showwarning,  # type: ignore[attr-defined]
         }
     )
 
 
 @pytest.mark.skipif(not LINUX, reason="forks on Linux only")
 def test_a_forked_worker_leaves_the_parents_terminal_and_keeps_its_session():
+    from threadpoolctl import threadpool_info, threadpool_limits
+
     ctx = mp.get_context("fork")
     session = Session(build_registry())
     handler = logging.StreamHandler(io.StringIO())  # the parent's, e.g. a bar's
@@ -105,20 +153,27 @@ def test_a_forked_worker_leaves_the_parents_terminal_and_keeps_its_session():
     idb.addHandler(handler)
     saved = sys.stdout
     sys.stdout = io.StringIO()  # a progress bar's stand-in for stdout
+    logging.captureWarnings(True)  # as the command line does
     try:
-        mine, theirs = ctx.Pipe()
-        child = ctx.Process(target=_report_forked_state, args=(session, theirs))
-        child.start()
+        with threadpool_limits(limits=2):  # the parent's BLAS: 2 threads
+            parents = [lib["num_threads"] for lib in threadpool_info()]
+            mine, theirs = ctx.Pipe()
+            child = ctx.Process(target=_report_forked_state, args=(session, theirs))
+            child.start()
+        theirs.close()
+        assert mine.poll(60), "the forked child did not report"
         state = mine.recv()
         child.join(30)
     finally:
+        logging.captureWarnings(False)
         sys.stdout = saved
         idb.removeHandler(handler)
     assert child.exitcode == 0
     assert state["handlers"] == []
     assert state["stdout"] and state["stderr"]
-    assert state["blas"] and set(state["blas"]) == {1}
-    assert state["session"] and state["spares"] == []
+    assert state["warnings"]  # printed by the worker, not captured
+    assert 2 in parents and state["blas"] and set(state["blas"]) == {1}
+    assert state["session"]
 
 
 def test_a_forked_worker_holds_the_parents_products_and_a_spawned_none(
@@ -126,14 +181,46 @@ def test_a_forked_worker_holds_the_parents_products_and_a_spawned_none(
 ):
     session = Session(build_registry())
     session._refs["some-data"] = [1.0]  # as remember_reference stores
-    for method, expect in (("fork", {("reference", "some-data")}), ("spawn", set())):
-        if method == "fork" and not LINUX:
-            continue
-        worker = executors._Worker(executors._context(method), session)
+    sent: list[Any] = []
+    monkeypatch.setattr(executors, "_send", lambda conn, message: sent.append(message))
+    for forked in (True, False) if LINUX else (False,):
+        worker = executors._Worker(session if forked else None)
         try:
-            assert worker.has == expect
+            worker.give("a run", session.shared())  # type: ignore[arg-type]
+            _, new = sent.pop()
+            if forked:  # it holds them already: nothing to send
+                assert worker.has == {("reference", "some-data")} and new == {}
+            else:
+                assert worker.has == set(new) == {("reference", "some-data")}
         finally:
             worker.stop()
+
+
+def test_the_pool_ticks_while_workers_run(monkeypatch):
+    monkeypatch.setattr(executors, "TICK_S", 0.01)
+    session = Session(build_registry())
+    runs = plan(CompareConfig(**TINY), session).runs
+    ticks: list[float] = []
+    rows = [
+        r
+        for r, _ in executors.execute_all(
+            runs, session, jobs=2, tick=lambda: ticks.append(1)
+        )
+    ]
+    assert [r["status"] for r in rows] == ["ok", "ok"]
+    assert len(ticks) >= 2  # at least once a finished run, more while they run
+
+
+def test_tick_redraws_the_bar_of_a_parallel_sweep(tmp_path):
+    from rich.console import Console
+
+    bar = CompareProgress([], tmp_path, 2, quiet=False)
+    out = io.StringIO()
+    bar.console, bar.terminal = Console(file=out, force_terminal=True), True
+    with bar:
+        drawn = len(out.getvalue())
+        bar.tick()
+        assert len(out.getvalue()) > drawn
 
 
 @pytest.mark.parametrize("jobs,threads", [(1, 1), (2, 0)])
@@ -154,6 +241,14 @@ def test_the_progress_bar_runs_a_thread_only_for_a_serial_sweep(
     assert "1/1" in out.getvalue()
 
 
+TINY = {
+    "truth_mesh": "10x2x2",
+    "meshes": ("4x1x1",),
+    "steps": 3,
+    "seeds": 1,
+    "estimators": ("rls", "batch-ls"),
+}
+
 SMALL = {
     "truth_mesh": "10x2x2",
     "meshes": ("4x1x1",),
@@ -165,13 +260,23 @@ SMALL = {
 
 @pytest.mark.skipif(not LINUX, reason="forks on Linux only")
 def test_forked_and_spawned_workers_give_the_same_numbers(monkeypatch, tmp_path: Path):
-    tables = {}
+    tables, started = {}, []
+    new = executors._Worker.__init__
+
+    def record(self: Any, session: Session | None = None) -> None:
+        started.append("fork" if session is not None else "spawn")
+        new(self, session)
+
+    monkeypatch.setattr(executors._Worker, "__init__", record)
     for method in ("fork", "spawn"):
         monkeypatch.setenv(executors.START_METHOD_ENV, method)
         runs, _ = compare(CompareConfig(**SMALL), tmp_path / method, jobs=2)
         tables[method] = runs.set_index("run_id").sort_index()
+        assert started == [method, method]
+        started.clear()
     fork, spawn = tables["fork"], tables["spawn"]
     assert len(fork) == 6 and (fork["status"] == "ok").all()
     assert list(fork.index) == list(spawn.index)
-    assert (fork["E_final"] == spawn["E_final"]).all()
-    assert (fork["E_ref"] == spawn["E_ref"]).all()
+    for col in ("E_final", "E_ref", "shape_error_final"):  # to round-off (BLAS)
+        np.testing.assert_allclose(fork[col], spawn[col], rtol=1e-12, err_msg=col)
+    assert (fork["n_solves"] == spawn["n_solves"]).all()

@@ -251,8 +251,12 @@ class BatchedSteps(NewtonSolve):
         :func:`idbench_skfem.helpers.start`); this model's start again once
         all of them were closed (by :meth:`close` or by another model's
         start). A lost helper is not replaced while others of this model live.
+        A forked copy of the model starts its own (its starter's stay its
+        starter's).
         """
         box = self._helpers
+        if any(not h.owned for h in box):  # a forked copy of this model
+            helpers.close_all(box)  # (the copies of the sockets only)
         if self.processes > 1 and (not box or all(h.closed for h in box)):
             assert self._recipe is not None
             if not box:  # the first start: stop them with the model

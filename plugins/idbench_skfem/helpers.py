@@ -101,6 +101,7 @@ class Helper:
             raise
         finally:
             theirs.close()
+        self._pid = os.getpid()
         self._ready = False
         self._pending = False
         self.alive = True
@@ -109,6 +110,15 @@ class Helper:
         self.calls = 0
         """Calls answered (for tests and benchmarks)."""
         self._io(self._conn.send, (build, solve))
+
+    @property
+    def owned(self) -> bool:
+        """Whether this process started it (not a forked copy of its starter).
+
+        A process forked from the starter (a sweep's forked worker) holds a
+        copy of the socket: it must neither talk to the helper nor stop it.
+        """
+        return os.getpid() == self._pid
 
     def submit(self, *args: Any) -> None:
         """Send one call; :meth:`collect` returns its result."""
@@ -154,7 +164,15 @@ class Helper:
         raise HelperLost(value)
 
     def close(self) -> None:
-        """Stop the process and close the socket (idempotent)."""
+        """Stop the process and close the socket (idempotent).
+
+        In a forked copy (not :attr:`owned`) only the copy of the socket is
+        closed: the helper goes on serving the process that started it.
+        """
+        if not self.owned:
+            self._conn.close()
+            self.alive, self.closed = False, True
+            return
         if self._process.poll() is None:
             if self.alive:
                 self._io(self._conn.send, None)
@@ -186,6 +204,9 @@ class Helper:
             return None
 
     def _lost(self, why: str) -> None:
+        if not self.owned:  # not ours to stop (see close)
+            self.close()
+            return
         if self.alive:
             log.warning("a step helper process was lost (%s): solving here", why)
         self.alive = False
