@@ -109,11 +109,16 @@ def side_by_side(config: dict[str, object], root: Path, n: int) -> float:
         for i in range(n)
     ]
     times = []
-    for child in children:
-        out, err = child.communicate()
-        if child.returncode:
-            raise SystemExit(f"a serial compare failed:\n{err}")
-        times.append(float(out.strip().splitlines()[-1]))
+    try:
+        for child in children:
+            out, err = child.communicate()
+            if child.returncode:
+                raise SystemExit(f"a serial compare failed:\n{err}")
+            times.append(float(out.strip().splitlines()[-1]))
+    finally:
+        for child in children:  # after a failure: none left running
+            child.kill()
+            child.wait()
     return sum(times) / n
 
 

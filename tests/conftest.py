@@ -1,8 +1,10 @@
-"""Shared fixtures: an isolated truth cache for every test, a study loader."""
+"""Shared fixtures: an isolated truth cache and worker start for every test,
+a study loader."""
 
 from __future__ import annotations
 
 import importlib.util
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
@@ -16,6 +18,20 @@ STUDIES = Path(__file__).resolve().parent.parent / "studies"
 def _isolated_cache(tmp_path_factory, monkeypatch):
     """Never read or write the user's truth cache from a test."""
     monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "c"))
+
+
+@pytest.fixture(autouse=True)
+def _forked_workers(monkeypatch):
+    """Worker processes forked, as a user's sweep on Linux starts them.
+
+    The default (``auto``) would fork or spawn depending on the threads that
+    earlier tests left running (Dask's client leaves two), so which way the
+    pool tests go would depend on their order. Tests of spawned workers and
+    of ``auto`` set ``IDBENCH_START_METHOD`` themselves;
+    ``tests/test_worker_start.py`` runs ``auto`` in a fresh interpreter.
+    """
+    if sys.platform.startswith("linux"):
+        monkeypatch.setenv("IDBENCH_START_METHOD", "fork")
 
 
 @pytest.fixture

@@ -9,8 +9,10 @@ gives the same numbers whichever way its workers start.
 from __future__ import annotations
 
 import io
+import json
 import logging
 import multiprocessing as mp
+import subprocess
 import sys
 import threading
 import warnings
@@ -63,6 +65,39 @@ def test_auto_forks_when_this_process_runs_one_thread(monkeypatch):
     monkeypatch.delenv(executors.START_METHOD_ENV, raising=False)
     monkeypatch.setattr(executors.threading, "active_count", lambda: 1)
     assert executors.start_method() == "fork"
+
+
+AUTO = """
+import json, sys
+from idbench import executors
+from idbench.config import CompareConfig
+from idbench.sweep import compare
+started = []
+new = executors._Worker.__init__
+def record(self, session=None):
+    started.append("fork" if session is not None else "spawn")
+    new(self, session)
+executors._Worker.__init__ = record
+if __name__ == "__main__":
+    given = json.loads(sys.argv[1]).items()
+    config = {k: tuple(v) if isinstance(v, list) else v for k, v in given}
+    runs, _ = compare(CompareConfig(**config), None, jobs=2)
+    print(json.dumps({"started": started, "ok": bool((runs.status == "ok").all())}))
+"""
+
+
+def test_a_sweep_from_a_fresh_interpreter_forks_by_default(monkeypatch, tmp_path):
+    monkeypatch.delenv(executors.START_METHOD_ENV, raising=False)
+    script = tmp_path / "auto.py"
+    script.write_text(AUTO)
+    done = subprocess.run(
+        [sys.executable, str(script), json.dumps(TINY)],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    report = json.loads(done.stdout.strip().splitlines()[-1])
+    want = "fork" if LINUX else "spawn"
+    assert report == {"started": [want, want], "ok": True}
 
 
 def test_a_bad_start_method_is_one_line_naming_the_allowed(monkeypatch, tmp_path):
@@ -153,6 +188,7 @@ def test_a_forked_worker_leaves_the_parents_terminal_and_keeps_its_session():
     idb.addHandler(handler)
     saved = sys.stdout
     sys.stdout = io.StringIO()  # a progress bar's stand-in for stdout
+    logging.captureWarnings(False)  # whatever an earlier test left
     logging.captureWarnings(True)  # as the command line does
     try:
         with threadpool_limits(limits=2):  # the parent's BLAS: 2 threads
