@@ -17,17 +17,17 @@ ratio measures the pool, not a thread-count difference. Each try also times
 times the work with no pool at all (cores that slow each other down slow
 these too); the last line is the pool's share of it.
 
-Measured on an idle 2-core VM (``--default --repeat 4``): serial 22.2 s,
-2 jobs 12.0 s, 1.84x (each try's ratio 1.75-1.84x, median 1.80x); bound
-1.93x (two serial compares side by side 22.9 s each; 1.89-2.00x by try), the
-pool at 0.95 of it. With ``IDBENCH_START_METHOD=spawn``: 1.69x, 0.86 of the
-bound (before workers were forked: 1.75x, first run 0.9 s after
-``compare()``). What bounds it: the parent plans for 0.75 s before it forks
-the workers and writes the final tables for 0.3 s after the last run; the
-runs, costliest first, pack the two cores to 0.1 s. Forked workers start
-with the parent's imports, built models and probed truths; workers pass each
-other reference fits and direct runs, and a free worker skips a run whose
-inputs another worker is computing.
+Measured on an idle 2-core VM (``--default --repeat 4``, two runs): serial
+22.2 / 22.6 s, 2 jobs 12.0 / 12.5 s, 1.84 / 1.82x (each try's ratio
+1.75-1.87x, medians 1.80 / 1.84x); bound 1.93 / 1.96x (two serial compares
+side by side; 1.89-2.01x by try), the pool at 0.93-0.95 of it. With
+``IDBENCH_START_METHOD=spawn``: 1.69x, 0.86 of the bound (before workers were
+forked: 1.75x, first run 0.9 s after ``compare()``). What bounds it: the
+parent plans for 0.75 s before it forks the workers and writes the final
+tables for 0.3 s after the last run; the runs, costliest first, pack the two
+cores to 0.1 s. Forked workers start with the parent's imports, built models
+and probed truths; workers pass each other reference fits and direct runs, and
+a free worker skips a run whose inputs another worker is computing.
 """
 
 from __future__ import annotations
