@@ -58,7 +58,8 @@ GRACE_S = 2.0
 check, a signal inside the worker, gets the first chance)."""
 
 TICK_S = 1.0
-"""Seconds between calls of :func:`execute_all`'s ``tick``."""
+"""Seconds at most between calls of :func:`execute_all`'s ``tick`` (it is
+also called whenever a worker has news)."""
 
 STOP_GRACE_S = 0.05
 """Seconds an idle worker asked to stop gets before it is killed."""
@@ -139,8 +140,9 @@ def execute_all(
         With a timeout, runs always go to worker processes (even ``jobs=1``)
         so that a run hung in compiled code can be killed.
     tick
-        Called about every ``TICK_S`` seconds while worker processes run (a
-        progress display without a thread of its own redraws its clock).
+        Called at least every ``TICK_S`` seconds while worker processes run,
+        and whenever one has news (a progress display without a thread of its
+        own redraws its clock). If it raises, it is not called again.
     """
     if jobs == 1 and timeout is None:
         with one_blas_thread():
@@ -202,16 +204,18 @@ def _worker_main(conn: Connection, parent: int, session: Session | None = None) 
 def _forked(session: Session) -> None:
     """Leave the parent's terminal to the parent and take over its session.
 
-    A forked worker starts with the parent's log handlers, its capture of
-    Python warnings and, under a progress bar, the bar's stand-ins for
-    stdout/stderr: it writes to the real streams with no handler and prints
-    warnings itself, as a spawned worker does. BLAS libraries were loaded by
-    the parent with its thread count: one thread each here, as in a spawned
-    worker.
+    A forked worker starts with the parent's log handlers and, under a
+    progress bar, the bar's stand-ins for stdout/stderr: it writes to the
+    real streams with no handler (what reaches a logger at WARNING or above
+    is printed by logging's last resort). It keeps the parent's logger
+    levels and its handling of Python warnings, so a warning the command
+    line hides without ``-v`` stays hidden, as in a serial sweep. BLAS and
+    OpenMP libraries were loaded by the parent with its thread count: one
+    thread each here, as in a spawned worker (which also keeps GNU OpenMP,
+    whose pool does not survive a fork, from using its pool).
     """
     sys.stdout = sys.__stdout__ or sys.stdout
     sys.stderr = sys.__stderr__ or sys.stderr
-    logging.captureWarnings(False)
     loggers = [logging.getLogger(), *logging.Logger.manager.loggerDict.values()]
     for logger in loggers:
         if isinstance(logger, logging.Logger):
@@ -325,8 +329,9 @@ def start_method() -> str:
     kernel threads). Decided again for each worker started, so a thread
     started during a sweep makes its replacement workers spawned. Threads of
     compiled libraries (BLAS and OpenMP pools, Arrow's) are not counted:
-    those re-initialise in a forked child. macOS forks unsafely (system
-    frameworks), Windows not at all.
+    they re-initialise in a forked child, or are limited to one thread there
+    (:func:`_forked`). macOS forks unsafely (system frameworks), Windows not
+    at all: ``fork`` is refused where the platform has no fork.
 
     Raises
     ------
@@ -337,6 +342,11 @@ def start_method() -> str:
     if choice not in ("auto", "fork", "spawn"):
         raise ConfigError(
             f"{START_METHOD_ENV}={choice!r}: allowed are auto, fork, spawn"
+        )
+    if choice == "fork" and "fork" not in mp.get_all_start_methods():
+        raise ConfigError(
+            f"{START_METHOD_ENV}=fork: this platform cannot fork; "
+            "allowed are auto, spawn"
         )
     if choice == "auto":
         alone = threading.active_count() == 1
@@ -364,14 +374,21 @@ class _Worker:
         if session is not None:
             args += (session,)
         self.proc = ctx.Process(target=_worker_main, args=args, daemon=True)
-        if session is not None:  # what is buffered now would be written twice
-            for stream in {sys.stdout, sys.stderr, sys.__stdout__, sys.__stderr__}:
-                with contextlib.suppress(Exception):
-                    stream.flush()  # type: ignore[union-attr]
-        with _sigint_ignored(), warnings.catch_warnings():
-            # a Ctrl-C while it starts is ours: the child inherits SIGINT ignored
-            warnings.filterwarnings("ignore", _FORK_WARNING, DeprecationWarning)
-            self.proc.start()
+        try:
+            if session is None:
+                with _sigint_ignored():  # inherited: a Ctrl-C while it imports is ours
+                    self.proc.start()
+            else:
+                for stream in {sys.stdout, sys.stderr, sys.__stdout__, sys.__stderr__}:
+                    with contextlib.suppress(Exception):  # else written twice
+                        stream.flush()  # type: ignore[union-attr]
+                with _sigint_ignored(), warnings.catch_warnings():
+                    warnings.filterwarnings("ignore", _FORK_WARNING, DeprecationWarning)
+                    self.proc.start()
+        except BaseException:  # no process, or one nobody will stop
+            self.kill()
+            child.close()
+            raise
         child.close()
         self.spec: RunSpec | None = None
         self.deadline: float | None = None
@@ -579,7 +596,11 @@ def _execute_processes(
                     continue
                 pool.wait(TICK_S if tick else None)
                 if tick:
-                    tick()
+                    try:
+                        tick()
+                    except Exception as exc:  # a display must not stop the sweep
+                        log.warning("progress display failed (%r): not redrawn", exc)
+                        tick = None
                 finished = []
                 for w in pool.busy():
                     news = pool.attend(w, queue)

@@ -20,6 +20,7 @@ from idbench.config import CompareConfig, ConfigError
 from idbench.sweep import compare
 
 distributed = pytest.importorskip("distributed")
+pytestmark = pytest.mark.dask  # run last (tests/conftest.py)
 
 TIMING = {"wall_s", "wall_s_step"}
 LOOSE = {"E_ref": 1e-8, "nees_ref": 1e-3}

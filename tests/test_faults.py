@@ -129,7 +129,7 @@ BAD_ESTIMATORS = '''
         register("matrix", Matrix)
 '''
 
-TAKES_A_NAME = '''
+TAKES_A_NAME = """
     from dataclasses import dataclass
 
     import idbench
@@ -147,10 +147,11 @@ TAKES_A_NAME = '''
     @idbench.hookimpl
     def register_estimators(register):
         register("ro-ukf", Fake)  # a built-in's name
-'''
+"""
 
-NOT_A_DATACLASS = TAKES_A_NAME.replace('register("ro-ukf", Fake)',
-                                       'register("mine", NotADataclass)')
+NOT_A_DATACLASS = TAKES_A_NAME.replace(
+    'register("ro-ukf", Fake)', 'register("mine", NotADataclass)'
+)
 
 
 @pytest.fixture
@@ -179,6 +180,7 @@ def install(tmp_path, monkeypatch):
 # --- 1. threads: a Dask worker with two threads ------------------------------
 
 
+@pytest.mark.dask
 def test_dask_worker_with_two_threads_gives_the_serial_results(tmp_path):
     distributed = pytest.importorskip("distributed")
     cfg = tiny(meshes=("3x1x1", MODEL), seeds=3, estimators=("rls", "ro-ukf", "lms"))
@@ -200,8 +202,11 @@ def test_dask_worker_with_two_threads_gives_the_serial_results(tmp_path):
 # --- 2, 3, 14: estimators that return nonsense, exit or interrupt ------------
 
 
-@pytest.mark.parametrize("jobs", [1, 2])
-def test_misbehaving_estimators_fail_their_run_only(install, tmp_path, jobs):
+@pytest.mark.parametrize("jobs,method", [(1, "fork"), (2, "fork"), (2, "spawn")])
+def test_misbehaving_estimators_fail_their_run_only(
+    install, tmp_path, monkeypatch, jobs, method
+):
+    monkeypatch.setenv("IDBENCH_START_METHOD", method)
     install("bad-ests", BAD_ESTIMATORS)
     cfg = tiny(estimators=("rls", "matrix", "exits", "interrupts"))
     out = tmp_path / "out"
@@ -244,7 +249,11 @@ def test_a_broken_plugin_is_reported_and_the_rest_works(install, tmp_path, capsy
 # --- 5, 14: a dead worker is charged to its own run only ----------------------
 
 
-def test_a_worker_death_is_charged_to_its_own_run_only(install, tmp_path):
+@pytest.mark.parametrize("method", ["fork", "spawn"])
+def test_a_worker_death_is_charged_to_its_own_run_only(
+    install, tmp_path, monkeypatch, method
+):
+    monkeypatch.setenv("IDBENCH_START_METHOD", method)
     install("bad-ests", BAD_ESTIMATORS)
     cfg = tiny(estimators=("dies", "rls", "lms"), seeds=3)
     runs, _ = compare(cfg, tmp_path / "out", jobs=2)
@@ -258,7 +267,9 @@ def test_a_worker_death_is_charged_to_its_own_run_only(install, tmp_path):
 # --- 6: a timeout stops a hang in compiled code --------------------------------
 
 
-def test_timeout_stops_a_hang_in_compiled_code(install, tmp_path):
+@pytest.mark.parametrize("method", ["fork", "spawn"])
+def test_timeout_stops_a_hang_in_compiled_code(install, tmp_path, monkeypatch, method):
+    monkeypatch.setenv("IDBENCH_START_METHOD", method)
     install("bad-ests", BAD_ESTIMATORS)
     cfg = tiny(estimators=("hangs-in-c", "rls"), timeout=3.0)
     start = time.monotonic()
@@ -357,9 +368,7 @@ def test_unusable_output_folders_are_one_line(tmp_path, capsys):
     afile.write_text("x")
     compare_ = ["compare", *TINY, "--estimators", "rls"]
     assert "need a directory" in _one_line(capsys, [*compare_, "--out", str(afile)])
-    assert "cannot write" in _one_line(
-        capsys, [*compare_, "--out", str(afile / "sub")]
-    )
+    assert "cannot write" in _one_line(capsys, [*compare_, "--out", str(afile / "sub")])
     assert "need a path" in _one_line(capsys, [*compare_, "--out", ""])
     out = tmp_path / "out"
     assert main([*compare_, "--out", str(out), "-q"]) == 0
@@ -550,7 +559,9 @@ def test_worker_lost_rows_have_every_column(install, tmp_path):
 
 def test_a_plugin_command_or_shorthand_that_clashes_is_reported(tmp_path, capsys,
                                                                  install):  # fmt: skip
-    install("clash", """
+    install(
+        "clash",
+        """
     import idbench
 
 
@@ -562,7 +573,8 @@ def test_a_plugin_command_or_shorthand_that_clashes_is_reported(tmp_path, capsys
     def register_commands(register):
         register("plugins", idbench.Command("shadows", lambda p: None, lambda a: 0))
         register("broken-cmd", idbench.Command("breaks", configure, lambda a: 0))
-    """)
+    """,
+    )
     assert main(["plugins", "--json"]) == 0
     rows = {r["name"]: r for r in json.loads(capsys.readouterr().out)}
     assert "one of idbench's own" in rows["clash"]["error"]

@@ -444,14 +444,16 @@ def test_a_forked_copy_starts_its_own_helper_and_leaves_the_parents_alone():
     calls = helper.calls
     ctx = mp.get_context("fork")
     mine, theirs = ctx.Pipe()
-    child = ctx.Process(target=_path_in_fork, args=(model, thetas, theirs))
+    child = ctx.Process(target=_path_in_fork, args=(model, thetas, theirs), daemon=True)
     child.start()
     theirs.close()
     try:
         assert mine.poll(120), "the forked copy did not answer"
         pid, owned, last = mine.recv()
-    finally:
         child.join(30)
+    finally:
+        if child.is_alive():
+            child.kill()
     assert child.exitcode == 0
     assert owned and pid != helper._process.pid  # a helper of its own
     _assert_converged(model, thetas, 3, last)

@@ -153,11 +153,17 @@ def test_a_pool_that_fails_to_start_a_worker_leaves_none_running(monkeypatch):
     assert len(made) == 1 and not made[0].proc.is_alive()
 
 
+def test_fork_is_refused_where_the_platform_cannot(monkeypatch):
+    monkeypatch.setenv(executors.START_METHOD_ENV, "fork")
+    monkeypatch.setattr(executors.mp, "get_all_start_methods", lambda: ["spawn"])
+    with pytest.raises(ConfigError, match="fork: this platform cannot fork"):
+        executors.start_method()
+
+
 def _report_forked_state(session: Session, out: Any) -> None:
     """In a forked child: take over ``session`` and report what it then has."""
     from threadpoolctl import threadpool_info
 
-    captured = warnings.showwarning is logging._showwarning  # type: ignore[attr-defined]
     executors._forked(session)
     loggers = [logging.getLogger(), logging.getLogger("idbench")]
     out.send(
@@ -172,7 +178,7 @@ def _report_forked_state(session: Session, out: Any) -> None:
             "stderr": sys.stderr is sys.__stderr__,
             "blas": [lib["num_threads"] for lib in threadpool_info()],
             "session": executors.worker_session() is session,
-            "warnings": captured and warnings.showwarning is not logging._showwarning,  # type: ignore[attr-defined]
+            "warnings": warnings.showwarning is logging._showwarning,  # type: ignore[attr-defined]
         }
     )
 
@@ -194,20 +200,24 @@ def test_a_forked_worker_leaves_the_parents_terminal_and_keeps_its_session():
         with threadpool_limits(limits=2):  # the parent's BLAS: 2 threads
             parents = [lib["num_threads"] for lib in threadpool_info()]
             mine, theirs = ctx.Pipe()
-            child = ctx.Process(target=_report_forked_state, args=(session, theirs))
+            child = ctx.Process(
+                target=_report_forked_state, args=(session, theirs), daemon=True
+            )
             child.start()
         theirs.close()
         assert mine.poll(60), "the forked child did not report"
         state = mine.recv()
         child.join(30)
     finally:
+        if "child" in locals() and child.is_alive():
+            child.kill()
         logging.captureWarnings(False)
         sys.stdout = saved
         idb.removeHandler(handler)
     assert child.exitcode == 0
     assert state["handlers"] == []
     assert state["stdout"] and state["stderr"]
-    assert state["warnings"]  # printed by the worker, not captured
+    assert state["warnings"]  # handled as the parent does (the CLI hides them)
     assert 2 in parents and state["blas"] and set(state["blas"]) == {1}
     assert state["session"]
 
@@ -245,6 +255,34 @@ def test_the_pool_ticks_while_workers_run(monkeypatch):
     ]
     assert [r["status"] for r in rows] == ["ok", "ok"]
     assert len(ticks) >= 2  # at least once a finished run, more while they run
+
+
+def test_a_tick_that_raises_is_dropped_and_the_sweep_goes_on(monkeypatch, caplog):
+    session = Session(build_registry())
+    runs = plan(CompareConfig(**TINY), session).runs
+    calls: list[int] = []
+
+    def broken() -> None:
+        calls.append(1)
+        raise BrokenPipeError("stderr is gone")
+
+    rows = [r for r, _ in executors.execute_all(runs, session, jobs=2, tick=broken)]
+    assert [r["status"] for r in rows] == ["ok", "ok"]
+    assert calls == [1]
+    assert "progress display failed" in caplog.text
+
+
+def test_the_pool_wakes_up_within_most_seconds_when_no_worker_has_news():
+    pool = executors._Pool(1, None, Session(build_registry()))
+    (worker,) = pool.workers
+    worker.spec = "busy, silent"  # type: ignore[assignment]
+    try:
+        waiting = threading.Thread(target=pool.wait, args=(0.05,), daemon=True)
+        waiting.start()
+        waiting.join(10)
+        assert not waiting.is_alive(), "wait(0.05) blocked with a silent worker"
+    finally:
+        pool.close()  # ends a wait that did block: the worker's sentinel
 
 
 def test_tick_redraws_the_bar_of_a_parallel_sweep(tmp_path):

@@ -172,6 +172,8 @@ class Helper:
         if not self.owned:
             self._conn.close()
             self.alive, self.closed = False, True
+            if self._process.returncode is None:  # not our child: never reaped here
+                self._process.returncode = 0
             return
         if self._process.poll() is None:
             if self.alive:
