@@ -14,7 +14,7 @@ thread notices the parent has gone).
 How workers start (:func:`start_method`): on Linux, when this process runs
 one Python thread, they are forked from it once it has planned the sweep, so
 they begin with its imports, its built models and its probed truths (nothing
-to import or build again: 2 jobs 1.82-1.84x faster than 1 on the default
+to import or build again: 2 jobs 1.81-1.84x faster than 1 on the default
 compare, 1.69x spawned, ``benchmarks/sweep.py``); otherwise, or with
 ``IDBENCH_START_METHOD=spawn``, they are spawned, as fresh interpreters that
 import idbench and the plugins, and start ahead of planning (:func:`started`).
