@@ -8,6 +8,7 @@ from __future__ import annotations
 from typing import Any
 
 from idbench.config import ConfigError
+from idbench.filter import Analysis, Filter
 from idbench.interfaces import (
     BatchModel,
     Cost,
@@ -33,6 +34,7 @@ from idbench.plugins import (
     hookimpl,
 )
 from idbench.scenario import Scenario, Sparsity
+from idbench.transforms import TRANSFORMS, IdentityTransform, LogTransform
 
 __version__ = "0.1.0"
 
@@ -56,6 +58,8 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
+    "TRANSFORMS",
+    "Analysis",
     "BatchModel",
     "Command",
     "CompareConfig",
@@ -64,7 +68,10 @@ __all__ = [
     "Diverged",
     "Estimate",
     "Estimator",
+    "Filter",
     "ForwardModel",
+    "IdentityTransform",
+    "LogTransform",
     "ModelDefaults",
     "ModelFailure",
     "ModelSpec",

@@ -296,6 +296,9 @@ class Estimator(Protocol):
 
     Implementations are dataclasses whose fields are their settings; ``start``
     resets all run state, so one instance can serve several runs in sequence.
+    :class:`idbench.Filter` is a base that implements this protocol around an
+    estimator's own ``begin`` and ``assimilate`` (and documents the optional
+    members below as defaulted class attributes); subclassing it is optional.
 
     Optional: ``estimate_solves(n_state, p, steps) -> int``, the forward model
     steps a run is expected to take (0 for a run :meth:`start` would skip).

@@ -27,17 +27,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from idbench import ForwardModel, Observation, Prior
+from idbench import Analysis, Filter, ForwardModel, Observation, Prior
 from idbench_filters._common import (
     FloatArray,
-    Settings,
-    Step,
     advance_many,
     check_choice,
     check_positive,
-    noise_var,
-    prior_xi,
-    to_theta,
 )
 
 INITS = ("exact", "random")
@@ -71,13 +66,13 @@ def draw_prior(
 
 
 @dataclass
-class EnsembleFilter(Settings):
+class EnsembleFilter(Filter):
     """Base of the ensemble filters: settings, start, forecast and reporting.
 
     Attributes
     ----------
     transform, sigma_floor
-        The shared settings, see :class:`~idbench_filters._common.Settings`.
+        The shared settings, see :class:`idbench.Filter`.
     members
         Ensemble size N >= 2; None (default) means 2p + 2.
     inflation
@@ -115,7 +110,6 @@ class EnsembleFilter(Settings):
             raise ValueError(f"seed = {self.seed!r} is not allowed; use an integer")
         if self.seed < 0:
             raise ValueError(f"seed = {self.seed!r} is not allowed; it must be >= 0")
-        self.innovation: tuple[FloatArray, FloatArray] | None = None
 
     def estimate_solves(self, n_state: int, p: int, steps: int) -> int:
         """One forward step per member and load step."""
@@ -125,13 +119,12 @@ class EnsembleFilter(Settings):
         """Begin a run: u_i = reset(), xi_i drawn from the prior (see ``init``)."""
         p = model.parameters.p
         n_members = self.members if self.members is not None else 2 * p + 2
-        mu, p_xi = prior_xi(prior, p, self.transform)
+        mu, p_xi = self.prior_xi(prior)
         u0 = np.asarray(model.reset(), dtype=float)
         self._rng = np.random.default_rng(self.seed)
         xi = draw_prior(self._rng, mu, p_xi, n_members, self.init == "exact")
         self._nu = u0.size
         self._X = np.hstack([np.tile(u0, (n_members, 1)), xi])
-        self.innovation = None
 
     @property
     def solves_per_step(self) -> int:
@@ -150,17 +143,17 @@ class EnsembleFilter(Settings):
         """Analysis ensemble (N, n) from the forecast X, HX (N, m), y and R = r I."""
         raise NotImplementedError
 
-    def assimilate(self, k: int, observation: Observation | None) -> Step:
+    def assimilate(self, k: int, observation: Observation | None) -> Analysis:
         """Forecast every member to step k, then assimilate the observation."""
-        model = self.run.model
+        model = self.model
         nu = self._nu
         X = self._X.copy()
-        thetas = np.stack([to_theta(x, self.transform) for x in X[:, nu:]])
+        thetas = np.stack([self.to_theta(x) for x in X[:, nu:]])
         X[:, :nu] = advance_many(model, thetas, k, X[:, :nu])
         if observation is not None:
             y = np.asarray(observation.values, dtype=float)
             HX = np.stack([model.observe(x) for x in X[:, :nu]]).astype(float)
-            r = noise_var(observation, self.sigma_floor)
+            r = self.noise_var(observation)
             s = np.atleast_2d(np.cov(HX, rowvar=False)) + r * np.eye(y.size)
             self.innovation = (y - HX.mean(axis=0), s)
             X = self.analysis(X, HX, y, r)
@@ -170,4 +163,4 @@ class EnsembleFilter(Settings):
         xbar = X.mean(axis=0)
         cov_xi = np.atleast_2d(np.cov(X[:, nu:], rowvar=False))
         self._X = X
-        return Step(xbar[nu:], cov_xi, xbar[:nu], finite=(cov_xi, X))
+        return Analysis(xbar[nu:], cov_xi, xbar[:nu], finite=(cov_xi, X))

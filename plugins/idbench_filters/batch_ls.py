@@ -29,21 +29,8 @@ from typing import ClassVar
 import numpy as np
 from scipy.optimize import least_squares
 
-from idbench import Diverged, ForwardModel, Observation, Prior
-from idbench_filters._common import (
-    FloatArray,
-    Settings,
-    Step,
-    advance,
-    check_choice,
-    check_estimate,
-    check_positive,
-    dtheta_dxi,
-    noise_var,
-    prior_xi,
-    to_theta,
-    to_xi,
-)
+from idbench import Analysis, Diverged, Filter, ForwardModel, Observation, Prior
+from idbench_filters._common import FloatArray, advance, check_choice, check_positive
 
 REFITS = ("end", "each")
 METHODS = ("trf", "dogbox")
@@ -54,7 +41,7 @@ TYPICAL_EVALUATIONS = 5
 
 
 @dataclass
-class BatchLs(Settings):
+class BatchLs(Filter):
     """Least squares over the whole path, re-simulated at every evaluation.
 
     Attributes
@@ -108,13 +95,13 @@ class BatchLs(Settings):
 
     def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run: no observations yet; report the prior until the first fit."""
-        self._mu, self._P = prior_xi(prior, model.parameters.p, self.transform)
+        self._mu, self._P = self.prior_xi(prior)
         self._xi, self._cov = self._mu.copy(), self._P.copy()
         self._obs: list[tuple[int, FloatArray, float]] = []  # (k, y, sigma)
         self._cache: tuple[bytes, int, list[FloatArray]] | None = None
         spec = model.parameters
-        lo = to_xi(np.asarray(spec.lower, dtype=float), self.transform)
-        hi = to_xi(np.asarray(spec.upper, dtype=float), self.transform)
+        lo = self.to_xi(np.asarray(spec.lower, dtype=float))
+        hi = self.to_xi(np.asarray(spec.upper, dtype=float))
         self._bounds = (np.where(np.isfinite(lo), lo, -np.inf), hi)
 
     def _simulate(self, xi: FloatArray, n: int) -> list[FloatArray]:
@@ -122,8 +109,8 @@ class BatchLs(Settings):
         key = np.asarray(xi, dtype=float).tobytes()
         if self._cache is not None and self._cache[:2] == (key, n):
             return self._cache[2]
-        model = self.run.model
-        theta = to_theta(xi, self.transform)
+        model = self.model
+        theta = self.to_theta(xi)
         u = np.asarray(model.reset(), dtype=float)
         states = []
         for k in range(1, n + 1):
@@ -134,15 +121,15 @@ class BatchLs(Settings):
 
     def _residuals(self, xi: FloatArray, n: int) -> FloatArray:
         states = self._simulate(xi, n)
-        observe = self.run.model.observe
+        observe = self.model.observe
         return np.concatenate(
             [(y - observe(states[k - 1])) / s for k, y, s in self._obs]
         )
 
     def _jacobian(self, xi: FloatArray, n: int) -> FloatArray:
-        model = self.run.model
+        model = self.model
         states = self._simulate(xi, n)
-        theta, scale = to_theta(xi, self.transform), dtheta_dxi(xi, self.transform)
+        theta, scale = self.to_theta(xi), self.dtheta_dxi(xi)
         rows = [
             -np.asarray(model.sensitivity(theta, k, states[k - 1])) * scale / s  # type: ignore[attr-defined]
             for k, _, s in self._obs
@@ -154,7 +141,7 @@ class BatchLs(Settings):
         lo, hi = self._bounds
         span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
         x0 = np.clip(self._xi, lo + 1e-9 * span, hi - 1e-9 * span)
-        jac = self._jacobian if hasattr(self.run.model, "sensitivity") else "2-point"
+        jac = self._jacobian if hasattr(self.model, "sensitivity") else "2-point"
         try:
             res = least_squares(
                 self._residuals,
@@ -175,18 +162,17 @@ class BatchLs(Settings):
             cov = np.linalg.inv(res.jac.T @ res.jac)
         except np.linalg.LinAlgError:
             cov = np.full((xi.size, xi.size), np.inf)
-        check_estimate(self.run.model, xi, k, self.transform)
+        self.check_estimate(xi, k)
         self._xi, self._cov = xi, cov
         return self._simulate(xi, k)[-1]
 
-    def assimilate(self, k: int, observation: Observation | None) -> Step:
+    def assimilate(self, k: int, observation: Observation | None) -> Analysis:
         """Record the observation; fit at step K ("end") or at each observation."""
-        run = self.run
         if observation is not None:
             y = np.asarray(observation.values, dtype=float)
-            self._obs.append((k, y, np.sqrt(noise_var(observation, self.sigma_floor))))
+            self._obs.append((k, y, np.sqrt(self.noise_var(observation))))
         fit_now = bool(self._obs) and (
-            k == run.model.n_steps if self.refit == "end" else observation is not None
+            k == self.model.n_steps if self.refit == "end" else observation is not None
         )
         state = self._fit(k) if fit_now else None
-        return Step(self._xi, self._cov, state)
+        return Analysis(self._xi, self._cov, state)

@@ -19,20 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from idbench import ForwardModel, Observation, Prior
-from idbench_filters._common import (
-    Settings,
-    Step,
-    advance,
-    check_positive,
-    observation_jacobian,
-    prior_xi,
-    to_theta,
-)
+from idbench import Analysis, Filter, ForwardModel, Observation, Prior
+from idbench_filters._common import advance, check_positive, observation_jacobian
 
 
 @dataclass
-class Lms(Settings):
+class Lms(Filter):
     """Normalised LMS: xi += mu J^T e / (eps + |J|^2).
 
     Attributes
@@ -65,20 +57,20 @@ class Lms(Settings):
 
     def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run from the prior mean; state = reset()."""
-        self._xi, _ = prior_xi(prior, model.parameters.p, self.transform)
+        self._xi, _ = self.prior_xi(prior)
         self._u = np.asarray(model.reset(), dtype=float)
 
-    def assimilate(self, k: int, observation: Observation | None) -> Step:
+    def assimilate(self, k: int, observation: Observation | None) -> Analysis:
         """Advance the own state one step, then one gradient step if observed."""
-        model = self.run.model
+        model = self.model
         xi = self._xi
         u_prev = self._u
-        u = advance(model, to_theta(xi, self.transform), k, u_prev)
+        u = advance(model, self.to_theta(xi), k, u_prev)
         if observation is not None:
             J = observation_jacobian(
-                model, xi, k, u, u_prev, self.transform, self.fd_step
+                model, xi, k, u, u_prev, self.transformation, self.fd_step
             )
             e = np.asarray(observation.values, dtype=float) - model.observe(u)
             xi = xi + self.mu * (J.T @ e) / (self.eps + float(np.sum(J * J)))
         self._xi, self._u = xi, u
-        return Step(xi, None, u, finite=(u,))
+        return Analysis(xi, None, u, finite=(u,))

@@ -23,27 +23,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from idbench import ForwardModel, Observation, Prior
-from idbench_filters._common import (
-    Settings,
-    Step,
-    advance,
-    check_positive,
-    noise_var,
-    observation_jacobian,
-    prior_xi,
-    to_theta,
-)
+from idbench import Analysis, Filter, ForwardModel, Observation, Prior
+from idbench_filters._common import advance, check_positive, observation_jacobian
 
 
 @dataclass
-class Rls(Settings):
+class Rls(Filter):
     """Recursive least squares with forgetting on xi.
 
     Attributes
     ----------
     transform, sigma_floor
-        The shared settings, see :class:`~idbench_filters._common.Settings`.
+        The shared settings, see :class:`idbench.Filter`.
     forgetting
         Forgetting factor lambda in (0, 1]; 1 (default) forgets nothing.
     fd_step
@@ -65,21 +56,21 @@ class Rls(Settings):
 
     def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run from the prior; state = reset()."""
-        self._xi, self._P = prior_xi(prior, model.parameters.p, self.transform)
+        self._xi, self._P = self.prior_xi(prior)
         self._u = np.asarray(model.reset(), dtype=float)
 
-    def assimilate(self, k: int, observation: Observation | None) -> Step:
+    def assimilate(self, k: int, observation: Observation | None) -> Analysis:
         """Advance the own state one step, then one RLS update if observed."""
-        model = self.run.model
+        model = self.model
         xi, P = self._xi, self._P
         u_prev = self._u
-        u = advance(model, to_theta(xi, self.transform), k, u_prev)
+        u = advance(model, self.to_theta(xi), k, u_prev)
         if observation is not None:
             J = observation_jacobian(
-                model, xi, k, u, u_prev, self.transform, self.fd_step
+                model, xi, k, u, u_prev, self.transformation, self.fd_step
             )
             e = np.asarray(observation.values, dtype=float) - model.observe(u)
-            R = noise_var(observation, self.sigma_floor)
+            R = self.noise_var(observation)
             Pm = P / self.forgetting
             S = J @ Pm @ J.T + R * np.eye(J.shape[0])
             K = np.linalg.solve(S, J @ Pm).T  # (p, m); S symmetric
@@ -87,4 +78,4 @@ class Rls(Settings):
             P = Pm - K @ S @ K.T
             P = 0.5 * (P + P.T)
         self._xi, self._P, self._u = xi, P, u
-        return Step(xi, P, u, finite=(P,))
+        return Analysis(xi, P, u, finite=(P,))

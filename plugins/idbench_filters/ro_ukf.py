@@ -40,17 +40,12 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from idbench import ForwardModel, Observation, Prior
+from idbench import Analysis, Filter, ForwardModel, Observation, Prior
 from idbench_filters._common import (
     FloatArray,
-    Settings,
-    Step,
     advance_many,
     check_choice,
     check_positive,
-    noise_var,
-    prior_xi,
-    to_theta,
 )
 
 SIGMA_POINTS = ("simplex", "star")
@@ -71,13 +66,13 @@ def sigma_directions(p: int, kind: str) -> FloatArray:
 
 
 @dataclass
-class RoUkf(Settings):
+class RoUkf(Filter):
     """Reduced-order UKF on [state; xi] with a rank-p factored covariance.
 
     Attributes
     ----------
     transform, sigma_floor
-        The shared settings, see :class:`~idbench_filters._common.Settings`.
+        The shared settings, see :class:`idbench.Filter`.
     sigma_points
         ``"simplex"`` (p + 1 solves a step, default) or ``"star"`` (2p + 1).
     param_noise
@@ -98,19 +93,17 @@ class RoUkf(Settings):
         check_choice("sigma_points", self.sigma_points, SIGMA_POINTS)
         check_positive("param_noise", self.param_noise, allow_zero=True)
         check_positive("model_error", self.model_error, allow_zero=True)
-        self.innovation: tuple[FloatArray, FloatArray] | None = None
 
     def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run: x = [reset(); mu_xi], L = [0; I_p], U = P_xi^-1."""
         p = model.parameters.p
-        mu, p_xi = prior_xi(prior, p, self.transform)
+        mu, p_xi = self.prior_xi(prior)
         u0 = np.asarray(model.reset(), dtype=float)
         self._nu = u0.size
         self._x = np.concatenate([u0, mu])
         self._L = np.vstack([np.zeros((self._nu, p)), np.eye(p)])
         self._Uinv = p_xi.copy()  # U^-1, kept as the inverse: that is what is sampled
         self._I = sigma_directions(p, self.sigma_points)
-        self.innovation = None
 
     def estimate_solves(self, n_state: int, p: int, steps: int) -> int:
         """One forward step per sigma point and load step."""
@@ -122,9 +115,9 @@ class RoUkf(Settings):
         self.run  # noqa: B018 (RuntimeError before start())
         return int(self._I.shape[1])
 
-    def assimilate(self, k: int, observation: Observation | None) -> Step:
+    def assimilate(self, k: int, observation: Observation | None) -> Analysis:
         """Forecast to step k with r sigma points, then assimilate the observation."""
-        model = self.run.model
+        model = self.model
         nu = self._nu
         I = self._I  # noqa: E741
         r = I.shape[1]
@@ -138,7 +131,7 @@ class RoUkf(Settings):
         # sigma points as rows (r, n): each state handed to the model is
         # contiguous (a strided column view makes the solves ~20% slower)
         X = self._x[None, :] + (L @ I).T
-        thetas = np.stack([to_theta(X[i, nu:], self.transform) for i in range(r)])
+        thetas = np.stack([self.to_theta(X[i, nu:]) for i in range(r)])
         X[:, :nu] = advance_many(model, thetas, k, X[:, :nu])
         x = alpha * X.sum(axis=0)
         L = alpha * X.T @ I.T
@@ -149,7 +142,7 @@ class RoUkf(Settings):
             Z = y[:, None] - hx  # (m, r)
             zbar = Z @ np.full(r, alpha)
             G = alpha * I @ Z.T  # (p, m)
-            var = noise_var(observation, self.sigma_floor) + self.model_error**2
+            var = self.noise_var(observation) + self.model_error**2
             dz = Z - zbar[:, None]
             self.innovation = (zbar, alpha * dz @ dz.T + var * np.eye(y.size))
             rinv = 1.0 / var
@@ -159,4 +152,4 @@ class RoUkf(Settings):
             uinv = 0.5 * (uinv + uinv.T)
         p_xi = L[nu:] @ uinv @ L[nu:].T
         self._x, self._L, self._Uinv = x, L, uinv
-        return Step(x[nu:], p_xi, x[:nu], finite=(p_xi, x[:nu]))
+        return Analysis(x[nu:], p_xi, x[:nu], finite=(p_xi, x[:nu]))

@@ -29,18 +29,8 @@ from filterpy.kalman import (
     unscented_transform,
 )
 
-from idbench import ForwardModel, Observation, Prior, Skipped
-from idbench_filters._common import (
-    FloatArray,
-    Settings,
-    Step,
-    advance,
-    advance_many,
-    check_positive,
-    noise_var,
-    prior_xi,
-    to_theta,
-)
+from idbench import Analysis, Filter, ForwardModel, Observation, Prior, Skipped
+from idbench_filters._common import FloatArray, advance, advance_many, check_positive
 
 EIG_FLOOR = 1e-14  # relative eigenvalue floor of the sampled square root
 
@@ -101,13 +91,13 @@ def clipped_sqrt(P: FloatArray) -> FloatArray:
 
 
 @dataclass
-class Ukf(Settings):
+class Ukf(Filter):
     """Full UKF (filterpy) on [state; xi] with a full covariance.
 
     Attributes
     ----------
     transform, sigma_floor
-        The shared settings, see :class:`~idbench_filters._common.Settings`.
+        The shared settings, see :class:`idbench.Filter`.
     max_solves
         Budget of forward solves a step; :meth:`start` raises
         :class:`idbench.Skipped` when 2n + 1 exceeds it (default 1500: the
@@ -151,7 +141,7 @@ class Ukf(Settings):
     def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run; raise Skipped if 2n + 1 solves a step exceed ``max_solves``."""
         p = model.parameters.p
-        mu, p_xi = prior_xi(prior, p, self.transform)
+        mu, p_xi = self.prior_xi(prior)
         u0 = np.asarray(model.reset(), dtype=float)
         n = u0.size + p
         if 2 * n + 1 > self.max_solves:
@@ -195,31 +185,31 @@ class Ukf(Settings):
 
     def _fx(self, x: FloatArray, dt: float) -> FloatArray:
         nu = self._nu
-        theta = to_theta(x[nu:], self.transform)
-        u = advance(self.run.model, theta, self._k, x[:nu])
+        theta = self.to_theta(x[nu:])
+        u = advance(self.model, theta, self._k, x[:nu])
         return np.concatenate([u, x[nu:]])
 
     def _fx_many(self, sigmas: FloatArray, dt: float) -> FloatArray:
         nu = self._nu
-        thetas = np.stack([to_theta(x[nu:], self.transform) for x in sigmas])
+        thetas = np.stack([self.to_theta(x[nu:]) for x in sigmas])
         out = np.array(sigmas, dtype=float)
-        out[:, :nu] = advance_many(self.run.model, thetas, self._k, out[:, :nu])
+        out[:, :nu] = advance_many(self.model, thetas, self._k, out[:, :nu])
         return out
 
     def _hx(self, x: FloatArray) -> FloatArray:
-        return np.asarray(self.run.model.observe(x[: self._nu]), dtype=float)
+        return np.asarray(self.model.observe(x[: self._nu]), dtype=float)
 
-    def assimilate(self, k: int, observation: Observation | None) -> Step:
+    def assimilate(self, k: int, observation: Observation | None) -> Analysis:
         """Predict to step k (2n + 1 solves), then update with the observation."""
         ukf = self._ukf
         self._k = k
         ukf.predict(UT=weighted_transform)
         ukf.P = 0.5 * (ukf.P + ukf.P.T)
         if observation is not None:
-            R = noise_var(observation, self.sigma_floor)
+            R = self.noise_var(observation)
             z = np.asarray(observation.values, dtype=float)
             ukf.update(z, R=R, UT=weighted_transform)
             ukf.P = 0.5 * (ukf.P + ukf.P.T)
         nu = self._nu
         x, P = ukf.x, ukf.P
-        return Step(x[nu:], P[nu:, nu:], x[:nu], finite=(P, x))
+        return Analysis(x[nu:], P[nu:, nu:], x[:nu], finite=(P, x))

@@ -1,15 +1,16 @@
-r"""The parameter transforms the estimators work in: objects, not string branches.
+r"""The parameter transforms an estimator works in: objects, not string branches.
 
-Every estimator works on an unconstrained parameter vector xi (p,). With
-:data:`LOG`, xi = log(theta) and the Gaussian prior (mean E0, std s) in
-natural units becomes the log-normal with the same mean and variance,
+An estimator (see :class:`idbench.Filter`) works on an unconstrained parameter
+vector xi (p,). With :class:`LogTransform`, xi = log(theta) and the Gaussian
+prior (mean E0, std s) in natural units becomes the log-normal with the same
+mean and variance,
 
 .. math::
 
     \mu_\xi = \ln E_0, \qquad \sigma_\xi^2 = \ln(1 + s^2 / E_0^2),
 
 and estimates are reported as E = exp(mean xi) (the posterior median) with
-E_std = E * std(xi). With :data:`IDENTITY`, xi = theta.
+E_std = E * std(xi). With :class:`IdentityTransform`, xi = theta.
 """
 
 from __future__ import annotations
@@ -17,16 +18,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
-from idbench import Prior
-
-FloatArray = NDArray[np.float64]
+from idbench.interfaces import FloatArray, Prior
 
 
 @dataclass(frozen=True)
-class Identity:
-    """xi = theta."""
+class IdentityTransform:
+    """xi = theta (the base of the transforms: each method is the identity's).
+
+    Attributes
+    ----------
+    name
+        The value of an estimator's ``transform`` setting that selects it.
+    """
 
     name: str = "identity"
 
@@ -50,9 +54,26 @@ class Identity:
         """Natural-unit std (p,) from the std of xi."""
         return std_xi
 
+    def prior_xi(self, prior: Prior, p: int) -> tuple[FloatArray, FloatArray]:
+        """Prior mean (p,) and covariance (p, p) of xi.
+
+        Raises
+        ------
+        ValueError
+            If the prior has the wrong length, or (log transform) a
+            non-positive mean.
+        """
+        mean = np.asarray(prior.mean, dtype=float)
+        std = np.asarray(prior.std, dtype=float)
+        if mean.shape != (p,):
+            raise ValueError(
+                f"prior has {mean.size} entries but the model has p = {p}"
+            )
+        return self.prior(mean, std)
+
 
 @dataclass(frozen=True)
-class Log(Identity):
+class LogTransform(IdentityTransform):
     """xi = ln theta: every value of xi is a positive parameter."""
 
     name: str = "log"
@@ -84,22 +105,7 @@ class Log(Identity):
         return theta * std_xi
 
 
-IDENTITY = Identity()
-LOG = Log()
-TRANSFORMS = {t.name: t for t in (LOG, IDENTITY)}
-"""Transform by its setting value."""
-
-
-def prior_xi(
-    prior: Prior, p: int, transform: Identity
-) -> tuple[FloatArray, FloatArray]:
-    """Prior mean (p,) and covariance (p, p) of xi.
-
-    Raises ValueError if the prior has the wrong length, or a non-positive mean
-    under the log transform.
-    """
-    mean = np.asarray(prior.mean, dtype=float)
-    std = np.asarray(prior.std, dtype=float)
-    if mean.shape != (p,):
-        raise ValueError(f"prior has {mean.size} entries but the model has p = {p}")
-    return transform.prior(mean, std)
+TRANSFORMS: dict[str, IdentityTransform] = {
+    t.name: t for t in (LogTransform(), IdentityTransform())
+}
+"""Transform by its setting value (``"log"``, ``"identity"``)."""
