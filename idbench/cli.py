@@ -238,11 +238,16 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    """``idbench report DIR``: figures (PNG, SVG), report.md and report.html."""
+    """``idbench report DIR``: figures (PNG, SVG), report.md and report.html.
+
+    With ``--versus`` (``--versus-mesh``): the paired differences against
+    that estimator (mesh) first, printed and added to the report.
+    """
     from idbench.report import write_report
 
     try:
-        written = write_report(args.directory)
+        paired = _paired(args)
+        written = write_report(args.directory, paired=paired)
     except FileNotFoundError as exc:
         raise UsageError(str(exc)) from None
     except (OSError, ValueError, KeyError) as exc:  # e.g. not parquet, no columns
@@ -253,6 +258,38 @@ def cmd_report(args: argparse.Namespace) -> int:
     for path in written:
         print(f"wrote {path}")
     return 0
+
+
+def _paired(args: argparse.Namespace) -> list[Any]:
+    """The paired tables ``report`` asked for, printed; bad names a UsageError."""
+    import pandas as pd
+
+    from idbench.paired import paired_differences, paired_text
+
+    wanted = [("estimator", v) for v in args.versus]
+    wanted += [("mesh", v) for v in args.versus_mesh]
+    if not wanted:
+        return []
+    path = Path(args.directory) / "runs.parquet"
+    if not path.exists():
+        raise FileNotFoundError(
+            f"{path} not found: is {args.directory} a compare output?"
+        )
+    runs = pd.read_parquet(path)
+    width = None
+    if sys.stdout.isatty():
+        import shutil
+
+        width = shutil.get_terminal_size().columns
+    out = []
+    for by, versus in wanted:
+        try:
+            p = paired_differences(runs, versus, by)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        print(paired_text(p, width), end="\n\n")
+        out.append(p)
+    return out
 
 
 def cmd_info(args: argparse.Namespace) -> int:
