@@ -124,7 +124,7 @@ def paired_differences(
     both = others.merge(
         ref[["_pair", *metrics]], on="_pair", suffixes=("", "__versus")
     )
-    skip = {by, *BY[by], *SEED_COLUMNS, "seed"}
+    skip = {by, *BY[by], *(set(SEED_COLUMNS) - {"model_nodes"}), "seed"}
     keys = [k for k in ROW_KEYS if k in both and k not in skip]
     keys += [a for a in sweep_axes(runs) if a in both and a not in skip]
     keys.append("other")
