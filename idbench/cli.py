@@ -87,7 +87,10 @@ def _fail(
     """Print ``exc`` as one line (with its traceback under --debug); return code."""
     if debug:
         traceback.print_exception(exc)
-    text = " ".join(str(exc).split()) or type(exc).__name__
+    from idbench.sanitize import printable
+
+    text = printable(" ".join(str(exc).split()), join_lines=True)
+    text = text or type(exc).__name__
     print(f"idbench: error: {pre}{text}{'' if debug else post}", file=sys.stderr)
     return code
 
@@ -103,10 +106,21 @@ def _logging(verbose: int, debug: bool) -> None:
     level = logging.WARNING
     if verbose or debug:
         level = logging.INFO if verbose == 1 and not debug else logging.DEBUG
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    handler = logging.StreamHandler()
+    handler.setFormatter(_Printable("%(levelname)s %(name)s: %(message)s"))
+    logging.basicConfig(level=level, handlers=[handler])
     logging.captureWarnings(True)
     if not (verbose or debug):
         logging.getLogger("py.warnings").setLevel(logging.ERROR)
+
+
+class _Printable(logging.Formatter):
+    """Log lines as text: messages from plugins cannot send control sequences."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        from idbench.sanitize import printable
+
+        return "\n".join(printable(x) for x in super().format(record).split("\n"))
 
 
 def cmd_plugins(args: argparse.Namespace) -> int:
@@ -142,17 +156,19 @@ def cmd_plugins(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
+    from idbench.sanitize import rich_text
+
     table = Table(title="idbench plugins")
     for col in ("plugin", "version", "models", "estimators", "scenarios", "error"):
         table.add_column(col)
-    for r in rows:
+    for r in rows:  # plugin strings as text: no markup, no control sequences
         table.add_row(
-            r["name"],
-            r["version"],
-            ", ".join(r["models"]),
-            ", ".join(r["estimators"]),
-            ", ".join(r["scenarios"]),
-            r["error"],
+            rich_text(r["name"]),
+            rich_text(r["version"]),
+            rich_text(", ".join(r["models"])),
+            rich_text(", ".join(r["estimators"])),
+            rich_text(", ".join(r["scenarios"])),
+            rich_text(r["error"], join_lines=True),
         )
     Console().print(table)
     return 0
@@ -238,11 +254,16 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    """``idbench report DIR``: figures (PNG, SVG), report.md and report.html."""
+    """``idbench report DIR``: figures (PNG, SVG), report.md and report.html.
+
+    With ``--versus`` (``--versus-mesh``): the paired differences against
+    that estimator (mesh) first, printed and added to the report.
+    """
     from idbench.report import write_report
 
     try:
-        written = write_report(args.directory)
+        paired = _paired(args)
+        written = write_report(args.directory, paired=paired)
     except FileNotFoundError as exc:
         raise UsageError(str(exc)) from None
     except (OSError, ValueError, KeyError) as exc:  # e.g. not parquet, no columns
@@ -255,9 +276,42 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _paired(args: argparse.Namespace) -> list[Any]:
+    """The paired tables ``report`` asked for, printed; bad names a UsageError."""
+    import pandas as pd
+
+    from idbench.paired import paired_differences, paired_text
+
+    wanted = [("estimator", v) for v in args.versus]
+    wanted += [("mesh", v) for v in args.versus_mesh]
+    if not wanted:
+        return []
+    path = Path(args.directory) / "runs.parquet"
+    if not path.exists():
+        raise FileNotFoundError(
+            f"{path} not found: is {args.directory} a compare output?"
+        )
+    runs = pd.read_parquet(path)
+    width = None
+    if sys.stdout.isatty():
+        import shutil
+
+        width = shutil.get_terminal_size().columns
+    out = []
+    for by, versus in wanted:
+        try:
+            p = paired_differences(runs, versus, by)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        print(paired_text(p, width), end="\n\n")
+        out.append(p)
+    return out
+
+
 def cmd_info(args: argparse.Namespace) -> int:
     """``idbench info NAME``: a registered estimator's or model's settings."""
     from idbench.info import settings, summary_line
+    from idbench.sanitize import printable
 
     reg = registry()
     obj: Any
@@ -271,12 +325,12 @@ def cmd_info(args: argparse.Namespace) -> int:
         known = sorted({*reg.estimators, *reg.models})
         raise UsageError(f"unknown name {args.name!r}; known: {', '.join(known)}")
     rows = settings(obj)
-    summary = summary_line(obj)
+    summary = printable(summary_line(obj), join_lines=True)
     if args.json:
         out = {"name": args.name, "kind": kind, "plugin": plugin, "summary": summary}
         print(json.dumps({**out, "settings": rows}, indent=2, default=repr))
         return 0
-    print(f"{args.name} ({kind}, plugin {plugin}): {summary}")
+    print(printable(f"{args.name} ({kind}, plugin {plugin}): {summary}"))
     if not rows:
         print("no declared settings")
         return 0
@@ -287,11 +341,12 @@ def cmd_info(args: argparse.Namespace) -> int:
             f"set with --model-option NAME=VALUE or in a TOML file as "
             f"[model.{args.name}] NAME = VALUE"
         )
-    width = max(len(r["name"]) for r in rows)
+    width = max(len(printable(r["name"])) for r in rows)
     for r in rows:
-        print(f"  {r['name']:<{width}}  {r['type']} = {r['default']!r}")
+        name, kind_ = printable(r["name"]), printable(r["type"])
+        print(f"  {name:<{width}}  {kind_} = {printable(repr(r['default']))}")
         if r["meaning"]:
-            print(f"  {'':<{width}}  {r['meaning']}")
+            print(f"  {'':<{width}}  {printable(r['meaning'], join_lines=True)}")
     return 0
 
 

@@ -286,7 +286,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument(
         "--seeds",
         type=_number("seeds", int),
-        help=f"number of noise seeds (default: {d('seeds')}; --quick: 1)",
+        help=f"number of noise seeds (default: {d('seeds')}; --quick: 1). Each"
+        " summary mean carries a 95%% interval over the seeds (none with one); its"
+        " half-width h shrinks as 1/sqrt(n): a seed-to-seed spread s needs"
+        " n ~ (t s / h)^2 seeds, and the summary says how many +-1%% on each"
+        " x_final needs",
     )
     c.add_argument(
         "--steps",
@@ -357,6 +361,23 @@ def build_parser() -> argparse.ArgumentParser:
         "report.html into DIR from its runs.parquet and traces.parquet.",
     )
     r.add_argument("directory", type=Path, help="the --out DIR of idbench compare")
+    r.add_argument(
+        "--versus",
+        action="append",
+        default=[],
+        metavar="ESTIMATOR",
+        help="also print (and add to the report) each other estimator's paired"
+        " difference to ESTIMATOR: runs paired on everything else (seed, mesh,"
+        " noise, ...), mean and 95%% interval per row, * where it excludes 0;"
+        " repeatable",
+    )
+    r.add_argument(
+        "--versus-mesh",
+        action="append",
+        default=[],
+        metavar="MESH",
+        help="the same for meshes: each other mesh minus MESH; repeatable",
+    )
 
     i = sub.add_parser(
         "info",

@@ -11,6 +11,8 @@ per scenario where it shows shape errors. Conventions shared by all figures:
   in every figure; series that share an x value are offset a little
   horizontally so that equal results stay visible;
 - integer ticks on load-step axes;
+- bars are 95% intervals over seeds from :func:`idbench.intervals.interval`,
+  the same numbers as the summary's (none with one seed);
 - values the original study reported, if given (``study``: a table with
   columns ``figure``, ``x``, ``y`` and optional ``label``), drawn as hollow
   black stars and labelled "study, read off the paper's figure".
@@ -22,6 +24,9 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+
+from idbench.intervals import interval
+from idbench.sanitize import printable
 
 PALETTE = (
     "#0072B2",  # Okabe-Ito blue
@@ -62,7 +67,26 @@ def _series_names(runs: pd.DataFrame, axes: list[str]) -> list[str]:
 
 def _label(row: Any, axes: list[str]) -> str:
     extra = " ".join(f"{a}={_short(row[a])}" for a in axes)
-    return f"{row['estimator']} {extra}".strip()
+    return plain(f"{row['estimator']} {extra}".strip())
+
+
+def plain(text: Any) -> str:
+    """A plugin's string as figure text: printable, ``$`` not read as maths."""
+    return printable(text).replace("$", r"\$")
+
+
+def _with_intervals(values: pd.Series, by: pd.Series, metric: str) -> pd.DataFrame:
+    """Mean and 95% interval (``mean``, ``lo``, ``hi``) of ``values`` per ``by``."""
+    groups = values.groupby(by, sort=True)
+    rows = {x: interval(v, metric) for x, v in groups if v.notna().any()}
+    return pd.DataFrame.from_dict(rows, orient="index", columns=["mean", "lo", "hi"])
+
+
+def _yerr(g: pd.DataFrame) -> np.ndarray:
+    """Bar lengths (2, n) below and above each mean; 0 without an interval."""
+    below = (g["mean"] - g["lo"]).fillna(0.0).clip(lower=0.0)
+    above = (g["hi"] - g["mean"]).fillna(0.0).clip(lower=0.0)
+    return np.vstack([below.to_numpy(), above.to_numpy()])
 
 
 def _short(v: Any) -> str:
@@ -136,7 +160,8 @@ def parameters_vs_resolution(
     """Identified parameters against model resolution, one panel per parameter.
 
     y is ``x_final / x_true`` where the true value is known (1 = the truth),
-    else ``x_final``; markers are means over seeds, bars one std.
+    else ``x_final``; markers are means over seeds, bars their 95% t
+    intervals.
     """
     fig, panels = _panels(len(names))
     x_all, log = _x(ok)
@@ -145,13 +170,15 @@ def parameters_vs_resolution(
         ratio = f"{name}_true" in ok
         y = ok[f"{name}_final"] / ok[f"{name}_true"] if ratio else ok[f"{name}_final"]
         df = ok.assign(_x=x_all, _y=y, _s=[_label(r, axes) for _, r in ok.iterrows()])
+        metric = f"{name}_ratio" if ratio else f"{name}_final"
         for i, s in enumerate(series):
-            g = df[df["_s"] == s].groupby("_x")["_y"].agg(["mean", "std"])
+            d = df[df["_s"] == s]
+            g = _with_intervals(d["_y"], d["_x"], metric)
             if g.empty:
                 continue
-            xs = _offset(g.index.to_numpy(), i, len(series), log)
+            xs = _offset(g.index.to_numpy(dtype=float), i, len(series), log)
             ax.errorbar(
-                xs, g["mean"], yerr=g["std"].fillna(0.0), lw=1.2, ms=6,
+                xs, g["mean"], yerr=_yerr(g), lw=1.2, ms=6,
                 capsize=3, label=s, **style(i),
             )  # fmt: skip
         if ratio:
@@ -186,7 +213,8 @@ def shape_error_vs_resolution(
     """Shape error at the last step (mm per grid point) against resolution.
 
     One panel per scenario: the model run with the true values and no
-    assimilation ("direct", black squares) and each estimator's series.
+    assimilation ("direct", black squares) and each estimator's series
+    (means over seeds, bars their 95% t intervals).
     """
     scenarios = sorted(ok["scenario"].unique()) if "scenario" in ok else [None]
     fig, panels = _panels(len(scenarios))
@@ -202,14 +230,14 @@ def shape_error_vs_resolution(
                 label="direct (true values, no assimilation)",
             )  # fmt: skip
         for i, s in enumerate(series):
-            g = 1000 * d[d["_s"] == s].groupby("_x")["shape_error_mean_final"].agg(
-                ["mean", "std"]
-            )
+            e = d[d["_s"] == s]
+            mm = 1000 * e["shape_error_mean_final"]
+            g = _with_intervals(mm, e["_x"], "shape_error_mm")
             if g.empty:
                 continue
-            xs = _offset(g.index.to_numpy(), i, len(series), log)
+            xs = _offset(g.index.to_numpy(dtype=float), i, len(series), log)
             ax.errorbar(
-                xs, g["mean"], yerr=g["std"].fillna(0.0), lw=1.2, ms=6,
+                xs, g["mean"], yerr=_yerr(g), lw=1.2, ms=6,
                 capsize=3, label=s, **style(i),
             )  # fmt: skip
         _study(study, "shape_error", ax)
@@ -362,7 +390,7 @@ def frontier_figure(table: pd.DataFrame, budgets_hz: tuple[int, ...] = (30, 60))
             ax.plot(
                 d["wall_s_step"], d["_err"], MARKERS[j % len(MARKERS)],
                 color=PALETTE[i % len(PALETTE)], ms=7, mfc="none", mew=1.5,
-                label=str(est) if len(scenarios) == 1 else f"{est} {scen}",
+                label=plain(est if len(scenarios) == 1 else f"{est} {scen}"),
             )  # fmt: skip
             for _, row in d.iterrows():
                 if np.isfinite(row.get("model_nodes", np.nan)):

@@ -21,13 +21,25 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from idbench.summary import format_cell, headers, parameter_names_of_summary
+from idbench.intervals import format_interval, method
+from idbench.paired import paired_html
+from idbench.sanitize import printable
+from idbench.summary import (
+    format_cell,
+    headers,
+    interval_columns,
+    legend,
+    parameter_names_of_summary,
+    seeds_note,
+    status_for_people,
+)
 
 CAPTIONS = {
     "stiffness_vs_resolution": "Identified parameters against model resolution"
-    " (one panel per parameter; mean over seeds, bars: one std).",
+    " (one panel per parameter; mean over seeds, bars: 95% t interval).",
     "shape_error": "Shape error at the last step, mm per grid point: the model"
-    " with the true values (direct) and with each estimator's values.",
+    " with the true values (direct) and with each estimator's values (mean over"
+    " seeds, bars: 95% t interval).",
     "estimates_vs_step": "Estimates along the load path (first seed): colour"
     " the estimator, line style the mesh.",
     "uncertainty": "Reported uncertainty: share of seeds whose 95% interval"
@@ -115,6 +127,7 @@ def write_html(
     summary: pd.DataFrame,
     frontier: pd.DataFrame,
     svgs: dict[str, str],
+    paired: list[Any] | None = None,
 ) -> Path:
     """Write ``root/report.html`` and return its path.
 
@@ -130,6 +143,9 @@ def write_html(
         :func:`idbench.report.frontier` of the comparison (may be empty).
     svgs
         The figures' SVG text by stem, in the order to show them.
+    paired
+        Paired-difference tables (:class:`idbench.paired.Paired`) to show
+        after the summary.
     """
     manifest_path = root / "manifest.json"
     manifest = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
@@ -143,10 +159,10 @@ def write_html(
         "<title>idbench report</title>",
         f"<style>{STYLE}</style></head><body>",
         "<h1>idbench report</h1>",
-        f"<p>{len(runs)} runs; status: {html.escape(status)}. Written "
+        f"<p>{len(runs)} runs; status: {_text(status)}. Written "
         f"{datetime.now(UTC):%Y-%m-%d %H:%M} UTC from "
         f"<code>{html.escape(root.name)}</code>.</p>",
-        f"<p>{html.escape(_machine(manifest))}</p>",
+        f"<p>{_text(_machine(manifest))}</p>",
         "<h2>Data</h2><ul>",
         _link(root, "runs.parquet", "one row per run"),
         _link(root, "traces.parquet", "one row per run and step"),
@@ -156,7 +172,10 @@ def write_html(
         "<h2>Summary</h2>",
         "<p>Means over the ok runs of each row; n: runs (one a seed); shape"
         " errors in mm per grid point. Click a header to sort.</p>",
+        f"<p>{html.escape(legend(summary))}</p>" if not summary.empty else "",
         _summary_table(summary, headers(summary)),
+        *(f"<p>{html.escape(line)}</p>" for line in seeds_note(summary)),
+        *(paired_html(p) for p in paired or []),
     ]
     if svgs:
         parts.append("<h2>Figures</h2>")
@@ -196,7 +215,8 @@ def _summary_table(summary: pd.DataFrame, names: dict[str, str]) -> str:
     """The summary with a metric selector: key columns stay, metrics toggle."""
     if summary.empty:
         return "<p>(no runs)</p>"
-    cols = [c for c in summary.columns if c not in ("ok", "reason")]
+    hidden = {"ok", "reason", *interval_columns(summary)}
+    cols = [c for c in summary.columns if c not in hidden]
     if "reason" in summary and summary["reason"].astype(bool).any():
         cols.append("reason")  # last, as in the text table
     metrics = [
@@ -205,6 +225,7 @@ def _summary_table(summary: pd.DataFrame, names: dict[str, str]) -> str:
         if c not in KEY_COLUMNS and c != "reason" and _numeric(summary[c])
     ]
     metrics = [c for c in metrics if c not in _axes(summary)]
+    shown = summary[cols].assign(status=status_for_people(summary))
     options = "".join(
         f'<option value="{html.escape(m)}">{html.escape(names.get(m, m))}</option>'
         for m in metrics
@@ -216,7 +237,7 @@ def _summary_table(summary: pd.DataFrame, names: dict[str, str]) -> str:
     return (
         select
         + '<div class="scroll">'
-        + _table(summary[cols], names, "summary", set(metrics))
+        + _table(shown, names, "summary", set(metrics), summary)
         + "</div>"
     )
 
@@ -226,9 +247,12 @@ def _axes(summary: pd.DataFrame) -> list[str]:
     fixed = {"settling_step", "shape_error_mm", "direct_mm", "transfer_mm"}
     fixed |= {"n_solves", "wall_s_step"}
     out = []
+    bounds = interval_columns(summary)
     for c in summary.columns:
         base = c.rpartition("_")[0]
         if c in KEY_COLUMNS or c in ("ok", "reason") or c in fixed or base in params:
+            continue
+        if c in bounds:
             continue
         out.append(c)
     return out
@@ -241,31 +265,52 @@ def _numeric(col: pd.Series) -> bool:
 
 
 def _table(
-    df: pd.DataFrame, names: dict[str, str], ident: str, metrics: set[str] | None = None
+    df: pd.DataFrame,
+    names: dict[str, str],
+    ident: str,
+    metrics: set[str] | None = None,
+    bounds: pd.DataFrame | None = None,
 ) -> str:
-    """A sortable HTML table; cells carry their raw value for sorting."""
+    """A sortable HTML table; cells carry their raw value for sorting.
+
+    With ``bounds`` (the full summary), a metric ``m`` with ``m_lo`` and
+    ``m_hi`` columns there shows its interval (``3257 +- 4``), its exact
+    bounds in the cell's title. Every string goes through
+    :func:`idbench.sanitize.printable` and ``html.escape``.
+    """
     metrics = metrics or set()
+    bounds = bounds if bounds is not None else pd.DataFrame()
 
     def attrs(col: str) -> str:
         return f' data-metric="{html.escape(col)}"' if col in metrics else ""
 
     head = "".join(
-        f'<th scope="col"{attrs(c)} title="{html.escape(c)}">'
-        f"{html.escape(names.get(c, c))}</th>"
+        f'<th scope="col"{attrs(c)} title="{_text(c)}">{_text(names.get(c, c))}</th>'
         for c in df.columns
     )
     numeric = {c: _numeric(df[c]) for c in df.columns}
     body = []
-    for _, row in df.iterrows():
+    ranges = {
+        c: bounds[[f"{c}_lo", f"{c}_hi"]].to_numpy(dtype=float)
+        for c in df.columns
+        if f"{c}_lo" in bounds and f"{c}_hi" in bounds
+    }  # rows in df's order
+    for j, (_, row) in enumerate(df.iterrows()):
         cells = []
         for c in df.columns:
             v = row[c]
             raw = "" if _missing(v) else str(v)
             cls = ' class="num"' if numeric[c] else ""
             cls = ' class="reason"' if c == "reason" else cls
+            text, title = format_cell(v), ""
+            if c in ranges:
+                lo, hi = ranges[c][j]
+                text = format_interval(v, lo, hi, c, text)
+                if np.isfinite(lo) and np.isfinite(hi):
+                    title = f' title="95% {method(c)}: {lo:.6g} to {hi:.6g}"'
             cells.append(
-                f'<td{cls}{attrs(c)} data-value="{html.escape(raw)}">'
-                f"{html.escape(format_cell(v))}</td>"
+                f'<td{cls}{attrs(c)}{title} data-value="{_text(raw)}">'
+                f"{_text(text, join_lines=c == 'reason')}</td>"
             )
         notok = row.get("status", "ok") not in ("ok", True) and "status" in df
         tr = '<tr class="notok">' if notok else "<tr>"
@@ -274,6 +319,11 @@ def _table(
         f'<table id="{ident}" class="sortable"><thead><tr>{head}</tr></thead>'
         f"<tbody>{''.join(body)}</tbody></table>"
     )
+
+
+def _text(value: Any, join_lines: bool = False) -> str:
+    """A string from a plugin or a results file, for HTML: printable, escaped."""
+    return html.escape(printable(value, join_lines=join_lines))
 
 
 def _missing(v: Any) -> bool:
@@ -304,9 +354,7 @@ def _manifest(manifest: dict[str, Any]) -> str:
         rows.append((f"version of {name}", str(version)))
     for name, value in (manifest.get("threads") or {}).items():
         rows.append((name, "unset" if value is None else str(value)))
-    table = "".join(
-        f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>" for k, v in rows
-    )
+    table = "".join(f"<tr><td>{_text(k)}</td><td>{_text(v)}</td></tr>" for k, v in rows)
     settings = json.dumps(manifest.get("settings", {}), indent=1)
     return (
         f'<table class="meta">{table}</table><h3>Settings</h3>'

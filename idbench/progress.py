@@ -13,6 +13,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from idbench.sanitize import printable, rich_markup
+
 log = logging.getLogger("idbench")
 
 
@@ -73,7 +75,7 @@ class CompareProgress:
         self.bar.__enter__()
         first = self.next_run()
         label = f"preparing truths, then {first}" if first else "preparing"
-        self.task = self.bar.add_task(label, total=len(self.order))
+        self.task = self.bar.add_task(rich_markup(label), total=len(self.order))
         self.truth_log.addHandler(self.handler)
         self.truth_log.setLevel(logging.INFO)
         self.truth_log.propagate = log.getEffectiveLevel() <= logging.INFO
@@ -89,7 +91,9 @@ class CompareProgress:
     def next_run(self) -> str:
         """The run a serial sweep does next (plan order), or "" when none is left."""
         nxt = next((r for r in self.order if r.run_id not in self.reported), None)
-        return "" if nxt is None else f"{nxt.estimator} {nxt.mesh} {nxt.scenario}"
+        if nxt is None:
+            return ""
+        return printable(f"{nxt.estimator} {nxt.mesh} {nxt.scenario}")
 
     def elapsed(self) -> str:
         """Seconds since the comparison started, as text."""
@@ -104,7 +108,10 @@ class CompareProgress:
         """A truth step finished (``message`` from idbench.truth's log)."""
         if self.bar is None:
             return
-        self.bar.update(self.task, description=message, refresh=self.jobs > 1)
+        message = printable(message, join_lines=True)
+        self.bar.update(
+            self.task, description=rich_markup(message), refresh=self.jobs > 1
+        )
         if not self.terminal:
             print(f"[{self.elapsed()}] {message}", file=sys.stderr, flush=True)
 
@@ -125,7 +132,7 @@ class CompareProgress:
             self.task,
             completed=done,
             total=total,
-            description=f"runs: {running}",
+            description=rich_markup(f"runs: {running}"),
             refresh=self.jobs > 1,
         )
         if not self.terminal and (
@@ -152,7 +159,11 @@ class _TruthLog(logging.Handler):
 
 
 def describe_run(row: dict[str, Any]) -> str:
-    """A finished run in a few words: estimator, mesh, scenario, axes, status."""
+    """A finished run in a few words: estimator, mesh, scenario, axes, status.
+
+    Printable text (:func:`idbench.sanitize.printable`): names and the error
+    come from plugins.
+    """
     parts = [str(row.get(k, "")) for k in ("estimator", "mesh", "scenario")]
     for k in ("obs_every", "obs_points", "noise", "seed"):
         if k in row:
@@ -162,4 +173,4 @@ def describe_run(row: dict[str, Any]) -> str:
     status = row.get("status", "")
     if status != "ok" and row.get("error"):
         status = f"{status} ({str(row['error']).splitlines()[0]})"
-    return " ".join(parts) + f": {status}"
+    return printable(" ".join(parts) + f": {status}", join_lines=True)

@@ -11,11 +11,15 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from idbench.paired import Paired, paired_markdown
+from idbench.sanitize import markdown_cell
 from idbench.summary import (
     FORMATS,
     _markdown,
     headers,
+    legend,
     parameter_names,
+    seeds_note,
     summarise,
     summary_text,
     sweep_axes,
@@ -212,7 +216,9 @@ def frontier_figure(table: pd.DataFrame) -> Any:
 
 
 def write_report(
-    directory: str | Path, study: pd.DataFrame | None = None
+    directory: str | Path,
+    study: pd.DataFrame | None = None,
+    paired: list[Paired] | None = None,
 ) -> list[Path]:
     """Write figures (PNG, SVG), ``report.md`` and ``report.html`` for DIR.
 
@@ -225,6 +231,9 @@ def write_report(
         Values the original study reported, overlaid on the figures (columns
         ``figure``, ``x``, ``y``, optional ``label``). Default: DIR's
         ``study_values.csv`` if there is one.
+    paired
+        Paired-difference tables (:func:`idbench.paired.paired_differences`
+        of DIR's runs) to add after the summary.
 
     Returns
     -------
@@ -258,7 +267,9 @@ def write_report(
         "# idbench report",
         "",
         f"{len(runs)} runs; status: "
-        + ", ".join(f"{k} {v}" for k, v in runs["status"].value_counts().items()),
+        + ", ".join(
+            f"{markdown_cell(k)} {v}" for k, v in runs["status"].value_counts().items()
+        ),
         "",
         "## Summary",
         "",
@@ -267,7 +278,11 @@ def write_report(
         "",
         _markdown(summary, headers(summary)),
         "",
+        *(markdown_cell(x) + "\n" for x in [legend(summary)] if not summary.empty),
+        *(markdown_cell(x) + "\n" for x in seeds_note(summary)),
     ]
+    for p in paired or []:
+        lines += [paired_markdown(p), ""]
     if not table.empty:
         lines += [
             "## Real-time frontier",
@@ -285,5 +300,7 @@ def write_report(
     md = root / "report.md"
     md.write_text("\n".join(lines) + "\n")
     written.append(md)
-    written.append(write_html(root, runs, summary, frontier_display(table), svgs))
+    written.append(
+        write_html(root, runs, summary, frontier_display(table), svgs, paired)
+    )
     return written

@@ -4,7 +4,10 @@
 axis the sweep varied (seeds pooled, counted in ``n``); :func:`summary_text`
 renders it as a plain table that is never cut, markdown, csv or json. Both
 work for any model: parameters are found by their columns
-(:func:`parameter_names`).
+(:func:`parameter_names`). Every mean carries its 95% interval over seeds
+(:mod:`idbench.intervals`): ``x_lo`` and ``x_hi`` columns in csv and json,
+``3257 +- 4`` or ``6 [4, 8]`` in the tables for people. Strings from plugins
+are shown through :func:`idbench.sanitize.printable`.
 """
 
 from __future__ import annotations
@@ -14,6 +17,9 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+
+from idbench.intervals import format_interval, interval, seeds_needed
+from idbench.sanitize import markdown_cell, printable
 
 SEED_COLUMNS = ("run_id", "seed", "model_nodes", "truth_nodes")
 """Description columns that never make a summary row of their own."""
@@ -109,30 +115,20 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
         ``settling_step``, ``shape_error_mm`` (mean distance
         per grid point at the last step, mm), ``direct_mm`` (the same run
         with the true values, no assimilation), ``transfer_mm`` (on the
-        transfer path), ``n_solves`` and ``wall_s_step``.
+        transfer path), ``n_solves`` and ``wall_s_step``. Each metric
+        ``m`` is followed by ``m_lo`` and ``m_hi``, the bounds of its 95%
+        interval over the row's ok runs (:func:`idbench.intervals.interval`:
+        a t interval, a bootstrap for settling steps, solves and NEES, exact
+        binomial for coverage); NaN with fewer than two values.
     """
     if runs.empty:
         return pd.DataFrame()
-    df = runs.copy()
-    names = parameter_names(df)
-    for n in names:
-        if f"{n}_true" in df:
-            df[f"{n}_ratio"] = df[f"{n}_final"] / df[f"{n}_true"]
-    _add_mm(df)
+    df, metrics = with_metrics(runs)
     axes = sweep_axes(df)
     keys = [k for k in ROW_KEYS if k in df.columns] + axes
     for k in keys:  # groupby drops NaN keys otherwise
         if df[k].isna().all():
             df[k] = df[k].fillna("")
-    metrics = []
-    for n in names:
-        metrics += [f"{n}_final", f"{n}_ratio", f"{n}_ref"]
-    for n in names:
-        metrics += [f"{n}_cover{c}" for c in COVERAGE]
-    metrics += ["nees_true", "nees_ref", "w1_posterior"]
-    metrics += ["settling_step", "shape_error_mm", "direct_mm", "transfer_mm"]
-    metrics += ["n_solves", "wall_s_step"]
-    metrics = [m for m in metrics if m in df.columns]
     status = df["status"] if "status" in df else pd.Series("ok", index=df.index)
     df["_ok"] = status == "ok"
     df["_status"] = status
@@ -154,10 +150,33 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
         errors = g.loc[~g["_ok"], "_error"].astype(str)
         row["reason"] = "; ".join(dict.fromkeys(e for e in errors if e))
         for m in metrics:
-            row[m] = g[m].mean() if g[m].notna().any() else np.nan
+            row[m], row[f"{m}_lo"], row[f"{m}_hi"] = interval(g[m], m)
         rows.append(row)
     out = pd.DataFrame(rows)
     return out.sort_values(keys, kind="stable").reset_index(drop=True)
+
+
+def with_metrics(runs: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
+    """A copy of ``runs`` with the summary's derived metrics, and their names.
+
+    Adds ``x_ratio`` (``x_final / x_true``) and the shape errors in mm per
+    grid point; the names are the summary's metric columns in their order.
+    """
+    df = runs.copy()
+    names = parameter_names(df)
+    for n in names:
+        if f"{n}_true" in df:
+            df[f"{n}_ratio"] = df[f"{n}_final"] / df[f"{n}_true"]
+    _add_mm(df)
+    metrics = []
+    for n in names:
+        metrics += [f"{n}_final", f"{n}_ratio", f"{n}_ref"]
+    for n in names:
+        metrics += [f"{n}_cover{c}" for c in COVERAGE]
+    metrics += ["nees_true", "nees_ref", "w1_posterior"]
+    metrics += ["settling_step", "shape_error_mm", "direct_mm", "transfer_mm"]
+    metrics += ["n_solves", "wall_s_step"]
+    return df, [m for m in metrics if m in df.columns]
 
 
 def _add_mm(df: pd.DataFrame) -> None:
@@ -258,20 +277,105 @@ def _abbreviate(name: str, width: int = 8) -> str:
     return name if len(name) <= width else name[: width - 1] + "."
 
 
+def interval_columns(summary: pd.DataFrame) -> set[str]:
+    """The ``m_lo`` and ``m_hi`` columns of :func:`summarise` (folded into m)."""
+    cols = set(summary.columns)
+    return {
+        f"{c}_{b}"
+        for c in cols
+        if f"{c}_lo" in cols and f"{c}_hi" in cols
+        for b in ("lo", "hi")
+    }
+
+
 def _cells(summary: pd.DataFrame) -> tuple[list[str], list[list[str]], list[bool]]:
     """Columns shown to people, their formatted cells and which are numeric.
 
-    The reason column, when any row has one, comes last.
+    A metric's cell holds its mean and interval (``3257 +- 4``,
+    :func:`idbench.intervals.format_interval`); strings are
+    :func:`idbench.sanitize.printable`; a row with a single ok run says it
+    has no interval in its status (unless no row has more, see
+    :func:`legend`). The reason column, when any row has one, comes last.
     """
-    cols = [c for c in summary.columns if c not in (*HIDDEN, "reason")]
+    hidden = {*HIDDEN, "reason", *interval_columns(summary)}
+    cols = [c for c in summary.columns if c not in hidden]
     if "reason" in summary and summary["reason"].astype(bool).any():
         cols.append("reason")
     numeric = [pd.api.types.is_numeric_dtype(summary[c]) for c in cols]
-    rows = [[format_cell(v) for v in r] for r in summary[cols].itertuples(index=False)]
+    status = status_for_people(summary).tolist()
+    rows = []
+    for i, (_, r) in enumerate(summary.iterrows()):
+        cells = []
+        for c in cols:
+            text = format_cell(r[c])
+            if f"{c}_lo" in summary and f"{c}_hi" in summary:
+                text = format_interval(r[c], r[f"{c}_lo"], r[f"{c}_hi"], c, text)
+            if c == "status":
+                text = str(status[i])
+            cells.append(printable(text, join_lines=c == "reason"))
+        rows.append(cells)
     return cols, rows, numeric
 
 
+def status_for_people(summary: pd.DataFrame) -> pd.Series:
+    """The status column, a row with one ok run saying it has no interval.
+
+    Only when another row has one (else :func:`legend` says it once).
+    """
+    status = summary.get("status", pd.Series("", index=summary.index)).astype(str)
+    if "ok" in summary and (summary["ok"] >= 2).any():
+        one = summary["ok"] == 1
+        status = status.where(~one, status + " (1 ok run: no interval)")
+    return status
+
+
 TITLE = "idbench compare: means over the ok runs of each row (n: runs, one a seed)"
+
+LEGEND = (
+    "x +- h: mean and half-width of its 95% t interval over seeds; [lo, hi]: 95%"
+    " bootstrap (settling step, solves, NEES) or exact binomial (coverage) interval"
+)
+
+
+def legend(summary: pd.DataFrame) -> str:
+    """What the intervals are; or that there are none (one ok run per row)."""
+    if "ok" in summary and not (summary["ok"] >= 2).any():
+        return "one ok run per row: no interval (an interval needs 2 or more seeds)"
+    return LEGEND
+
+
+def seeds_note(summary: pd.DataFrame, relative: float = 0.01) -> list[str]:
+    """Lines: the seeds a 95% interval of +-``relative`` needs on each x_final.
+
+    From the widest t interval over the rows: its spread ``s`` (seed-to-seed
+    standard deviation, recovered from the half-width) and
+    :func:`idbench.intervals.seeds_needed`. Empty without two ok runs a row.
+    """
+    from scipy import stats
+
+    lines = []
+    for name in parameter_names_of_summary(summary):
+        col = f"{name}_final"
+        if f"{col}_lo" not in summary or "ok" not in summary:
+            continue
+        best: tuple[int, int, float] | None = None
+        for _, r in summary.iterrows():
+            k = int(r["ok"])
+            half = (r[f"{col}_hi"] - r[f"{col}_lo"]) / 2.0
+            if k < 2 or not np.isfinite(half) or not abs(r[col]) > 0:
+                continue
+            sd = half * np.sqrt(k) / stats.t.ppf(0.975, k - 1)
+            need = seeds_needed(sd, relative * abs(r[col]))
+            if best is None or need > best[0]:
+                best = (need, k, sd / abs(r[col]))
+        if best is not None:
+            need, k, cv = best
+            lines.append(
+                f"seeds for a 95% interval of +-{relative:.0%} on {printable(col)}: "
+                f"~{need} (n ~ (t s / h)^2 from the widest row: s = {100 * cv:.2g}% of "
+                f"its mean over {k} seeds)"
+            )
+    return lines
 
 
 def summary_text(
@@ -295,8 +399,10 @@ def summary_text(
     if fmt not in FORMATS:
         raise ValueError(f"format {fmt!r}: choose from {', '.join(FORMATS)}")
     summary = summarise(runs)
-    if fmt == "csv":
-        return str(summary.to_csv(index=False))
+    if fmt == "csv":  # strings shown as text: a csv may be printed to a terminal
+        shown = summary.map(lambda v: printable(v) if isinstance(v, str) else v)
+        shown.columns = [printable(c) for c in summary.columns]
+        return str(shown.to_csv(index=False))
     if fmt == "json":
         return str(summary.to_json(orient="records", indent=1))
     if summary.empty:
@@ -305,7 +411,8 @@ def summary_text(
         return _markdown(summary, headers(summary))
     cols, rows, numeric = _cells(summary)
     if width is None:
-        return "\n".join([TITLE, *_aligned(cols, rows, numeric, headers(summary))])
+        table = _aligned(cols, rows, numeric, headers(summary))
+        return "\n".join([TITLE, *table, legend(summary), *seeds_note(summary)])
     names = headers(summary, short=True)
     notes: list[str] = []
     if "reason" in cols:
@@ -328,10 +435,13 @@ def summary_text(
             names,
         )
         lines.append("")
+    lines += textwrap.wrap(legend(summary), width=max(width, 40))
     for j, note in enumerate(notes, start=1):
         lines += textwrap.wrap(
             f"[{j}] {note}", width=max(width, 40), subsequent_indent="    "
         )
+    for line in seeds_note(summary):
+        lines += textwrap.wrap(line, width=max(width, 40), subsequent_indent="    ")
     return "\n".join(lines).rstrip()
 
 
@@ -339,7 +449,7 @@ def _aligned(
     cols: list[str], rows: list[list[str]], numeric: list[bool], names: dict[str, str]
 ) -> list[str]:
     """Lines of a plain table: a header, a rule, the rows; numbers right-aligned."""
-    head = [names.get(c, c) for c in cols]
+    head = [printable(names.get(c, c)) for c in cols]
     widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(head)]
 
     def line(cells: list[str]) -> str:
@@ -362,7 +472,7 @@ def _blocks(
 ) -> list[list[int]]:
     """Column indices of each block: the key columns, then what fits in width."""
     need = [
-        max(len(names.get(c, c)), *(len(r[i]) for r in rows)) + 2
+        max(len(printable(names.get(c, c))), *(len(r[i]) for r in rows)) + 2
         for i, c in enumerate(cols)
     ]
     keys = list(range(n_keys))
@@ -397,17 +507,25 @@ def format_cell(v: Any) -> str:
 
 
 def _markdown(df: pd.DataFrame, names: dict[str, str] | None = None) -> str:
-    """A markdown table of ``df`` (never truncated), headers renamed by ``names``."""
+    """A markdown table of ``df`` (never truncated), headers renamed by ``names``.
+
+    With ``names``, ``df`` is a :func:`summarise` table, shown as in the text
+    table (:func:`_cells`: intervals folded into their means, the reason
+    last). Every cell and header goes through
+    :func:`idbench.sanitize.markdown_cell`: no raw HTML, no broken row.
+    """
     if df.empty:
         return "(no runs)"
+    if names:
+        cols, rows, _ = _cells(df)
+    else:
+        cols = [str(c) for c in df.columns]
+        rows = [[format_cell(v) for v in r] for r in df.itertuples(index=False)]
     names = names or {}
-    cols = [c for c in df.columns if not (names and c in (*HIDDEN, "reason"))]
-    if names and "reason" in df and df["reason"].astype(bool).any():
-        cols.append("reason")  # last, as in the text table
-    head = "| " + " | ".join(names.get(c, str(c)) for c in cols) + " |"
+    head = "| " + " | ".join(markdown_cell(names.get(c, c)) for c in cols) + " |"
     rule = "|" + "---|" * len(cols)
     body = [
-        "| " + " | ".join(format_cell(v).replace("|", "\\|") for v in row) + " |"
-        for row in df[cols].itertuples(index=False)
+        "| " + " | ".join(markdown_cell(v, join_lines=True) for v in row) + " |"
+        for row in rows
     ]
     return "\n".join([head, rule, *body])
