@@ -251,7 +251,14 @@ class ForwardModel(Protocol):
         ...
 
     def describe(self) -> dict[str, Any]:
-        """JSON-serialisable description of everything the results depend on."""
+        """JSON-serialisable description of everything the results depend on.
+
+        It keys the truth cache and the run ids, and a results folder
+        records it (a resume from another description is refused), so it
+        includes a digest of the content of every file the model read (a
+        mesh, a body description), not only the file's name; execution
+        settings are left out.
+        """
         ...
 
 

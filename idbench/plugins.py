@@ -145,6 +145,10 @@ class Registry:
         Name -> :class:`Entry`.
     errors
         Plugin name -> message, for plugins that failed to load or register.
+    versions
+        Plugin name -> version of the distribution that provides it (``""``
+        if unknown), for every plugin whose hooks ran (see
+        :func:`plugin_version`); a results folder records those its runs used.
     """
 
     models: dict[str, Entry] = field(default_factory=dict)
@@ -152,6 +156,7 @@ class Registry:
     scenarios: dict[str, Entry] = field(default_factory=dict)
     commands: dict[str, Entry] = field(default_factory=dict)
     errors: dict[str, str] = field(default_factory=dict)
+    versions: dict[str, str] = field(default_factory=dict)
 
     def default_model(self) -> str:
         """The model a comparison uses when none is named.
@@ -314,6 +319,7 @@ def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
             plugin = pm.get_name(impl.plugin) or repr(impl.plugin)
             if plugin in reg.errors:
                 continue
+            reg.versions.setdefault(plugin, plugin_version(pm, plugin))
             try:
                 impl.function(register=make_cb(plugin))
             except PluginError as exc:
@@ -321,6 +327,23 @@ def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
             except Exception as exc:
                 _withdraw(reg, plugin, f"failed while registering: {exc!r}")
     return reg
+
+
+def used_plugins(reg: Registry, *names: tuple[str, list[str]]) -> dict[str, str]:
+    """Plugin -> version of the plugins that registered the given names.
+
+    ``names`` are (table, registered names) pairs, the table one of
+    ``"models"``, ``"estimators"``, ``"scenarios"``; names not registered are
+    skipped.
+    """
+    out: dict[str, str] = {}
+    for table, registered in names:
+        entries = getattr(reg, table)
+        for name in registered:
+            if name in entries:
+                plugin = entries[name].plugin
+                out[plugin] = reg.versions.get(plugin, "")
+    return dict(sorted(out.items()))
 
 
 def _withdraw(reg: Registry, plugin: str, message: str) -> None:

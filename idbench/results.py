@@ -3,8 +3,12 @@
 ``DIR/parts/<run_id>.runs.parquet`` and ``.traces.parquet`` are written
 atomically as each run finishes, so an interrupted sweep keeps every finished
 run; :meth:`ResultStore.consolidate` gathers them into ``DIR/runs.parquet`` and
-``DIR/traces.parquet``. ``DIR/manifest.json`` records the settings and
-versions; reopening a DIR made with other settings is refused.
+``DIR/traces.parquet``. ``DIR/manifest.json`` records the settings, the
+versions of idbench and of the plugins the runs used, and what each model
+read (its ``describe()``, with a digest of each file's content); reopening a
+DIR made with other settings, versions or file contents is refused, naming
+what differs and both values. A part whose rows name another run than its
+file name is quarantined, like an unreadable one.
 """
 
 from __future__ import annotations
@@ -47,7 +51,9 @@ class ResultStore:
     settings
         The sweep's settings; must equal those in an existing manifest.
     manifest
-        Extra manifest entries (versions, solver backend, threads).
+        Extra manifest entries (versions, solver backend, threads). Those of
+        :data:`CHECKED` that it holds must also equal the existing
+        manifest's (see :func:`mismatch`).
     """
 
     def __init__(
@@ -61,10 +67,10 @@ class ResultStore:
             raise ResultsError(f"--out {str(root)!r}: need a directory path")
         if mpath.exists():
             old = _read_manifest(mpath)
-            if _results_settings(old["settings"]) != _results_settings(settings):
+            problem = mismatch(old, {**manifest, "settings": settings})
+            if problem:
                 raise ResultsError(
-                    f"{self.root} holds results of a comparison with other settings; "
-                    "use another --out DIR or delete it"
+                    f"{self.root} {problem}; use another --out DIR or delete it"
                 )
         else:
             body = {**manifest, "settings": settings}
@@ -117,22 +123,31 @@ class ResultStore:
         if not (runs.exists() and traces.exists()):
             return None
         try:  # the whole table: a footer can be intact over damaged pages
-            return pq.read_table(runs).to_pandas(), pq.read_table(traces).to_pandas()
+            tables = pq.read_table(runs).to_pandas(), pq.read_table(traces).to_pandas()
         except Exception as exc:
-            self._quarantine(run_id, exc)
+            self._quarantine(run_id, f"is unreadable ({exc})")
             return None
+        for kind, table in zip(("runs", "traces"), tables, strict=True):
+            if kind == "traces" and not len(table):
+                continue
+            ids = sorted(map(str, set(table.get("run_id", pd.Series(["(none)"])))))
+            if ids != [run_id]:  # copied or moved under another run's name
+                self._quarantine(
+                    run_id, f"belongs to run {', '.join(ids)} (its {kind} part)"
+                )
+                return None
+        return tables
 
-    def _quarantine(self, run_id: str, exc: Exception) -> None:
+    def _quarantine(self, run_id: str, why: str) -> None:
         self.quarantine.mkdir(exist_ok=True)
         for kind in ("runs", "traces"):
             part = self.parts / f"{run_id}.{kind}.parquet"
             if part.exists():
                 part.replace(self.quarantine / part.name)
         log.warning(
-            "run %s: its stored result is unreadable (%s); moved to %s, "
-            "running it again",
+            "run %s: its stored result %s; moved to %s, running it again",
             run_id,
-            exc,
+            why,
             self.quarantine,
         )
 
@@ -198,6 +213,110 @@ def _results_settings(settings: Any) -> Any:
             if isinstance(plain.get(table), dict):
                 plain[table] = {k: v for k, v in plain[table].items() if v != {}}
     return plain
+
+
+CHECKED = ("plugins", "inputs")
+"""Manifest entries a resume must match (beside the settings and idbench's
+version), when the caller records them."""
+
+
+def mismatch(old: dict[str, Any], new: dict[str, Any]) -> str:
+    """Why a folder of manifest ``old`` cannot take the runs of ``new`` ("": it can).
+
+    Checked in this order: idbench's version, that ``old`` records the
+    :data:`CHECKED` entries ``new`` has, the versions of the plugins both
+    used, the settings (:func:`_results_settings`), the plugins used, what
+    each model read. The reason names what differs and both values.
+    """
+    before, now = (m.get("versions", {}).get("idbench") for m in (old, new))
+    if "versions" in new and before != now:
+        return f"was written by idbench {_show(before)}, now {_show(now)}"
+    missing = [key for key in CHECKED if key in new and key not in old]
+    if missing:
+        return (
+            "was written by an idbench that did not record "
+            + " and ".join({"plugins": "plugin versions",
+                            "inputs": "what its models read"}[k] for k in missing)
+        )  # fmt: skip
+    plugins = (old.get("plugins") or {}, new.get("plugins") or {})
+    for name in sorted(set(plugins[0]) & set(plugins[1])):
+        if plugins[0][name] != plugins[1][name]:
+            return (
+                f"was written with plugin {name!r} {_show(plugins[0][name])}, "
+                f"now {_show(plugins[1][name])}"
+            )
+    diffs = _differences(
+        _results_settings(old["settings"]), _results_settings(new["settings"])
+    )
+    if diffs:
+        path, before, now = diffs[0]
+        return (
+            "holds results of a comparison with other settings: "
+            f"{path or 'the settings'} was {_show(before)}, now {_show(now)}"
+        )
+    for name in sorted(set(plugins[0]) ^ set(plugins[1])):
+        before, now = (_show(p[name]) if name in p else "none" for p in plugins)
+        return f"was written with plugin {name!r} {before}, now {now}"
+    if "inputs" in new:
+        return _inputs_difference(old["inputs"], _roundtrip(new["inputs"]))
+    return ""
+
+
+def _inputs_difference(old: Any, new: list[dict[str, Any]]) -> str:
+    """The first model whose ``describe()`` differs, naming the key ("": none)."""
+    entries = old if isinstance(old, list) else []
+    known = {e.get("key"): e for e in entries if isinstance(e, dict)}
+    for entry in new:
+        what = (
+            f"{'truth mesh' if entry['role'] == 'truth' else 'mesh'} "
+            f"{entry['mesh']!r} (scenario {entry['scenario']!r})"
+        )
+        before = known.get(entry["key"])
+        if before is None:
+            return f"was written without a model of {what}"
+        diffs = _differences(before.get("describe"), entry["describe"])
+        if diffs:  # a file's content digest first: it says why the rest differs
+            diffs.sort(key=lambda d: not (_is_digest(d[1]) or _is_digest(d[2])))
+            path, was, now = diffs[0]
+            also = f" (also {', '.join(d[0] for d in diffs[1:4])})" if diffs[1:] else ""
+            return (
+                f"was written with {what} of {path or 'description'} {_show(was)}, "
+                f"now {_show(now)}{also}"
+            )
+    return ""
+
+
+def _differences(old: Any, new: Any, path: str = "") -> list[tuple[str, Any, Any]]:
+    """Every entry where ``old`` and ``new`` differ: path and both values.
+
+    Nested tables are compared entry by entry, in ``new``'s order (then the
+    entries only ``old`` has); anything else as a whole.
+    """
+    if isinstance(old, dict) and isinstance(new, dict):
+        out = []
+        for key in [*new, *(k for k in old if k not in new)]:
+            a, b = old.get(key, _UNSET), new.get(key, _UNSET)
+            out += _differences(a, b, f"{path}.{key}" if path else str(key))
+        return out
+    return [] if old == new else [(path, old, new)]
+
+
+def _is_digest(value: Any) -> bool:
+    return isinstance(value, str) and len(value) >= 32 and set(value) <= set(HEX)
+
+
+_UNSET = object()
+HEX = "0123456789abcdef"
+
+
+def _show(value: Any) -> str:
+    """A value for a message: short, digests cut to 12 characters."""
+    if value is _UNSET or value is None:
+        return "unset" if value is _UNSET else "none"
+    text = value if isinstance(value, str) else json.dumps(value, default=str)
+    if _is_digest(value):
+        return value[:12] + "..."
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _read_manifest(path: Path) -> dict[str, Any]:

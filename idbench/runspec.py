@@ -79,7 +79,12 @@ class RunSpec:
     ``timeout`` is how long the run may take, not what it computes: it is left
     out of every key. ``posterior`` (the reference posterior's settings as
     items, None: no posterior) adds columns to the run's row but does not
-    change its estimate: it is left out of the run id too.
+    change its estimate: it is left out of the run id too. ``inputs`` is a
+    digest of what the run's models read (their ``describe()``, which holds
+    a digest of each file's content, see :func:`idbench.sweep.plan`): it is
+    part of the run id, so that a run on a mesh or body file whose content
+    changed is another run, but of no other key (the noise draws and the
+    caches do not depend on it).
     """
 
     setup: Setup
@@ -93,10 +98,15 @@ class RunSpec:
     noise: float
     timeout: float | None = None
     posterior: Items | None = None
+    inputs: str = ""
 
     @property
     def run_id(self) -> str:
-        """Deterministic hash of the run description (timeout excluded)."""
+        """Deterministic hash of the run description and of its inputs' content.
+
+        The timeout, the posterior settings and the execution settings are
+        left out.
+        """
         fields = dataclasses.asdict(self)
         fields.pop("timeout")
         fields.pop("posterior")

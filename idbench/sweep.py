@@ -8,8 +8,10 @@ every finished run and a rerun with the same directory skips them.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import importlib.metadata
+import json
 import logging
 import os
 import platform
@@ -24,8 +26,9 @@ import pandas as pd
 
 from idbench.config import CompareConfig, ConfigError, build_settings, suggest
 from idbench.executors import THREAD_ENV, execute_all, start_method, started
+from idbench.files import stable_hash
 from idbench.interfaces import ForwardModel, ModelFailure, ModelSpec
-from idbench.plugins import Registry, build_registry
+from idbench.plugins import Registry, build_registry, used_plugins
 from idbench.posterior import PosteriorSettings, check_budget
 from idbench.results import ResultStore
 from idbench.runspec import RunSpec, Setup, expand
@@ -58,6 +61,13 @@ class Plan:
     work
         Per run id, its guessed solves times its model's state size: a
         relative cost, for starting the costliest runs first.
+    inputs
+        What each model of the comparison reads, one entry per model
+        (``key``, ``role``, ``mesh``, ``scenario`` and its ``describe()``),
+        for the manifest (see :func:`model_inputs`).
+    plugins
+        Plugin -> version of the plugins whose model, estimators and
+        scenarios the runs use.
     """
 
     config: CompareConfig
@@ -65,6 +75,8 @@ class Plan:
     nodes: dict[str, int]
     solves: int
     work: dict[str, float] = field(default_factory=dict)
+    inputs: list[dict[str, Any]] = field(default_factory=list)
+    plugins: dict[str, str] = field(default_factory=dict)
 
 
 def plan(config: CompareConfig, session: Session) -> Plan:
@@ -121,6 +133,7 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         build = functools.partial(session.model, runs[0], mesh, role=role)
         model = _build(reg, config, mesh, settings, build)
         nodes[mesh] = int(getattr(model, "n_nodes", 0))
+    runs, inputs = model_inputs(runs, session, config, settings)
     solves, work = 0, {}
     for spec in runs:
         model = session.model(spec, spec.mesh)
@@ -128,7 +141,58 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         guess = _guess_solves(reg, spec, n_state, model.parameters.p)
         work[spec.run_id] = float(guess) * n_state
         solves += guess
-    return Plan(config, runs, nodes, solves, work)
+    transfers = [reg.scenario(n).transfer for n in config.scenarios]
+    scenarios = {*config.scenarios, *transfers}
+    plugins = used_plugins(
+        reg,
+        ("models", [config.model]),
+        ("estimators", [*(config.estimators or ()), config.reference or ""]),
+        ("scenarios", sorted(n for n in scenarios if n)),
+    )
+    return Plan(config, runs, nodes, solves, work, inputs, plugins)
+
+
+def model_inputs(
+    runs: list[RunSpec], session: Session, config: CompareConfig, settings: Any
+) -> tuple[list[RunSpec], list[dict[str, Any]]]:
+    """The runs with their ``inputs`` digest, and what each of their models read.
+
+    A model's ``describe()`` is everything its results depend on; a model
+    that reads files (a mesh, a body description and the files it names)
+    includes a digest of each file's content there (the protocol asks it to),
+    so the core learns their content without knowing what they are. A run's
+    digest covers the models of its mesh and of the truth mesh, on its
+    scenario and on its transfer scenario.
+
+    Returns
+    -------
+    runs
+        ``runs`` with :attr:`RunSpec.inputs` set.
+    entries
+        One per model: ``key`` (its model key), ``role`` (``est`` or
+        ``truth``), ``mesh``, ``scenario`` and ``describe``, JSON-able.
+    """
+    reg = session.registry
+    described: dict[str, dict[str, Any]] = {}
+    out = []
+    for spec in runs:
+        transfer = reg.scenario(spec.scenario).transfer
+        keys = []
+        for scenario in (spec.scenario, transfer) if transfer else (spec.scenario,):
+            for mesh, role in ((spec.mesh, "est"), (spec.setup.truth_mesh, "truth")):
+                key = spec.model_key(mesh, scenario, role)
+                if key not in described:
+                    build = functools.partial(session.model, spec, mesh, scenario, role)
+                    model = _build(reg, config, mesh, settings, build)
+                    desc = json.loads(json.dumps(model.describe(), default=str))
+                    described[key] = {
+                        "key": key, "role": role, "mesh": mesh, "scenario": scenario,
+                        "describe": desc,
+                    }  # fmt: skip
+                keys.append(key)
+        digest = stable_hash([described[k]["describe"] for k in keys])
+        out.append(dataclasses.replace(spec, inputs=digest))
+    return out, list(described.values())
 
 
 def _guess_solves(reg: Registry, spec: RunSpec, n_state: int, p: int) -> int:
@@ -225,12 +289,18 @@ def _known(kind: str, names: Any, table: dict[str, Any], reg: Registry) -> None:
 
 
 def _identity(config: CompareConfig, the_plan: Plan) -> dict[str, Any]:
-    """The configuration an output folder must match: without execution settings."""
+    """The configuration an output folder must match, resolved.
+
+    The model's settings and the true values as resolved (defaults filled
+    in), so that giving a default explicitly (``--nu 0.45``, ``--E-true
+    5000``) or not is the same comparison; execution settings left out.
+    """
     settings = config.to_dict()
-    names = {n for n, _ in the_plan.runs[0].setup.execution} if the_plan.runs else set()
-    given = settings.get("model_settings", {}).get(config.model, {})
-    for name in names & set(given):
-        del given[name]
+    if the_plan.runs:
+        setup = the_plan.runs[0].setup
+        tables = settings.setdefault("model_settings", {})
+        tables[config.model] = dict(setup.model_settings)  # without execution
+        settings["true"] = dict(setup.true)
     return settings
 
 
@@ -332,7 +402,14 @@ def _compare(
     config = the_plan.config
     execution = dict(the_plan.runs[0].setup.execution) if the_plan.runs else {}
     store = ResultStore(
-        out, _identity(config, the_plan), {**manifest(config), "execution": execution}
+        out,
+        _identity(config, the_plan),
+        {
+            **manifest(config),
+            "execution": execution,
+            "plugins": the_plan.plugins,
+            "inputs": the_plan.inputs,
+        },
     )
     stored = store.scan()
     done = {run_id for run_id, failed in stored.items() if not failed}
