@@ -301,11 +301,14 @@ def summary_text(
         return str(summary.to_json(orient="records", indent=1))
     if summary.empty:
         return "(no runs)"
+    flags = flagged_lines(runs)
     if fmt == "markdown":
-        return _markdown(summary, headers(summary))
+        text = _markdown(summary, headers(summary))
+        return "\n\n".join([text, "\n".join(flags)]) if flags else text
     cols, rows, numeric = _cells(summary)
     if width is None:
-        return "\n".join([TITLE, *_aligned(cols, rows, numeric, headers(summary))])
+        table = _aligned(cols, rows, numeric, headers(summary))
+        return "\n".join([TITLE, *table, *flags])
     names = headers(summary, short=True)
     notes: list[str] = []
     if "reason" in cols:
@@ -332,7 +335,27 @@ def summary_text(
         lines += textwrap.wrap(
             f"[{j}] {note}", width=max(width, 40), subsequent_indent="    "
         )
+    lines += flags
     return "\n".join(lines).rstrip()
+
+
+def flagged_lines(runs: pd.DataFrame) -> list[str]:
+    """Lines naming the runs whose ``warning`` column flags them (none: [])."""
+    if "warning" not in runs or runs.empty:
+        return []
+    text = runs["warning"].fillna("").astype(str)
+    flagged = runs[text != ""]
+    if flagged.empty:
+        return []
+    lines = [
+        f"flagged: {len(flagged)} run(s) whose result may mean nothing "
+        "(runs.parquet, column warning):"
+    ]
+    keys = [k for k in ("scenario", "mesh", "estimator") if k in runs]
+    for key, g in flagged.groupby([*(flagged[k] for k in keys), text[text != ""]]):
+        *names, why = key
+        lines.append(f"  {' '.join(map(str, names))} ({len(g)} run(s)): {why}")
+    return lines
 
 
 def _aligned(
