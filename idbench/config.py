@@ -122,10 +122,12 @@ class CompareConfig:
         for m in self.obs_points:
             _check_int("obs_points", m, 1)
         for s in self.noise:
-            if not _finite(s) or not 0 <= s <= MAX_NOISE:
+            if not _finite(s) or s < 0:
+                raise ConfigError(f"noise {s!r}: must be a number >= 0")
+            if s > MAX_NOISE:
                 raise ConfigError(
-                    f"noise {s!r}: must be a number in [0, {MAX_NOISE:g}] (a larger "
-                    "sigma overflows the estimators' arithmetic)"
+                    f"noise {s!r}: must be <= {MAX_NOISE:g} (a larger sigma "
+                    "overflows the estimators' arithmetic)"
                 )
         _check_int("seeds", self.seeds, 1)
         _check_int("steps", self.steps, 1)
