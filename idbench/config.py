@@ -376,8 +376,10 @@ def typed_values(cls: type, given: dict[str, Any], what: str) -> dict[str, Any]:
     true or false is, a non-finite number) is refused with one line naming the
     setting, the value and the type expected. Whole numbers become floats
     where the field is a float, so that ``nu=0`` and ``nu=0.0`` are one
-    setting. Types other than numbers, bools, text, lists and their unions
-    (``X | None``, ``Literal``) are not checked here: the class checks them.
+    setting, and text where it is text only (``reference=200``, a mesh spec
+    that the command line reads as a number). Types other than numbers,
+    bools, text, lists and their unions (``X | None``, ``Literal``) are not
+    checked here: the class checks them.
 
     Raises
     ------
@@ -391,13 +393,15 @@ def typed_values(cls: type, given: dict[str, Any], what: str) -> dict[str, Any]:
     out = dict(given)
     for name, value in given.items():
         hint = hints.get(name)
+        whole = isinstance(value, int) and not isinstance(value, bool)
+        if whole and _takes(hint, str) and not _takes(hint, int | float):
+            value = out[name] = str(value)  # a mesh spec "200" read as a number
         if hint is None or _fits(hint, value):
-            if _floaty(hint) and isinstance(value, int) and not isinstance(value, bool):
+            if _takes(hint, float) and whole:
                 out[name] = float(value)
             continue
         raise ConfigError(
-            f"{what}: setting {name} = {value!r}: need {_kind(hint)}, "
-            f"got {type(value).__name__}"
+            f"{what}: {name} {value!r}: need {_kind(hint)}, got {type(value).__name__}"
         )
     return out
 
@@ -409,8 +413,10 @@ def _arms(hint: Any) -> tuple[Any, ...]:
     return (hint,)
 
 
-def _floaty(hint: Any) -> bool:
-    return any(arm is float for arm in _arms(hint))
+def _takes(hint: Any, kind: Any) -> bool:
+    """Whether one alternative of ``hint`` is one of the classes of ``kind``."""
+    kinds = typing.get_args(kind) or (kind,)
+    return any(arm in kinds for arm in _arms(hint))
 
 
 def _fits(hint: Any, value: Any) -> bool:
@@ -425,7 +431,7 @@ def _fits(hint: Any, value: Any) -> bool:
             return True
         if arm is bool and isinstance(value, bool):
             return True
-        if arm is str and isinstance(value, str):
+        if arm is str and isinstance(value, str | os.PathLike):
             return True
         if origin is typing.Literal and value in typing.get_args(arm):
             return True

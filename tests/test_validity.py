@@ -262,11 +262,14 @@ def test_a_model_setting_of_the_wrong_type_is_one_line(registry, capsys):
         capsys, ["compare", *TINY, "--model-option", "sensitivity_refine=abc",
                  "--dry-run"],
     )  # fmt: skip
-    assert "sensitivity_refine = 'abc'" in err and "need true or false" in err
-    with pytest.raises(ConfigError, match=r"setting p = 'abc': need a whole number"):
+    assert "sensitivity_refine 'abc'" in err and "need true or false" in err
+    with pytest.raises(ConfigError, match=r"p 'abc': need a whole number, got str"):
         model_settings(registry, "spring-chain", {"p": "abc"})
-    with pytest.raises(ConfigError, match=r"setting k = inf: need a finite number"):
+    with pytest.raises(ConfigError, match=r"k inf: need a finite number"):
         model_settings(registry, "spring-chain", {"k": float("inf")})
     assert model_settings(registry, "spring-chain", {"k": 7}).k == 7.0
     assert isinstance(model_settings(registry, "spring-chain", {"k": 7}).k, float)
+    # a text setting given a number on the command line (a mesh spec) is text
+    solid = model_settings(idbench.build_registry(), "solid", {"reference": 200})
+    assert solid.reference == "200"
 
