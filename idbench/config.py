@@ -13,6 +13,8 @@ import difflib
 import math
 import os
 import tomllib
+import types
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,6 +27,9 @@ DEFAULT_MAX_RUNS = 100_000
 
 MAX_TIMEOUT = 30 * 24 * 3600.0
 """The longest ``timeout`` accepted: 30 days, in seconds."""
+
+MAX_NOISE = 1e100
+"""The largest noise sigma accepted (its square must not overflow)."""
 
 
 class ConfigError(ValueError):
@@ -119,8 +124,19 @@ class CompareConfig:
         for s in self.noise:
             if not _finite(s) or s < 0:
                 raise ConfigError(f"noise {s!r}: must be a number >= 0")
+            if s > MAX_NOISE:
+                raise ConfigError(
+                    f"noise {s!r}: must be <= {MAX_NOISE:g} (a larger sigma "
+                    "overflows the estimators' arithmetic)"
+                )
         _check_int("seeds", self.seeds, 1)
         _check_int("steps", self.steps, 1)
+        never = [k for k in self.obs_every if k > self.steps]
+        if never:
+            raise ConfigError(
+                f"obs_every {never[0]} > steps {self.steps}: no step of the path "
+                f"would be observed; need obs_every <= steps"
+            )
         if not isinstance(self.true, dict):
             raise ConfigError(f"true {self.true!r}: need a table of NAME = value")
         for name, value in self.true.items():
@@ -351,6 +367,106 @@ def build_settings(cls: type, given: dict[str, Any], what: str) -> Any:
         return cls(**given)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{what}: {exc}") from None
+
+
+def typed_values(cls: type, given: dict[str, Any], what: str) -> dict[str, Any]:
+    """``given`` checked against the field types of settings dataclass ``cls``.
+
+    A value of the wrong kind (text where a number is needed, a number where
+    true or false is, a non-finite number) is refused with one line naming the
+    setting, the value and the type expected. Whole numbers become floats
+    where the field is a float, so that ``nu=0`` and ``nu=0.0`` are one
+    setting, and text where it is text only (``reference=200``, a mesh spec
+    that the command line reads as a number). Types other than numbers,
+    bools, text, lists and their unions (``X | None``, ``Literal``) are not
+    checked here: the class checks them.
+
+    Raises
+    ------
+    ConfigError
+        For the first value that does not fit its field's type.
+    """
+    try:
+        hints = typing.get_type_hints(cls)
+    except Exception:  # unresolvable annotations: leave the values as given
+        return dict(given)
+    out = dict(given)
+    for name, value in given.items():
+        hint = hints.get(name)
+        whole = isinstance(value, int) and not isinstance(value, bool)
+        if whole and _takes(hint, str) and not _takes(hint, int | float):
+            value = out[name] = str(value)  # a mesh spec "200" read as a number
+        if hint is None or _fits(hint, value):
+            if _takes(hint, float) and whole:
+                out[name] = float(value)
+            continue
+        raise ConfigError(
+            f"{what}: {name} {value!r}: need {_kind(hint)}, got {type(value).__name__}"
+        )
+    return out
+
+
+def _arms(hint: Any) -> tuple[Any, ...]:
+    """The alternatives of a union type (the type itself otherwise)."""
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        return typing.get_args(hint)
+    return (hint,)
+
+
+def _takes(hint: Any, kind: Any) -> bool:
+    """Whether one alternative of ``hint`` is one of the classes of ``kind``."""
+    kinds = typing.get_args(kind) or (kind,)
+    return any(arm in kinds for arm in _arms(hint))
+
+
+def _fits(hint: Any, value: Any) -> bool:
+    """Whether ``value`` has the kind ``hint`` asks for (unknown kinds: yes)."""
+    for arm in _arms(hint):
+        origin = typing.get_origin(arm)
+        if arm is Any or (arm is type(None) and value is None):
+            return True
+        if arm is float and _finite(value):
+            return True
+        if arm is int and isinstance(value, int) and not isinstance(value, bool):
+            return True
+        if arm is bool and isinstance(value, bool):
+            return True
+        if arm is str and isinstance(value, str | os.PathLike):
+            return True
+        if origin is typing.Literal and value in typing.get_args(arm):
+            return True
+        if origin in (tuple, list) and isinstance(value, tuple | list):
+            args = [a for a in typing.get_args(arm) if a is not Ellipsis]
+            if all(any(_fits(a, v) for a in args or [Any]) for v in value):
+                return True
+        known = (float, int, bool, str, type(None), tuple, list)
+        if arm not in known and origin not in (*known, typing.Literal):
+            return True  # a kind the settings class checks itself
+    return False
+
+
+_KINDS = {
+    float: ("a finite number", "numbers"),
+    int: ("a whole number", "whole numbers"),
+    bool: ("true or false", "bools"),
+    str: ("a text", "texts"),
+}
+
+
+def _kind(hint: Any, plural: bool = False) -> str:
+    """How a message names the kind of value ``hint`` asks for."""
+    parts = []
+    for arm in _arms(hint):
+        origin = typing.get_origin(arm)
+        if arm in _KINDS:
+            parts.append(_KINDS[arm][plural])
+        elif origin is typing.Literal:
+            parts.append("one of " + ", ".join(map(repr, typing.get_args(arm))))
+        elif origin in (tuple, list):
+            args = [a for a in typing.get_args(arm) if a is not Ellipsis]
+            inner = " or ".join(dict.fromkeys(_kind(a, True) for a in args))
+            parts.append(f"a list of {inner or 'values'}")
+    return " or ".join(parts) or str(hint)
 
 
 def suggest(key: str, allowed: Any) -> str:

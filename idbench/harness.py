@@ -34,6 +34,7 @@ from idbench.interfaces import (
 from idbench.runspec import RunSpec
 from idbench.session import Session, estimator_arguments
 from idbench.truth import Truth
+from idbench.validity import run_warning
 
 log = logging.getLogger(__name__)
 
@@ -161,12 +162,42 @@ def _checked(who: str, est: Any, p: int, k: int) -> tuple[FloatArray, FloatArray
                 f"expected ({p},), one value per parameter",
                 step=k,
             )
+    if np.any(std < 0):
+        raise EstimatorError(
+            f"{who} returned a negative std {std.tolist()} at step {k}; a std is "
+            ">= 0 (NaN: the estimator has none)",
+            step=k,
+        )
     if not isinstance(est.cost, Cost):
         raise EstimatorError(
             f"{who} returned cost {est.cost!r} at step {k}; expected an idbench.Cost",
             step=k,
         )
+    counts = (est.cost.forward_solves, est.cost.newton_its, est.cost.linear_solves)
+    if not all(_count(c) for c in counts):
+        raise EstimatorError(
+            f"{who} returned cost {est.cost!r} at step {k}; its counts must be "
+            "numbers >= 0",
+            step=k,
+        )
+    state = getattr(est, "state", None)
+    if state is not None and not np.all(np.isfinite(np.asarray(state, dtype=float))):
+        raise EstimatorError(
+            f"{who} returned a non-finite state at step {k} (the model state it "
+            "reports must be finite)",
+            step=k,
+        )
     return mean, std
+
+
+def _count(value: Any) -> bool:
+    """Whether ``value`` is a usable work count: a finite number >= 0."""
+    return (
+        isinstance(value, int | float | np.integer | np.floating)
+        and not isinstance(value, bool)
+        and bool(np.isfinite(value))
+        and bool(value >= 0)
+    )
 
 
 def execute(
@@ -265,6 +296,10 @@ def _run(
         if session.known_reference(spec) is None:
             session.remember_reference(spec, means[-1])
     row.update(scoring.final_columns(spec, session, means, stds, traces, est))
+    row["warning"] = run_warning(
+        model.parameters, stream, truth, spec.noise, means[-1],
+        np.array([row[f"{n}_ref"] for n in spec.setup.names]),
+    )  # fmt: skip
 
 
 def _estimate(

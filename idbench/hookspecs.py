@@ -22,11 +22,11 @@ def register_models(register: Callable[..., None]) -> None:
     Call ``register(name, factory, settings=Settings, defaults=ModelDefaults(...))``
     once per model, where ``factory(spec)`` takes an :class:`idbench.ModelSpec`
     and returns an object implementing :class:`idbench.ForwardModel` (and
-    optionally ``sensitivity``, ``probes``, ``n_nodes``). ``settings`` is the
-    dataclass of the model's own settings (all fields with defaults; set with
-    ``--model-option NAME=VALUE`` or ``[model.NAME]`` in TOML), ``defaults``
-    what a comparison uses when the user does not say
-    (:class:`idbench.ModelDefaults`); both optional.
+    optionally ``sensitivity``, ``probes``, ``n_nodes``, ``bounds``,
+    ``volume``). ``settings`` is the dataclass of the model's own settings (all
+    fields with defaults; set with ``--model-option NAME=VALUE`` or
+    ``[model.NAME]`` in TOML), ``defaults`` what a comparison uses when the user
+    does not say (:class:`idbench.ModelDefaults`); both optional.
     """
 
 

@@ -218,7 +218,11 @@ class ForwardModel(Protocol):
     Optional members the core uses when present: ``n_nodes`` (int, the mesh
     size reported in the tables), ``probes(state) -> dict[str, float]`` (named
     scalar outputs, recorded per step for the truth in the traces table, e.g.
-    a tip displacement), ``sensitivity`` (see :class:`SensitiveModel`).
+    a tip displacement), ``sensitivity`` (see :class:`SensitiveModel`),
+    ``bounds`` (array (2, d), the lower and upper corner of the undeformed
+    body's bounding box) and ``volume`` (float): with them (and ``n_nodes``)
+    a truth that is another body than a model mesh, or not finer, is refused
+    (:mod:`idbench.validity`).
     :func:`idbench.testing.check_model` checks them.
     """
 

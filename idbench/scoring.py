@@ -49,6 +49,7 @@ def base_row(spec: RunSpec) -> dict[str, Any]:
         "error": "",
         "failed_step": np.nan,
         "traceback": "",
+        "warning": "",
     }
 
 

@@ -9,12 +9,11 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import typing
 from typing import Any
 
 import numpy as np
 
-from idbench.config import ConfigError, build_settings, public_settings
+from idbench.config import ConfigError, build_settings, public_settings, typed_values
 from idbench.files import stable_hash
 from idbench.interfaces import (
     FloatArray,
@@ -48,25 +47,17 @@ def model_settings(registry: Registry, model: str, given: dict[str, Any]) -> Any
         if given:
             raise ConfigError(f"model {model!r} has no settings; got {sorted(given)}")
         return None
-    return build_settings(cls, _typed(cls, given), f"model {model!r}")
+    what = f"model {model!r}"
+    return build_settings(cls, _typed(cls, given, what), what)
 
 
-def _typed(cls: type, given: dict[str, Any]) -> dict[str, Any]:
-    """``given`` with whole numbers made floats where the field is a float.
+def _typed(cls: type, given: dict[str, Any], what: str) -> dict[str, Any]:
+    """``given`` checked against the field types, whole numbers as floats.
 
-    So that ``nu=0`` and ``nu=0.0`` are one setting (one run id, one noise seed).
+    So that ``nu=0`` and ``nu=0.0`` are one setting (one run id, one noise
+    seed), and ``nu=abc`` is one line (:func:`idbench.config.typed_values`).
     """
-    try:
-        hints = typing.get_type_hints(cls)
-    except Exception:  # unresolvable annotations: leave the values as given
-        return dict(given)
-    out = dict(given)
-    for name, value in given.items():
-        hint = hints.get(name)
-        floaty = hint is float or float in typing.get_args(hint)
-        if floaty and isinstance(value, int) and not isinstance(value, bool):
-            out[name] = float(value)
-    return out
+    return typed_values(cls, given, what)
 
 
 def estimator_arguments(cls: type, settings: Any, seed: int) -> dict[str, Any]:

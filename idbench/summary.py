@@ -407,12 +407,15 @@ def summary_text(
         return str(summary.to_json(orient="records", indent=1))
     if summary.empty:
         return "(no runs)"
+    flags = flagged_lines(runs)
     if fmt == "markdown":
-        return _markdown(summary, headers(summary))
+        text = _markdown(summary, headers(summary))
+        flags = flagged_lines(runs, markdown=True)
+        return "\n\n".join([text, "\n".join(flags)]) if flags else text
     cols, rows, numeric = _cells(summary)
     if width is None:
         table = _aligned(cols, rows, numeric, headers(summary))
-        return "\n".join([TITLE, *table, legend(summary), *seeds_note(summary)])
+        return "\n".join([TITLE, *table, legend(summary), *seeds_note(summary), *flags])
     names = headers(summary, short=True)
     notes: list[str] = []
     if "reason" in cols:
@@ -442,7 +445,32 @@ def summary_text(
         )
     for line in seeds_note(summary):
         lines += textwrap.wrap(line, width=max(width, 40), subsequent_indent="    ")
+    lines += flags
     return "\n".join(lines).rstrip()
+
+
+def flagged_lines(runs: pd.DataFrame, markdown: bool = False) -> list[str]:
+    """Lines naming the runs whose ``warning`` column flags them (none: []).
+
+    Plugin-supplied names are shown as text (:mod:`idbench.sanitize`), escaped for
+    markdown with ``markdown=True``.
+    """
+    if "warning" not in runs or runs.empty:
+        return []
+    text = runs["warning"].fillna("").astype(str)
+    flagged = runs[text != ""]
+    if flagged.empty:
+        return []
+    lines = [
+        f"flagged: {len(flagged)} run(s) whose result may mean nothing "
+        "(runs.parquet, column warning):"
+    ]
+    keys = [k for k in ("scenario", "mesh", "estimator") if k in runs]
+    for key, g in flagged.groupby([*(flagged[k] for k in keys), text[text != ""]]):
+        *names, why = key
+        shown = markdown_cell if markdown else printable
+        lines.append(f"  {shown(' '.join(map(str, names)))} ({len(g)} run(s)): {why}")
+    return lines
 
 
 def _aligned(

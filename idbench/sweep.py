@@ -40,6 +40,7 @@ from idbench.session import (
     settings_items,
     true_values,
 )
+from idbench.validity import check_prior, check_truth_mesh
 
 log = logging.getLogger(__name__)
 
@@ -115,6 +116,7 @@ def plan(config: CompareConfig, session: Session) -> Plan:
     )
     probe = _build(reg, config, config.meshes[0], settings)
     _check_posterior(config, probe.parameters.p)
+    check_prior(probe.parameters, config.prior, config.model)  # type: ignore[arg-type]
     setup = Setup(
         model=config.model,
         model_settings=settings_items(settings),
@@ -128,11 +130,15 @@ def plan(config: CompareConfig, session: Session) -> Plan:
     )
     runs = expand(config, setup)
     nodes: dict[str, int] = {}
+    models: dict[str, ForwardModel] = {}
     for mesh in (*config.meshes, config.truth_mesh):
         role = "truth" if mesh == config.truth_mesh else "est"
         build = functools.partial(session.model, runs[0], mesh, role=role)
-        model = _build(reg, config, mesh, settings, build)
+        models[mesh] = model = _build(reg, config, mesh, settings, build)
         nodes[mesh] = int(getattr(model, "n_nodes", 0))
+    for mesh in config.meshes:
+        truth = models[config.truth_mesh]
+        check_truth_mesh(truth, config.truth_mesh, models[mesh], mesh)
     runs, inputs = model_inputs(runs, session, config, settings)
     solves, work = 0, {}
     for spec in runs:

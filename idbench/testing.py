@@ -112,7 +112,8 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
 
     ``probes(state)`` must map names to finite scalars (they become traces
     columns, so they must not shadow the core's); ``n_nodes`` must be a whole
-    number >= 1; ``parameters.default``, if set, must lie inside the bounds.
+    number >= 1; ``bounds`` a finite (2, d) box, ``volume`` a number > 0;
+    ``parameters.default``, if set, must lie inside the bounds.
     """
     probes = getattr(model, "probes", None)
     if probes is not None:
@@ -131,6 +132,18 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
     if n_nodes is not None:
         assert isinstance(n_nodes, int | np.integer) and n_nodes >= 1, (
             f"n_nodes must be a whole number >= 1, got {n_nodes!r}"
+        )
+    bounds = getattr(model, "bounds", None)
+    if bounds is not None:
+        box = np.asarray(bounds, dtype=float)
+        assert box.ndim == 2 and len(box) == 2 and np.isfinite(box).all(), (
+            f"bounds must be a finite (2, d) array (lower, upper corner), got {box!r}"
+        )
+        assert np.all(box[0] <= box[1]), "bounds: the lower corner is above the upper"
+    volume = getattr(model, "volume", None)
+    if volume is not None:
+        assert np.ndim(volume) == 0 and np.isfinite(volume) and volume > 0, (
+            f"volume must be a finite number > 0, got {volume!r}"
         )
     default = model.parameters.default
     if default is not None:

@@ -21,7 +21,7 @@ import numpy as np
 import platformdirs
 
 from idbench.files import atomic_write, digest, stable_hash
-from idbench.interfaces import FloatArray, ForwardModel
+from idbench.interfaces import FloatArray, ForwardModel, ModelFailure
 
 log = logging.getLogger(__name__)
 
@@ -148,9 +148,28 @@ def simulate_truth(
             )  # fmt: skip
 
         states = simulate_path(model, theta, on_step=on_step)
+        _check_finite(states, "states")
         if cache:
             _save(path, key, states)
-    return probe(model, states)
+    truth = probe(model, states)
+    for what in ("observations", "grid"):
+        _check_finite(getattr(truth, what), f"{what} (probed from its states)")
+    return truth
+
+
+def _check_finite(values: FloatArray, what: str) -> None:
+    """Raise ModelFailure at the first step whose ``values`` are not finite.
+
+    A truth that is not finite would fail every estimator run, blamed on it.
+    """
+    bad = ~np.isfinite(values.reshape(len(values), -1)).all(axis=1)
+    if bad.any():
+        k = int(np.argmax(bad)) + 1
+        raise ModelFailure(
+            f"the truth model returned non-finite {what} ({int(bad.sum())} of "
+            f"{len(values)} steps)",
+            step=k,
+        )
 
 
 def _load(path: Path, key: str, shape: tuple[int, int]) -> FloatArray | None:

@@ -222,6 +222,7 @@ def from_arrays(
     flip = det < 0
     tets[flip, 2], tets[flip, 3] = tets[flip, 3].copy(), tets[flip, 2].copy()
     _check_not_folded(points, tets, spec)
+    check_connected(len(points), tets, spec)
     lower, upper = points.min(axis=0), points.max(axis=0)
     tol = 1e-9 * scale
     clamped = np.flatnonzero(np.abs(points[:, 0] - lower[0]) <= tol)
@@ -278,6 +279,45 @@ def _check_not_folded(
             f"mesh {spec!r}: has inverted tetrahedra ({len(bad)} overlap a "
             f"neighbour, e.g. tetrahedron {int(bad[0])}); fix or remesh it"
         )
+
+
+def check_connected(n_points: int, tets: NDArray[np.int64], spec: str) -> None:
+    """Raise ValueError if the tets form more than one piece (sharing no node).
+
+    A body in disconnected pieces has a singular stiffness (a piece without a
+    clamp floats) or is not the body meant; nodes no tet uses must be dropped
+    before (they would count as pieces).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rows = np.repeat(tets[:, 0], 3)
+    cols = tets[:, 1:].reshape(-1)
+    graph = coo_matrix(
+        (np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(n_points,) * 2
+    )
+    pieces, _ = connected_components(graph, directed=False)
+    if pieces > 1:
+        raise ValueError(
+            f"mesh {spec!r}: is in {pieces} disconnected pieces (no node joins "
+            "them); a body must be one connected piece of tetrahedra"
+        )
+
+
+def extent(
+    points: NDArray[np.float64], tets: NDArray[np.int64]
+) -> tuple[NDArray[np.float64], float]:
+    """The bounding box (2, 3) (lower, upper corner) and the volume of a mesh.
+
+    What a model exposes as ``bounds`` and ``volume``, so that the core can
+    refuse a truth of another body than the model meshes.
+    """
+    x = points[tets]
+    det = np.einsum(
+        "ti,ti->t", x[:, 1] - x[:, 0], np.cross(x[:, 2] - x[:, 0], x[:, 3] - x[:, 0])
+    )
+    bounds = np.array([points.min(axis=0), points.max(axis=0)])
+    return bounds, float(np.abs(det).sum() / 6.0)
 
 
 def read_file(path: str | Path, spec: str | None = None) -> BeamMesh:

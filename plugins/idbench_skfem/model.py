@@ -119,6 +119,7 @@ class SvkBeam(BatchedSteps):
         free = np.ones(len(points), dtype=bool)
         free[beam.clamped] = False
         self.n_nodes = len(points)
+        self.bounds, self.volume = meshes.extent(points, tets)
         self._asm = Assembler(points, tets, free, self.nu)
         self.n_state = self._asm.n_free
         self.parameters: ParameterSpec

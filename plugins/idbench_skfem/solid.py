@@ -58,6 +58,7 @@ from idbench_skfem.batched import BatchedSteps
 from idbench_skfem.bodies import get_body, get_mesh, mesh_file
 from idbench_skfem.body import Body
 from idbench_skfem.loads import nodal_forces
+from idbench_skfem.mesh import extent
 from idbench_skfem.probes import _barycentric
 from idbench_skfem.solid_assembly import LawAssembler
 from idbench_skfem.solid_settings import SolidSettings
@@ -134,6 +135,7 @@ class SolidModel(BatchedSteps):
         free = np.ones(len(mesh.points), dtype=bool)
         free[fixed] = False
         self.n_nodes = len(mesh.points)
+        self.bounds, self.volume = extent(mesh.points, mesh.tets)
         from idbench_skfem.materials import Material, make_material
 
         law = cast(Material, make_material(self.law_name, 1.0, self.nu))

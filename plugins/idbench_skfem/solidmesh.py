@@ -166,7 +166,7 @@ def from_arrays(
     ValueError
         No tets, degenerate or inverted tets, bad indices.
     """
-    from idbench_skfem.mesh import _check_not_folded
+    from idbench_skfem.mesh import _check_not_folded, check_connected
 
     points = np.ascontiguousarray(points, dtype=np.float64)
     tets = np.array(tets, dtype=np.int64)
@@ -194,6 +194,7 @@ def from_arrays(
     flip = det < 0
     tets[flip, 2], tets[flip, 3] = tets[flip, 3].copy(), tets[flip, 2].copy()
     _check_not_folded(points, tets, path)
+    check_connected(len(points), tets, path)
 
     faces = tets[:, _LOCAL_FACES].reshape(-1, 3)
     key = np.sort(faces, axis=1)
