@@ -1,9 +1,10 @@
 """Deprecated: the FE plugin is now :mod:`idbench_fem` (this name goes in 0.2).
 
+A module, not a package (so that git sees the old package's files move).
 ``from idbench_skfem import X`` keeps working for the public names of
 :mod:`idbench_fem` (its ``__all__``), and the old module paths
 (``idbench_skfem.model``, ``idbench_skfem.mesh``, ...) still import, as the
-modules of the new layout. Importing this package warns once. It registers no
+modules of the new layout. Importing this module warns once. It registers no
 plugin: the entry point ``fem`` names :mod:`idbench_fem` alone, and the hook
 implementations are not re-exported here.
 """
