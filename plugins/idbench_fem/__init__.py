@@ -1,17 +1,7 @@
-"""Built-in FE model plugin: the St Venant-Kirchhoff beam and general solid bodies.
+"""Built-in model plugin: the St Venant-Kirchhoff beam and general solid bodies.
 
-Its folders, each importing only the ones below it (an import-linter contract):
-
-- :mod:`idbench_fem.tools`: ``idbench calibrate`` (the beam's effective-E map);
-- :mod:`idbench_fem.models`: the forward models (the solid, the beam), their
-  settings and scenarios;
-- :mod:`idbench_fem.bodies`: meshes (the general one, the structured box), the
-  body description, the shipped bodies, region selectors, loads, gmsh geometry;
-- :mod:`idbench_fem.fem`: kernels, assembly per law, materials, Newton, linear
-  solvers, batched steps, step-worker processes, interpolation.
-
-The names in ``__all__`` are importable from here (``from idbench_fem import
-SolidModel``); each is imported at first use, so loading the plugin stays cheap.
+Folders: ``tools`` -> ``models`` -> ``bodies`` -> ``fem`` (each imports only
+those after it); the names of ``__all__`` are imported at first use.
 """
 
 from __future__ import annotations
@@ -20,6 +10,7 @@ from collections.abc import Callable
 from typing import Any
 
 import idbench
+from idbench_fem.exports import HOME, load
 from idbench_fem.models.beam_scenarios import SCENARIOS
 
 
@@ -80,42 +71,11 @@ SOLID_DEFAULTS = idbench.ModelDefaults(
 """The shipped liver (settings' default body): meshes by node count, grasp-lift."""
 
 
-_EXPORTS = {
-    "idbench_fem.models.solid": ("SolidModel",),
-    "idbench_fem.models.solid_settings": ("SolidSettings",),
-    "idbench_fem.models.beam": ("SvkBeam",),
-    "idbench_fem.models.beam_settings": ("BeamSettings", "EndTraction", "end_traction"),
-    "idbench_fem.bodies.description": ("Body", "load_body", "parse_body"),
-    "idbench_fem.bodies.catalog": ("SHIPPED", "body_path", "get_body", "get_mesh"),
-    "idbench_fem.bodies.mesh": ("Region", "SolidMesh", "read_mesh"),
-    "idbench_fem.bodies.box": ("BeamMesh",),
-    "idbench_fem.bodies.loads": ("nodal_forces",),
-    "idbench_fem.bodies.geometry": ("make_meshes",),
-    "idbench_fem.fem.materials": ("LAWS", "NeoHookean", "Svk", "make_material"),
-    "idbench_fem.fem.svk_assembly": ("Assembler",),
-    "idbench_fem.fem.law_assembly": ("LawAssembler",),
-    "idbench_fem.fem.newton": ("NewtonSolve",),
-    "idbench_fem.fem.batched": ("BatchedSteps",),
-    "idbench_fem.fem.solver": ("BACKENDS", "SolverError", "make_solver"),
-    "idbench_fem.tools.calibrate": ("Calibration", "CalibrationSettings", "calibrate"),
-}
-"""Module -> the public names it gives this package (imported at first use)."""
 
-_HOME = {name: module for module, names in _EXPORTS.items() for name in names}
 
-__all__ = ["BEAM_DEFAULTS", "SCENARIOS", "SOLID_DEFAULTS", *sorted(_HOME)]
+__all__ = ["BEAM_DEFAULTS", "SCENARIOS", "SOLID_DEFAULTS", *sorted(HOME)]
 
 
 def __getattr__(name: str) -> Any:
-    """Import a re-exported name from its module at first use (PEP 562)."""
-    if name not in _HOME:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-
-    value = getattr(importlib.import_module(_HOME[name]), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+    """A name of ``__all__``, imported from its module at first use (PEP 562)."""
+    return load(name)
