@@ -269,7 +269,7 @@ def test_a_helper_counts_pairs_settled_at_their_prediction():
     thetas = _thetas(7)[:2]
     start = np.tile(model.reset(), (2, 1))
     done = model.step_many(thetas, 1, start)
-    rows = batched.Rows(thetas, done, start)  # predictions already converged
+    rows = batched.PendingPairs(thetas, done, start)  # predictions already converged
     states, work = batched.helper_solve(_beam(), 1, rows)
     np.testing.assert_array_equal(states, done)
     assert work[3] == 2 and work[1] == 0
@@ -313,17 +313,23 @@ def test_helper_reports_model_failures_and_errors():
     try:
         model = _beam()
         n = model.n_state
-        rows = batched.Rows(np.full((1, 4), -1.0), np.zeros((1, n)), np.zeros((1, n)))
+        rows = batched.PendingPairs(
+            np.full((1, 4), -1.0), np.zeros((1, n)), np.zeros((1, n))
+        )
         helper.submit(2, rows)
         with pytest.raises(ModelFailure, match="not positive") as info:
             helper.collect()
         assert info.value.step == 2
-        good = batched.Rows(np.full((1, 4), 5000.0), np.zeros((1, n)), np.zeros((1, n)))
+        good = batched.PendingPairs(
+            np.full((1, 4), 5000.0), np.zeros((1, n)), np.zeros((1, n))
+        )
         helper.submit(1, good)
         states, work = helper.collect()
         _assert_converged(model, good.thetas, 1, states)
         assert work[1] >= 1  # it factored
-        bad = batched.Rows(np.full((1, 4), 5000.0), np.zeros((1, 3)), np.zeros((1, 3)))
+        bad = batched.PendingPairs(
+            np.full((1, 4), 5000.0), np.zeros((1, 3)), np.zeros((1, 3))
+        )
         helper.submit(1, bad)  # wrong shapes: an error, not a model failure
         with pytest.raises(HelperLost):
             helper.collect()

@@ -138,7 +138,7 @@ class BatchStats:
 
 
 @dataclass
-class _Anchor:
+class _PreviousCall:
     """What the previous call leaves for the next one.
 
     Attributes
@@ -185,7 +185,7 @@ class BatchedSteps(NewtonSolve):
     force_is_cubic: bool = False
     processes: int = 1
     _recipe: Callable[[], Any] | None = None
-    _batch_anchor: _Anchor | None = None
+    _batch_anchor: _PreviousCall | None = None
     _batch_stats: BatchStats | None = None
 
     def external_force(self, k: int) -> FloatArray:  # pragma: no cover
@@ -357,7 +357,7 @@ def step_many(
             helpers = model._step_helpers()
             shares = np.array_split(others, min(len(others), len(helpers) + 1))
             for helper, share in zip(helpers, shares[:-1], strict=False):
-                helper.submit(k, Rows(th[share], X[share] + incr, X[share]))
+                helper.submit(k, PendingPairs(th[share], X[share] + incr, X[share]))
                 early.append((helper, share))
             others = shares[-1]
         kin = asm.kinematics(X[a] + incr, moduli[a])
@@ -410,7 +410,7 @@ def step_many(
         stats.converged_at_prediction += int(done.sum())
         out[others[done]] = preds[done]
         todo = np.flatnonzero(~done)
-        rows = Rows(th[others], preds, X[others], residuals, ok)
+        rows = PendingPairs(th[others], preds, X[others], residuals, ok)
         helpers = model._step_helpers() if len(todo) > 1 and not early else []
         # contiguous shares, the larger ones to the helpers (this process
         # has solved the anchor); fixed by the order, not by timing
@@ -429,10 +429,10 @@ def step_many(
     # the helpers' answers (after an exception here they are left pending,
     # and a helper's next submit discards them)
     for helper, share in early:
-        rows = Rows(th[share], X[share] + incr, X[share])
+        rows = PendingPairs(th[share], X[share] + incr, X[share])
         out[share], theta_f = _collect(model, k, helper, rows, theta_f)
     assert theta_f is not None
-    model._batch_anchor = _Anchor(
+    model._batch_anchor = _PreviousCall(
         k,
         X[a].copy(),
         u_a.copy(),
@@ -464,7 +464,7 @@ def _prediction_steps(
 
 
 @dataclass
-class Rows:
+class PendingPairs:
     """Pairs still to converge: what :func:`solve_rows` (and a helper) needs.
 
     Attributes
@@ -483,10 +483,10 @@ class Rows:
     residuals: FloatArray | None = None
     ok: NDArray[np.bool_] | None = None
 
-    def take(self, index: NDArray[np.intp]) -> Rows:
+    def take(self, index: NDArray[np.intp]) -> PendingPairs:
         """The rows ``index``."""
         known = self.residuals is not None and self.ok is not None
-        return Rows(
+        return PendingPairs(
             self.thetas[index], self.preds[index], self.starts[index],
             self.residuals[index] if known else None,  # type: ignore[index]
             self.ok[index] if known else None,  # type: ignore[index]
@@ -494,7 +494,7 @@ class Rows:
 
 
 def solve_rows(
-    model: BatchedSteps, k: int, rows: Rows, theta_f: FloatArray | None
+    model: BatchedSteps, k: int, rows: PendingPairs, theta_f: FloatArray | None
 ) -> tuple[FloatArray, FloatArray | None]:
     """Converge each row by chord iterations from its prediction (or its start).
 
@@ -535,7 +535,9 @@ Work = tuple[list[int], int, int, int]
 pairs converged at their prediction."""
 
 
-def helper_solve(model: BatchedSteps, k: int, rows: Rows) -> tuple[FloatArray, Work]:
+def helper_solve(
+    model: BatchedSteps, k: int, rows: PendingPairs
+) -> tuple[FloatArray, Work]:
     """:func:`solve_rows` in a helper process, from no factorization.
 
     Returns the states and the work done, which the caller adds to its model's
@@ -555,7 +557,11 @@ def helper_solve(model: BatchedSteps, k: int, rows: Rows) -> tuple[FloatArray, W
 
 
 def _collect(
-    model: BatchedSteps, k: int, helper: Helper, rows: Rows, theta_f: FloatArray | None
+    model: BatchedSteps,
+    k: int,
+    helper: Helper,
+    rows: PendingPairs,
+    theta_f: FloatArray | None,
 ) -> tuple[FloatArray, FloatArray | None]:
     """A helper's states for ``rows`` (solved here if the helper is lost)."""
     try:

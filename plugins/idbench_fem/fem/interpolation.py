@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
 
 _CANDIDATES = 16
 _TOL = 1e-9
@@ -117,12 +118,19 @@ def interpolation_matrix(
     Row ``3 i + c`` gives component c at point i; clamped nodes contribute zero.
     """
     elements, bary = locate(points, nodes, tets)
-    n_pts = len(points)
-    node = tets[elements]  # (P, 4)
-    rows = 3 * np.arange(n_pts)[:, None, None] + np.arange(3)[None, None, :]
-    rows = np.broadcast_to(rows, (n_pts, 4, 3))
-    cols = full_to_free[3 * node[:, :, None] + np.arange(3)]
-    vals = np.broadcast_to(bary[:, :, None], (n_pts, 4, 3))
+    return weights_matrix(tets[elements], bary, full_to_free)
+
+
+def weights_matrix(
+    nodes: IntArray, weights: FloatArray, full_to_free: IntArray
+) -> sp.csr_matrix:
+    """(3P, n_free) interpolation from node indices (P, k) and weights (P, k)."""
+    n_pts, k = nodes.shape
+    rows = np.broadcast_to(
+        3 * np.arange(n_pts)[:, None, None] + np.arange(3), (n_pts, k, 3)
+    )
+    cols = full_to_free[3 * nodes[:, :, None] + np.arange(3)]
+    vals = np.broadcast_to(weights[:, :, None], (n_pts, k, 3))
     keep = cols >= 0
     n_free = int((full_to_free >= 0).sum())
     return sp.csr_matrix(

@@ -58,7 +58,7 @@ from idbench_fem.bodies.description import Body
 from idbench_fem.bodies.loads import nodal_forces
 from idbench_fem.bodies.mesh import SolidMesh, project_to_surface
 from idbench_fem.fem.batched import BatchedSteps
-from idbench_fem.fem.interpolation import barycentric
+from idbench_fem.fem.interpolation import barycentric, weights_matrix
 from idbench_fem.fem.law_assembly import LawAssembler
 from idbench_fem.fem.solver import resolve_backend
 from idbench_fem.fem.svk_assembly import Assembler
@@ -170,7 +170,7 @@ class SolidModel(BatchedSteps):
                 f"{body.source}: {markers} markers asked for, the body has "
                 f"{len(pts)} on {reference.path!r}"
             )
-        self.marker_points = pts[_spread(pts, markers)]
+        self.marker_points = pts[_farthest_points(pts, markers)]
         self.grid_points = _reference_grid(body, reference)
         self._obs = _surface_interpolation(mesh, self.marker_points, f2f)
         self._grid = _interpolation(mesh, self.grid_points, f2f)
@@ -327,7 +327,7 @@ def _reference_grid(body: Body, reference: SolidMesh) -> FloatArray:
     return resolve.shape_error_points(body, reference)
 
 
-def _spread(points: FloatArray, m: int) -> IntArray:
+def _farthest_points(points: FloatArray, m: int) -> IntArray:
     """Indices of ``m`` of ``points``: the first m of a farthest-point ordering.
 
     Starts from point 0, so for listed markers the first is kept; when m
@@ -344,29 +344,12 @@ def _spread(points: FloatArray, m: int) -> IntArray:
     return np.asarray(chosen)
 
 
-def _matrix(
-    nodes: IntArray, weights: FloatArray, full_to_free: IntArray
-) -> sp.csr_matrix:
-    """(3P, n_free) interpolation from node indices (P, k) and weights (P, k)."""
-    n_pts, k = nodes.shape
-    rows = np.broadcast_to(
-        3 * np.arange(n_pts)[:, None, None] + np.arange(3), (n_pts, k, 3)
-    )
-    cols = full_to_free[3 * nodes[:, :, None] + np.arange(3)]
-    vals = np.broadcast_to(weights[:, :, None], (n_pts, k, 3))
-    keep = cols >= 0
-    n_free = int((full_to_free >= 0).sum())
-    return sp.csr_matrix(
-        (vals[keep], (rows[keep], cols[keep])), shape=(3 * n_pts, n_free)
-    )
-
-
 def _surface_interpolation(
     mesh: SolidMesh, points: FloatArray, full_to_free: IntArray
 ) -> sp.csr_matrix:
     """Interpolate at the nearest surface points of ``mesh`` to ``points``."""
     _, facet, bary, _ = project_to_surface(mesh, points)
-    return _matrix(mesh.facets[facet], bary, full_to_free)
+    return weights_matrix(mesh.facets[facet], bary, full_to_free)
 
 
 def _interpolation(
@@ -387,7 +370,7 @@ def _interpolation(
     rows = np.arange(len(points))
     w = np.clip(bary[rows, best], 0.0, None)
     w /= w.sum(axis=1, keepdims=True)
-    return _matrix(mesh.tets[cand[rows, best]], w, full_to_free)
+    return weights_matrix(mesh.tets[cand[rows, best]], w, full_to_free)
 
 
 def make_model(spec: ModelSpec) -> SolidModel:
