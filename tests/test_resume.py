@@ -25,7 +25,7 @@ from idbench.cli import main
 from idbench.config import CompareConfig
 from idbench.results import ResultsError
 from idbench.sweep import compare, runs_of
-from idbench_skfem.mesh import parse as beam_mesh
+from idbench_fem.bodies.box import parse as beam_mesh
 
 TRUTH, MODEL, STEPS = "12x3x3", "4x1x1", 5
 ARGS = ["compare", "--truth-mesh", TRUTH, "--meshes", MODEL, "--steps", str(STEPS),
@@ -128,7 +128,7 @@ def test_a_plugin_version_change_is_refused(tmp_path, monkeypatch, counted):
     out = tmp_path / "out"
     compare(tiny(), out)
     recorded = json.loads((out / "manifest.json").read_text())["plugins"]
-    assert recorded["filters"] == "0.0.1" and "skfem" in recorded
+    assert recorded["filters"] == "0.0.1" and "fem" in recorded
     version["filters"] = "0.0.2"  # the estimators' plugin upgraded
     with pytest.raises(ResultsError, match=r"plugin 'filters' 0\.0\.1, now 0\.0\.2"):
         compare(tiny(), out)

@@ -23,8 +23,8 @@ from idbench.report import summary_text
 from idbench.session import model_settings
 from idbench.sweep import compare, runs_of
 from idbench.truth import Truth
-from idbench_skfem import mesh as meshes
-from idbench_skfem.solidmesh import from_arrays as solid_from_arrays
+from idbench_fem.bodies import box as meshes
+from idbench_fem.bodies.mesh import from_arrays as solid_from_arrays
 
 TINY = ["--truth-mesh", "12x3x3", "--meshes", "4x1x1", "--steps", "5", "--seeds",
         "1", "--estimators", "rls"]  # fmt: skip

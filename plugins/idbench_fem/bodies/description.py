@@ -62,8 +62,8 @@ identifiable unless a force is also observed.
 
 Errors are one-line ``ValueError``s naming the file, the bad value and what is
 allowed. Mesh-dependent checks (names, empty regions, markers off the body)
-happen when a region is resolved on a mesh (:mod:`idbench_skfem.resolve`;
-:func:`~idbench_skfem.resolve.check` does all of them).
+happen when a region is resolved on a mesh (:mod:`idbench_fem.bodies.resolve`;
+:func:`~idbench_fem.bodies.resolve.check` does all of them).
 """
 
 from __future__ import annotations
@@ -77,11 +77,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench_skfem.materials import LAWS, lame, make_material
-from idbench_skfem.solidmesh import (
+from idbench_fem.bodies.mesh import (
     SELECTORS,
     Region,
 )
+from idbench_fem.fem.materials import LAWS, lame, make_material
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -108,7 +108,7 @@ class Material:
     E_regions: tuple[tuple[str, float], ...] = ()
 
     def make(self, E: float | None = None):  # type: ignore[no-untyped-def]
-        """The law object of :mod:`idbench_skfem.materials` (at ``E`` if given)."""
+        """The law object of :mod:`idbench_fem.fem.materials` (at ``E`` if given)."""
         return make_material(self.law, self.E if E is None else E, self.nu)
 
 
@@ -204,7 +204,7 @@ class Body:
 # -- parsing ---------------------------------------------------------------------
 
 
-class _Ctx:
+class _TableReader:
     """Error messages prefixed by the file and the table being read."""
 
     def __init__(self, source: str, where: str) -> None:
@@ -312,10 +312,10 @@ def parse_body(
         "shape_error",
         "parameters",
     )
-    _Ctx(source, "body").keys(raw, top)
+    _TableReader(source, "body").keys(raw, top)
 
     mt = _table(raw, "mesh", source)
-    c = _Ctx(source, "[mesh]")
+    c = _TableReader(source, "[mesh]")
     c.keys(mt, ("truth", "models", "generate"))
     if not isinstance(mt.get("truth"), str):
         raise c.error(f"truth = {mt.get('truth')!r}: need the truth mesh file's path")
@@ -333,7 +333,7 @@ def parse_body(
     )
 
     mat = _table(raw, "material", source)
-    c = _Ctx(source, "[material]")
+    c = _TableReader(source, "[material]")
     c.keys(mat, ("law", "E", "nu", "density", "E_regions"))
     law = mat.get("law", "svk")
     if law not in LAWS:
@@ -361,7 +361,7 @@ def parse_body(
             f"region or give one of {', '.join(SELECTORS[1:])}"
         )
     fx = _table(raw, "fixed", source)
-    fixed = _Ctx(source, "[fixed]").region("fixed", fx)
+    fixed = _TableReader(source, "[fixed]").region("fixed", fx)
 
     manip = raw.get("manipulation", [])
     if not isinstance(manip, list) or not manip:
@@ -383,7 +383,7 @@ def parse_body(
         )
 
     mk = _table(raw, "markers", source)
-    c = _Ctx(source, "[markers]")
+    c = _TableReader(source, "[markers]")
     c.keys(mk, ("points", "region", "snap_distance"))
     if ("points" in mk) == ("region" in mk):
         raise c.error("needs exactly one of points = [[x, y, z], ...] or region = ...")
@@ -399,7 +399,7 @@ def parse_body(
         raise c.error("points = []: need at least one marker")
 
     se = _table(raw, "shape_error", source)
-    c = _Ctx(source, "[shape_error]")
+    c = _TableReader(source, "[shape_error]")
     c.keys(se, ("grid", "nodes", "margin"))
     grid = se.get("grid", [10, 8, 6])
     if (
@@ -419,7 +419,7 @@ def parse_body(
     shape_error = ShapeError((grid[0], grid[1], grid[2]), nodes, margin)
 
     pa = _table(raw, "parameters", source)
-    c = _Ctx(source, "[parameters]")
+    c = _TableReader(source, "[parameters]")
     c.keys(pa, ("regions",))
     regions = pa.get("regions", [])
     if not isinstance(regions, list) or len(regions) == 1:
@@ -446,7 +446,9 @@ def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
     if not isinstance(raw, dict):
         raise ValueError(f"{source}: [[manipulation]] {i} must be a table")
     name = raw.get("name")
-    c = _Ctx(source, f"[[manipulation]] {name!r}" if name else f"[[manipulation]] {i}")
+    c = _TableReader(
+        source, f"[[manipulation]] {name!r}" if name else f"[[manipulation]] {i}"
+    )
     if not isinstance(name, str) or not name:
         raise c.error(f"name = {name!r}: every manipulation needs a name")
     kind = raw.get("kind")

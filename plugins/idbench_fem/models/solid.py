@@ -18,13 +18,13 @@ belongs to). The internal force is linear in theta,
 :math:`\partial u / \partial \theta_r = -K^{-1} g_r(u)`: one back-substitution
 per parameter with the last factorization.
 
-Newton's conventions are the beam's (:mod:`idbench_skfem.model`): converged
+Newton's conventions are the beam's (:mod:`idbench_fem.models.beam`): converged
 when :math:`\|r\| \le \max(\mathrm{rtol} \|f_{ext}(k)\|, \mathrm{atol})`
 with rtol = 1e-8 and atol = 1e-12 times the end force; each update is halved
 (up to 8 times) while an element would have det F <= 0.
 
 Sigma points of a filter step go through :meth:`SolidModel.step_many`
-(:mod:`idbench_skfem.batched`, as the beam's): one pair solved by Newton, the
+(:mod:`idbench_fem.fem.batched`, as the beam's): one pair solved by Newton, the
 others predicted from its sensitivity and corrected by chord steps on its
 scaled factorization (both laws are linear in the moduli), optionally shared
 with helper processes (setting ``processes``).
@@ -52,18 +52,17 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from idbench import Cost, ModelSpec, ParameterSpec, Scenario
-from idbench_skfem import resolve
-from idbench_skfem.assembly import Assembler
-from idbench_skfem.batched import BatchedSteps
-from idbench_skfem.bodies import get_body, get_mesh, mesh_file
-from idbench_skfem.body import Body
-from idbench_skfem.loads import nodal_forces
-from idbench_skfem.mesh import extent
-from idbench_skfem.probes import _barycentric
-from idbench_skfem.solid_assembly import LawAssembler
-from idbench_skfem.solid_settings import SolidSettings
-from idbench_skfem.solidmesh import SolidMesh, project_to_surface
-from idbench_skfem.solver import resolve_backend
+from idbench_fem.bodies import resolve
+from idbench_fem.bodies.catalog import get_body, get_mesh, mesh_file
+from idbench_fem.bodies.description import Body
+from idbench_fem.bodies.loads import nodal_forces
+from idbench_fem.bodies.mesh import SolidMesh, extent, project_to_surface
+from idbench_fem.fem.batched import BatchedSteps
+from idbench_fem.fem.interpolation import barycentric, weights_matrix
+from idbench_fem.fem.law_assembly import LawAssembler
+from idbench_fem.fem.solver import resolve_backend
+from idbench_fem.fem.svk_assembly import Assembler
+from idbench_fem.models.solid_settings import SolidSettings
 
 log = logging.getLogger(__name__)
 
@@ -136,7 +135,7 @@ class SolidModel(BatchedSteps):
         free[fixed] = False
         self.n_nodes = len(mesh.points)
         self.bounds, self.volume = extent(mesh.points, mesh.tets)
-        from idbench_skfem.materials import Material, make_material
+        from idbench_fem.fem.materials import Material, make_material
 
         law = cast(Material, make_material(self.law_name, 1.0, self.nu))
         if self.law_name == "svk" and s.kernel == "auto":
@@ -172,7 +171,7 @@ class SolidModel(BatchedSteps):
                 f"{body.source}: {markers} markers asked for, the body has "
                 f"{len(pts)} on {reference.path!r}"
             )
-        self.marker_points = pts[_spread(pts, markers)]
+        self.marker_points = pts[_farthest_points(pts, markers)]
         self.grid_points = _reference_grid(body, reference)
         self._obs = _surface_interpolation(mesh, self.marker_points, f2f)
         self._grid = _interpolation(mesh, self.grid_points, f2f)
@@ -329,7 +328,7 @@ def _reference_grid(body: Body, reference: SolidMesh) -> FloatArray:
     return resolve.shape_error_points(body, reference)
 
 
-def _spread(points: FloatArray, m: int) -> IntArray:
+def _farthest_points(points: FloatArray, m: int) -> IntArray:
     """Indices of ``m`` of ``points``: the first m of a farthest-point ordering.
 
     Starts from point 0, so for listed markers the first is kept; when m
@@ -346,29 +345,12 @@ def _spread(points: FloatArray, m: int) -> IntArray:
     return np.asarray(chosen)
 
 
-def _matrix(
-    nodes: IntArray, weights: FloatArray, full_to_free: IntArray
-) -> sp.csr_matrix:
-    """(3P, n_free) interpolation from node indices (P, k) and weights (P, k)."""
-    n_pts, k = nodes.shape
-    rows = np.broadcast_to(
-        3 * np.arange(n_pts)[:, None, None] + np.arange(3), (n_pts, k, 3)
-    )
-    cols = full_to_free[3 * nodes[:, :, None] + np.arange(3)]
-    vals = np.broadcast_to(weights[:, :, None], (n_pts, k, 3))
-    keep = cols >= 0
-    n_free = int((full_to_free >= 0).sum())
-    return sp.csr_matrix(
-        (vals[keep], (rows[keep], cols[keep])), shape=(3 * n_pts, n_free)
-    )
-
-
 def _surface_interpolation(
     mesh: SolidMesh, points: FloatArray, full_to_free: IntArray
 ) -> sp.csr_matrix:
     """Interpolate at the nearest surface points of ``mesh`` to ``points``."""
     _, facet, bary, _ = project_to_surface(mesh, points)
-    return _matrix(mesh.facets[facet], bary, full_to_free)
+    return weights_matrix(mesh.facets[facet], bary, full_to_free)
 
 
 def _interpolation(
@@ -384,12 +366,12 @@ def _interpolation(
     k = min(k, len(mesh.tets))
     _, cand = cKDTree(x.mean(axis=1)).query(points, k=k)
     cand = np.asarray(cand).reshape(len(points), k)
-    bary = _barycentric(points[:, None, :], x[cand])  # (P, k, 4)
+    bary = barycentric(points[:, None, :], x[cand])  # (P, k, 4)
     best = bary.min(axis=2).argmax(axis=1)
     rows = np.arange(len(points))
     w = np.clip(bary[rows, best], 0.0, None)
     w /= w.sum(axis=1, keepdims=True)
-    return _matrix(mesh.tets[cand[rows, best]], w, full_to_free)
+    return weights_matrix(mesh.tets[cand[rows, best]], w, full_to_free)
 
 
 def make_model(spec: ModelSpec) -> SolidModel:
@@ -397,13 +379,13 @@ def make_model(spec: ModelSpec) -> SolidModel:
 
     ``spec.scenario.load`` names the manipulation (``{"manipulation": NAME}``,
     optionally ``"body"``: else the settings' body); ``spec.mesh`` is a mesh
-    spec of that body (:mod:`idbench_skfem.bodies`).
+    spec of that body (:mod:`idbench_fem.bodies.catalog`).
 
     Raises
     ------
     ValueError
         One line: unknown body, manipulation or mesh, or a body that does not
-        fit the mesh (:mod:`idbench_skfem.resolve`).
+        fit the mesh (:mod:`idbench_fem.bodies.resolve`).
     """
     settings = spec.settings
     if settings is None:

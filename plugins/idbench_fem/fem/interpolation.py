@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
 
 _CANDIDATES = 16
 _TOL = 1e-9
@@ -59,7 +60,7 @@ def grid_points(
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
-def _barycentric(points: FloatArray, x: FloatArray) -> FloatArray:
+def barycentric(points: FloatArray, x: FloatArray) -> FloatArray:
     """Barycentric coordinates of ``points`` (..., 3) in tets ``x`` (..., 4, 3)."""
     jac = np.stack([x[..., 1, :] - x[..., 0, :], x[..., 2, :] - x[..., 0, :],
                     x[..., 3, :] - x[..., 0, :]], axis=-1)  # fmt: skip
@@ -90,7 +91,7 @@ def locate(
     k = min(_CANDIDATES, len(tets))
     _, cand = cKDTree(x.mean(axis=1)).query(points, k=k)
     cand = np.asarray(cand).reshape(len(points), k)
-    bary = _barycentric(points[:, None, :], x[cand])  # (P, k, 4)
+    bary = barycentric(points[:, None, :], x[cand])  # (P, k, 4)
     worst = bary.min(axis=2)
     best = worst.argmax(axis=1)
     rows = np.arange(len(points))
@@ -98,7 +99,7 @@ def locate(
     out = bary[rows, best]
     miss = np.flatnonzero(worst[rows, best] < -_TOL)
     for i in miss:  # fallback: all tets (rare; big elements far from the point)
-        b = _barycentric(np.broadcast_to(points[i], (len(tets), 3)), x)
+        b = barycentric(np.broadcast_to(points[i], (len(tets), 3)), x)
         j = int(b.min(axis=1).argmax())
         if b[j].min() < -_TOL * max(1.0, scale):
             raise ValueError(f"point {points[i].tolist()} lies outside the mesh")
@@ -117,12 +118,19 @@ def interpolation_matrix(
     Row ``3 i + c`` gives component c at point i; clamped nodes contribute zero.
     """
     elements, bary = locate(points, nodes, tets)
-    n_pts = len(points)
-    node = tets[elements]  # (P, 4)
-    rows = 3 * np.arange(n_pts)[:, None, None] + np.arange(3)[None, None, :]
-    rows = np.broadcast_to(rows, (n_pts, 4, 3))
-    cols = full_to_free[3 * node[:, :, None] + np.arange(3)]
-    vals = np.broadcast_to(bary[:, :, None], (n_pts, 4, 3))
+    return weights_matrix(tets[elements], bary, full_to_free)
+
+
+def weights_matrix(
+    nodes: IntArray, weights: FloatArray, full_to_free: IntArray
+) -> sp.csr_matrix:
+    """(3P, n_free) interpolation from node indices (P, k) and weights (P, k)."""
+    n_pts, k = nodes.shape
+    rows = np.broadcast_to(
+        3 * np.arange(n_pts)[:, None, None] + np.arange(3), (n_pts, k, 3)
+    )
+    cols = full_to_free[3 * nodes[:, :, None] + np.arange(3)]
+    vals = np.broadcast_to(weights[:, :, None], (n_pts, k, 3))
     keep = cols >= 0
     n_free = int((full_to_free >= 0).sum())
     return sp.csr_matrix(
