@@ -323,6 +323,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--jobs", type=_number("jobs", int), default=1, help="local worker processes"
     )
     c.add_argument(
+        "--wait",
+        action="store_true",
+        help="if another process is writing --out, wait until it is done "
+        "(default: refuse, naming that process)",
+    )
+    c.add_argument(
         "--scheduler",
         help="Dask scheduler address tcp://HOST:PORT (default: none, run locally)",
     )
@@ -357,6 +363,11 @@ def build_parser() -> argparse.ArgumentParser:
         "report.html into DIR from its runs.parquet and traces.parquet.",
     )
     r.add_argument("directory", type=Path, help="the --out DIR of idbench compare")
+    r.add_argument(
+        "--wait",
+        action="store_true",
+        help="if a compare is writing DIR, wait until it is done (default: refuse)",
+    )
 
     i = sub.add_parser(
         "info",

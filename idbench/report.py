@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from idbench import lock
 from idbench.summary import (
     FORMATS,
     _markdown,
@@ -212,7 +213,7 @@ def frontier_figure(table: pd.DataFrame) -> Any:
 
 
 def write_report(
-    directory: str | Path, study: pd.DataFrame | None = None
+    directory: str | Path, study: pd.DataFrame | None = None, *, wait: bool = False
 ) -> list[Path]:
     """Write figures (PNG, SVG), ``report.md`` and ``report.html`` for DIR.
 
@@ -225,20 +226,30 @@ def write_report(
         Values the original study reported, overlaid on the figures (columns
         ``figure``, ``x``, ``y``, optional ``label``). Default: DIR's
         ``study_values.csv`` if there is one.
+    wait
+        If another process is writing DIR (a compare), wait until it is done;
+        by default that is refused (:class:`~idbench.lock.FolderBusy`).
 
     Returns
     -------
     list of pathlib.Path
         The files written.
     """
+    root = Path(directory)
+    runs_path = root / "runs.parquet"
+    if not runs_path.exists():
+        raise FileNotFoundError(f"{runs_path} not found: is {root} a compare output?")
+    with lock.hold(root, wait=wait, hint="; wait for it (--wait)"):
+        return _write_report(root, study)
+
+
+def _write_report(root: Path, study: pd.DataFrame | None) -> list[Path]:
+    """:func:`write_report`'s work, with DIR's lock held."""
     import matplotlib.pyplot as plt
 
     from idbench.html_report import write_html
 
-    root = Path(directory)
     runs_path, traces_path = root / "runs.parquet", root / "traces.parquet"
-    if not runs_path.exists():
-        raise FileNotFoundError(f"{runs_path} not found: is {root} a compare output?")
     runs = pd.read_parquet(runs_path)
     traces = pd.read_parquet(traces_path) if traces_path.exists() else pd.DataFrame()
     if study is None and (root / "study_values.csv").exists():

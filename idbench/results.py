@@ -4,11 +4,14 @@
 atomically as each run finishes, so an interrupted sweep keeps every finished
 run; :meth:`ResultStore.consolidate` gathers them into ``DIR/runs.parquet`` and
 ``DIR/traces.parquet``. ``DIR/manifest.json`` records the settings and
-versions; reopening a DIR made with other settings is refused.
+versions; reopening a DIR made with other settings is refused. One process
+at a time writes a DIR: a store holds its lock (:mod:`idbench.lock`) from
+opening to :meth:`ResultStore.close`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 from collections.abc import Iterable
@@ -18,6 +21,7 @@ from typing import Any
 import pandas as pd
 import pyarrow.parquet as pq
 
+from idbench import lock
 from idbench.files import (
     atomic_write_bytes,
     atomic_write_parquet,
@@ -31,6 +35,10 @@ RESUMABLE = ("timeout",)
 
 ADDED: dict[str, Any] = {"posterior": False, "posterior_settings": {}}
 """Settings added in later versions, with the value a manifest without them meant."""
+
+
+BUSY_HINT = "; wait for it (--wait) or use another --out DIR"
+"""What a command refused a busy results directory may do instead."""
 
 
 class ResultsError(RuntimeError):
@@ -48,17 +56,67 @@ class ResultStore:
         The sweep's settings; must equal those in an existing manifest.
     manifest
         Extra manifest entries (versions, solver backend, threads).
+    wait
+        If another process writes the directory, wait until it is done
+        instead of raising :class:`~idbench.lock.FolderBusy`.
+
+    Raises
+    ------
+    idbench.lock.FolderBusy
+        Another process holds the directory (one line naming it).
+    ResultsError
+        The directory cannot be used (other settings, not writable).
+
+    Notes
+    -----
+    The store holds the directory's lock until :meth:`close` (or the end of
+    a ``with`` block, or of the process). Opening it removes the temporary
+    files of writers that are gone (killed mid-write), in the directory and
+    in ``parts/``; another live process's are kept.
     """
 
     def __init__(
-        self, root: Path, settings: dict[str, Any], manifest: dict[str, Any]
+        self,
+        root: Path,
+        settings: dict[str, Any],
+        manifest: dict[str, Any],
+        *,
+        wait: bool = False,
     ) -> None:
         self.root = Path(root)
         self.parts = self.root / "parts"
         self.quarantine = self.root / "quarantine"
-        mpath = self.root / "manifest.json"
         if str(root) == "" or (self.root.exists() and not self.root.is_dir()):
             raise ResultsError(f"--out {str(root)!r}: need a directory path")
+        try:
+            lock.acquire(self.root, wait=wait, hint=BUSY_HINT)
+        except OSError as exc:
+            raise ResultsError(f"cannot write to {self.root}: {exc}") from None
+        self._open = True
+        try:
+            self._open_locked(settings, manifest)
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        """Release the directory's lock (idempotent)."""
+        if getattr(self, "_open", False):
+            self._open = False
+            lock.release(self.root)
+
+    def __del__(self) -> None:
+        with contextlib.suppress(Exception):  # a store dropped unclosed
+            self.close()
+
+    def __enter__(self) -> ResultStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _open_locked(self, settings: dict[str, Any], manifest: dict[str, Any]) -> None:
+        mpath = self.root / "manifest.json"
         if mpath.exists():
             old = _read_manifest(mpath)
             if _results_settings(old["settings"]) != _results_settings(settings):
@@ -77,7 +135,8 @@ class ResultStore:
             self.parts.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise ResultsError(f"cannot write to {self.root}: {exc}") from None
-        removed = remove_stale_temporaries(self.parts)
+        removed = remove_stale_temporaries(self.root)
+        removed += remove_stale_temporaries(self.parts)
         if removed:
             log.info("removed %d temporary file(s) of an interrupted write", removed)
 
