@@ -163,7 +163,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     """``idbench compare``: run a comparison, write the tables, print a summary."""
     from idbench import lock
     from idbench.config import build_config, load_toml
-    from idbench.results import BUSY_HINT
+    from idbench.results import lock_folder
     from idbench.session import Session
     from idbench.sweep import plan
 
@@ -205,14 +205,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
             f"about {the_plan.solves} forward solves"
         )
         return 0
-    # with --plot, one hold of the folder's lock over the sweep and its report
-    held = (
-        lock.hold(args.out, wait=args.wait, hint=BUSY_HINT)
-        if args.plot
-        else contextlib.nullcontext()
-    )
-    with held:
+    # one hold of the folder's lock over the sweep and its report, taken
+    # before the progress bar starts (--wait may wait here)
+    lock_folder(args.out, wait=args.wait)
+    try:
         return _compare_and_report(args, config, the_plan.runs)
+    finally:
+        lock.release(args.out)
 
 
 def _compare_and_report(args: argparse.Namespace, config: Any, planned: Any) -> int:

@@ -86,12 +86,7 @@ class ResultStore:
         self.root = Path(root)
         self.parts = self.root / "parts"
         self.quarantine = self.root / "quarantine"
-        if str(root) == "" or (self.root.exists() and not self.root.is_dir()):
-            raise ResultsError(f"--out {str(root)!r}: need a directory path")
-        try:
-            lock.acquire(self.root, wait=wait, hint=BUSY_HINT)
-        except OSError as exc:
-            raise ResultsError(f"cannot write to {self.root}: {exc}") from None
+        lock_folder(self.root, wait=wait)
         self._open = True
         try:
             self._open_locked(settings, manifest)
@@ -233,6 +228,27 @@ class ResultStore:
         atomic_write_parquet(runs, self.root / "runs.parquet")
         atomic_write_parquet(traces, self.root / "traces.parquet")
         return runs, traces
+
+
+def lock_folder(root: str | Path, *, wait: bool = False) -> None:
+    """Take the lock of the results directory ``root`` (see :mod:`idbench.lock`).
+
+    Give it back with :func:`idbench.lock.release`.
+
+    Raises
+    ------
+    idbench.lock.FolderBusy
+        Another process holds it (and ``wait`` is false).
+    ResultsError
+        ``root`` is no directory path, or cannot be created or written.
+    """
+    path = Path(root)
+    if str(root) == "" or (path.exists() and not path.is_dir()):
+        raise ResultsError(f"--out {str(root)!r}: need a directory path")
+    try:
+        lock.acquire(path, wait=wait, hint=BUSY_HINT)
+    except OSError as exc:
+        raise ResultsError(f"cannot write to {path}: {exc}") from None
 
 
 def _concat(frames: list[pd.DataFrame]) -> pd.DataFrame:
