@@ -35,6 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     (``--debug`` shows its traceback); Ctrl-C in status 130.
     """
     from idbench.interfaces import ModelFailure
+    from idbench.lock import FolderBusy
     from idbench.results import ResultsError
 
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -63,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
             return int(registry().commands[args.command].obj.run(args))
         except ValueError as exc:  # a plugin command's bad input
             raise UsageError(str(exc)) from None
-    except (UsageError, ConfigError, ResultsError) as exc:
+    except (UsageError, ConfigError, ResultsError, FolderBusy) as exc:
         return _fail(exc, 2, debug)
     except ModelFailure as exc:
         return _fail(exc, 2, debug, "the simulation failed (check the settings): ")
@@ -176,11 +177,11 @@ def cmd_plugins(args: argparse.Namespace) -> int:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """``idbench compare``: run a comparison, write the tables, print a summary."""
+    from idbench import lock
     from idbench.config import build_config, load_toml
-    from idbench.progress import CompareProgress
-    from idbench.report import summary_text
+    from idbench.results import lock_folder
     from idbench.session import Session
-    from idbench.sweep import compare, plan
+    from idbench.sweep import plan
 
     if args.out is None:
         args.out = Path("idbench-out-quick" if args.quick else "idbench-out")
@@ -220,15 +221,29 @@ def cmd_compare(args: argparse.Namespace) -> int:
             f"about {the_plan.solves} forward solves"
         )
         return 0
-    with CompareProgress(
-        the_plan.runs, args.out, args.jobs, quiet=args.quiet
-    ) as progress:
+    # one hold of the folder's lock over the sweep and its report, taken
+    # before the progress bar starts (--wait may wait here)
+    lock_folder(args.out, wait=args.wait)
+    try:
+        return _compare_and_report(args, config, the_plan.runs)
+    finally:
+        lock.release(args.out)
+
+
+def _compare_and_report(args: argparse.Namespace, config: Any, planned: Any) -> int:
+    """The sweep of ``cmd_compare``, its summary and (``--plot``) its report."""
+    from idbench.progress import CompareProgress
+    from idbench.report import summary_text
+    from idbench.sweep import compare
+
+    with CompareProgress(planned, args.out, args.jobs, quiet=args.quiet) as progress:
         runs, _ = compare(
             config,
             args.out,
             jobs=args.jobs,
             scheduler=args.scheduler,
             progress=progress,
+            wait=args.wait,
         )
     machine = args.format in ("csv", "json")
     say = sys.stderr if machine else sys.stdout
@@ -247,7 +262,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if args.plot:
         from idbench.report import write_report
 
-        for path in write_report(args.out):
+        for path in write_report(args.out, wait=args.wait):
             if not args.quiet:
                 print(f"wrote {path}", file=say)
     return 0
@@ -263,7 +278,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
     try:
         paired = _paired(args)
-        written = write_report(args.directory, paired=paired)
+        written = write_report(args.directory, paired=paired, wait=args.wait)
     except FileNotFoundError as exc:
         raise UsageError(str(exc)) from None
     except (OSError, ValueError, KeyError) as exc:  # e.g. not parquet, no columns

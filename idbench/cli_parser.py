@@ -327,6 +327,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--jobs", type=_number("jobs", int), default=1, help="local worker processes"
     )
     c.add_argument(
+        "--wait",
+        action="store_true",
+        help="if another process is writing --out, wait until it is done "
+        "(default: refuse, naming that process)",
+    )
+    c.add_argument(
         "--scheduler",
         help="Dask scheduler address tcp://HOST:PORT (default: none, run locally)",
     )
@@ -377,6 +383,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         metavar="MESH",
         help="the same for meshes: each other mesh minus MESH; repeatable",
+    )
+    r.add_argument(
+        "--wait",
+        action="store_true",
+        help="if a compare is writing DIR, wait until it is done (default: refuse)",
     )
 
     i = sub.add_parser(

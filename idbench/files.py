@@ -4,14 +4,22 @@ Every file idbench writes goes through a temporary file in the same folder and
 a rename, so a reader (or a kill) never sees half a file; the file then gets
 the permissions the process's umask gives ordinary files (``mkstemp`` alone
 would leave it readable by its owner only, which breaks a cache shared by a
-cluster's group).
+cluster's group). A temporary file is named after its owner
+(``.tmp-PID-HOST-...``, HOST a hash of the host name), so that a cleaner
+removes only those of processes that are gone (:func:`remove_stale_temporaries`),
+never another live writer's. A failed write names the file it was writing
+(a full disk's ``OSError`` alone does not).
 """
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
+import re
+import socket
+import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -21,6 +29,14 @@ import numpy as np
 
 TMP_PREFIX = ".tmp-"
 """Prefix of the temporary files; leftovers of a killed process start with it."""
+
+_HOST = hashlib.sha256(socket.gethostname().encode()).hexdigest()[:8]
+_OWNED = re.compile(re.escape(TMP_PREFIX) + r"(\d+)-([0-9a-f]{8})-")
+
+
+def temporary_prefix(pid: int | None = None) -> str:
+    """Name prefix of the temporary files of process ``pid`` (default: this one)."""
+    return f"{TMP_PREFIX}{os.getpid() if pid is None else pid}-{_HOST}-"
 
 
 def stable_hash(obj: Any, length: int = 16) -> str:
@@ -65,16 +81,34 @@ def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, name = tempfile.mkstemp(dir=path.parent, prefix=TMP_PREFIX, suffix=path.suffix)
+    try:
+        fd, name = tempfile.mkstemp(
+            dir=path.parent, prefix=temporary_prefix(), suffix=path.suffix
+        )
+    except OSError as exc:
+        raise _naming(exc, path) from None
     os.close(fd)
     tmp = Path(name)
     try:
         write(tmp)
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise _naming(exc, path) from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def _naming(exc: OSError, path: Path) -> OSError:
+    """``exc`` naming ``path`` (the file being written), not its temporary."""
+    if exc.errno is None:  # e.g. pyarrow's: its text, then the path
+        return OSError(f"{' '.join(str(exc).split())} writing {str(path)!r}")
+    text = exc.strerror or os.strerror(exc.errno)
+    if exc.errno == errno.ENOSPC:
+        text += " (the disk is full)"
+    return type(exc)(exc.errno, f"{text} writing", str(path))
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -95,12 +129,41 @@ def atomic_write_parquet(df: Any, path: Path) -> None:
 
 
 def remove_stale_temporaries(folder: Path) -> int:
-    """Delete temporary files a killed process left in ``folder``; count them."""
+    """Delete temporary files a killed process left in ``folder``; count them.
+
+    Removed: this process's own, those of a process of this host that is gone,
+    and unnamed ones (left by an idbench that named no owner). Kept: those of a
+    live process, and those of another host (whose processes cannot be
+    checked from here).
+    """
     count = 0
     for tmp in Path(folder).glob(f"{TMP_PREFIX}*"):
+        if not tmp.is_file() or _owner_alive(tmp.name):
+            continue
         try:
             tmp.unlink()
             count += 1
         except OSError:
             pass
     return count
+
+
+def _owner_alive(name: str) -> bool:
+    """Whether the process that writes the temporary file ``name`` may be running."""
+    m = _OWNED.match(name)
+    if m is None:
+        return False  # no owner recorded: an older idbench's leftover
+    pid, host = int(m.group(1)), m.group(2)
+    if host != _HOST:
+        return True
+    if pid == os.getpid():
+        return False
+    if sys.platform == "win32":  # os.kill would end the process there
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # e.g. another user's process: it exists
+        return True
+    return True

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from idbench import lock
 from idbench.paired import Paired, paired_markdown
 from idbench.sanitize import markdown_cell
 from idbench.summary import (
@@ -219,6 +220,8 @@ def write_report(
     directory: str | Path,
     study: pd.DataFrame | None = None,
     paired: list[Paired] | None = None,
+    *,
+    wait: bool = False,
 ) -> list[Path]:
     """Write figures (PNG, SVG), ``report.md`` and ``report.html`` for DIR.
 
@@ -234,20 +237,32 @@ def write_report(
     paired
         Paired-difference tables (:func:`idbench.paired.paired_differences`
         of DIR's runs) to add after the summary.
+    wait
+        If another process is writing DIR (a compare), wait until it is done;
+        by default that is refused (:class:`~idbench.lock.FolderBusy`).
 
     Returns
     -------
     list of pathlib.Path
         The files written.
     """
+    root = Path(directory)
+    runs_path = root / "runs.parquet"
+    if not runs_path.exists():
+        raise FileNotFoundError(f"{runs_path} not found: is {root} a compare output?")
+    with lock.hold(root, wait=wait, hint="; wait for it (--wait)"):
+        return _write_report(root, study, paired)
+
+
+def _write_report(
+    root: Path, study: pd.DataFrame | None, paired: list[Paired] | None
+) -> list[Path]:
+    """:func:`write_report`'s work, with DIR's lock held."""
     import matplotlib.pyplot as plt
 
     from idbench.html_report import write_html
 
-    root = Path(directory)
     runs_path, traces_path = root / "runs.parquet", root / "traces.parquet"
-    if not runs_path.exists():
-        raise FileNotFoundError(f"{runs_path} not found: is {root} a compare output?")
     runs = pd.read_parquet(runs_path)
     traces = pd.read_parquet(traces_path) if traces_path.exists() else pd.DataFrame()
     if study is None and (root / "study_values.csv").exists():

@@ -8,11 +8,14 @@ versions of idbench and of the plugins the runs used, and what each model
 read (its ``describe()``, with a digest of each file's content); reopening a
 DIR made with other settings, versions or file contents is refused, naming
 what differs and both values. A part whose rows name another run than its
-file name is quarantined, like an unreadable one.
+file name is quarantined, like an unreadable one. One process
+at a time writes a DIR: a store holds its lock (:mod:`idbench.lock`) from
+opening to :meth:`ResultStore.close`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 from collections.abc import Iterable
@@ -22,6 +25,7 @@ from typing import Any
 import pandas as pd
 import pyarrow.parquet as pq
 
+from idbench import lock
 from idbench.files import (
     atomic_write_bytes,
     atomic_write_parquet,
@@ -35,6 +39,10 @@ RESUMABLE = ("timeout",)
 
 ADDED: dict[str, Any] = {"posterior": False, "posterior_settings": {}}
 """Settings added in later versions, with the value a manifest without them meant."""
+
+
+BUSY_HINT = "; wait for it (--wait) or use another --out DIR"
+"""What a command refused a busy results directory may do instead."""
 
 
 class ResultsError(RuntimeError):
@@ -54,17 +62,62 @@ class ResultStore:
         Extra manifest entries (versions, solver backend, threads). Those of
         :data:`CHECKED` that it holds must also equal the existing
         manifest's (see :func:`mismatch`).
+    wait
+        If another process writes the directory, wait until it is done
+        instead of raising :class:`~idbench.lock.FolderBusy`.
+
+    Raises
+    ------
+    idbench.lock.FolderBusy
+        Another process holds the directory (one line naming it).
+    ResultsError
+        The directory cannot be used (other settings, not writable).
+
+    Notes
+    -----
+    The store holds the directory's lock until :meth:`close` (or the end of
+    a ``with`` block, or of the process). Opening it removes the temporary
+    files of writers that are gone (killed mid-write), in the directory and
+    in ``parts/``; another live process's are kept.
     """
 
     def __init__(
-        self, root: Path, settings: dict[str, Any], manifest: dict[str, Any]
+        self,
+        root: Path,
+        settings: dict[str, Any],
+        manifest: dict[str, Any],
+        *,
+        wait: bool = False,
     ) -> None:
         self.root = Path(root)
         self.parts = self.root / "parts"
         self.quarantine = self.root / "quarantine"
+        lock_folder(self.root, wait=wait)
+        self._open = True
+        try:
+            self._open_locked(settings, manifest)
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        """Release the directory's lock (idempotent)."""
+        if getattr(self, "_open", False):
+            self._open = False
+            lock.release(self.root)
+
+    def __del__(self) -> None:
+        with contextlib.suppress(Exception):  # a store dropped unclosed
+            self.close()
+
+    def __enter__(self) -> ResultStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _open_locked(self, settings: dict[str, Any], manifest: dict[str, Any]) -> None:
         mpath = self.root / "manifest.json"
-        if str(root) == "" or (self.root.exists() and not self.root.is_dir()):
-            raise ResultsError(f"--out {str(root)!r}: need a directory path")
         if mpath.exists():
             old = _read_manifest(mpath)
             problem = mismatch(old, {**manifest, "settings": settings})
@@ -83,7 +136,8 @@ class ResultStore:
             self.parts.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise ResultsError(f"cannot write to {self.root}: {exc}") from None
-        removed = remove_stale_temporaries(self.parts)
+        removed = remove_stale_temporaries(self.root)
+        removed += remove_stale_temporaries(self.parts)
         if removed:
             log.info("removed %d temporary file(s) of an interrupted write", removed)
 
@@ -189,6 +243,27 @@ class ResultStore:
         atomic_write_parquet(runs, self.root / "runs.parquet")
         atomic_write_parquet(traces, self.root / "traces.parquet")
         return runs, traces
+
+
+def lock_folder(root: str | Path, *, wait: bool = False) -> None:
+    """Take the lock of the results directory ``root`` (see :mod:`idbench.lock`).
+
+    Give it back with :func:`idbench.lock.release`.
+
+    Raises
+    ------
+    idbench.lock.FolderBusy
+        Another process holds it (and ``wait`` is false).
+    ResultsError
+        ``root`` is no directory path, or cannot be created or written.
+    """
+    path = Path(root)
+    if str(root) == "" or (path.exists() and not path.is_dir()):
+        raise ResultsError(f"--out {str(root)!r}: need a directory path")
+    try:
+        lock.acquire(path, wait=wait, hint=BUSY_HINT)
+    except OSError as exc:
+        raise ResultsError(f"cannot write to {path}: {exc}") from None
 
 
 def _concat(frames: list[pd.DataFrame]) -> pd.DataFrame:

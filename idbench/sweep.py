@@ -346,6 +346,7 @@ def compare(
     scheduler: str | None = None,
     registry: Registry | None = None,
     progress: Callable[[int, int, dict[str, Any]], None] | None = None,
+    wait: bool = False,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Run a comparison and return its runs and traces tables.
 
@@ -370,6 +371,10 @@ def compare(
         Called as ``progress(done, total, run_row)`` after each run; if it
         has a ``tick()`` method, that is called about once a second while
         worker processes run (to redraw a clock).
+    wait
+        If another process is writing ``out``, wait until it is done; by
+        default that is refused (:class:`~idbench.lock.FolderBusy`, naming
+        the other process). Only one process at a time writes a folder.
 
     Returns
     -------
@@ -389,7 +394,7 @@ def compare(
     ahead = min(jobs, os.cpu_count() or 1) if isolate and jobs > 1 else 0
     with started(0 if scheduler else ahead):
         the_plan = plan(config, session)
-        args = (session, jobs, scheduler, progress, isolate)
+        args = (session, jobs, scheduler, progress, isolate, wait)
         if out is None:
             with tempfile.TemporaryDirectory(prefix="idbench-") as tmp:
                 return _compare(the_plan, Path(tmp), *args)
@@ -404,10 +409,11 @@ def _compare(
     scheduler: str | None,
     progress: Callable[[int, int, dict[str, Any]], None] | None,
     isolate: bool,
+    wait: bool,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     config = the_plan.config
     execution = dict(the_plan.runs[0].setup.execution) if the_plan.runs else {}
-    store = ResultStore(
+    with ResultStore(
         out,
         _identity(config, the_plan),
         {
@@ -416,7 +422,22 @@ def _compare(
             "plugins": the_plan.plugins,
             "inputs": the_plan.inputs,
         },
-    )
+        wait=wait,
+    ) as store:
+        return _run(the_plan, store, session, jobs, scheduler, progress, isolate)
+
+
+def _run(
+    the_plan: Plan,
+    store: ResultStore,
+    session: Session,
+    jobs: int,
+    scheduler: str | None,
+    progress: Callable[[int, int, dict[str, Any]], None] | None,
+    isolate: bool,
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Execute the runs ``store`` lacks, store each, consolidate."""
+    config = the_plan.config
     stored = store.scan()
     done = {run_id for run_id, failed in stored.items() if not failed}
     if len(done) < len(stored):

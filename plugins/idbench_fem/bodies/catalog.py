@@ -13,16 +13,24 @@ compare --meshes`` passes to the ``solid`` model) is one of
 Meshes of a ``[mesh] generate`` body that are missing are generated into
 the cache folder (``$IDBENCH_CACHE_DIR/meshes/GEOMETRY``, by default the
 user cache folder), never next to the body file; the files a body lists that
-exist are used where they are.
+exist are used where they are. A generated mesh enters the cache only whole
+and valid: gmsh writes it to a temporary folder beside it, it is read back
+(meshio) and its node and tet counts and coordinates checked, then renamed
+into place; a cached mesh that cannot be read (truncated by a full disk,
+damaged) is generated again, with a warning.
 """
 
 from __future__ import annotations
 
+import errno
 import functools
+import logging
 import os
 import re
 import tempfile
 from pathlib import Path
+
+import numpy as np
 
 from idbench_fem.bodies.description import Body, load_body
 from idbench_fem.bodies.mesh import SolidMesh, read_mesh
@@ -31,6 +39,8 @@ SHIPPED = ("liver", "kidney")
 """Names of the shipped example bodies (``examples/NAME/body.toml``)."""
 
 CACHE_ENV = "IDBENCH_CACHE_DIR"
+
+log = logging.getLogger(__name__)
 
 _SIZE = re.compile(r"-n(\d+)$")
 
@@ -87,21 +97,63 @@ def _generated(body: Body, name: str) -> Path:
     assert geometry is not None
     folder = mesh_cache() / geometry
     path = folder / name
-    if path.is_file():
-        return path
     m = _SIZE.search(Path(name).stem)
+    if path.is_file():
+        try:
+            get_mesh(path)  # read once per process anyway: the model needs it
+            return path
+        except (ValueError, OSError) as exc:
+            if m is None:
+                raise
+            log.warning("cached mesh %s is unusable (%s); generating it again",
+                        path, exc)  # fmt: skip
     if m is None:
         raise ValueError(
             f"{body.source}: cannot generate {name!r}: generated meshes are "
             f"named {geometry}-nNODES.msh"
         )
-    from idbench_fem.bodies.geometry import make_meshes
-
-    folder.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=folder) as tmp:  # atomic for parallel runs
-        (made,) = make_meshes(geometry, [int(m.group(1))], tmp)
-        os.replace(made, path)
+    try:
+        _generate(geometry, int(m.group(1)), path)
+    except OSError as exc:  # a full disk: one line naming the file
+        if exc.errno is None:
+            raise OSError(f"{exc} writing {str(path)!r}") from None
+        text = exc.strerror or os.strerror(exc.errno)
+        if exc.errno == errno.ENOSPC:
+            text += " (the disk is full)"
+        raise OSError(exc.errno, f"{text} writing", str(path)) from None
     return path
+
+
+def _generate(geometry: str, nodes: int, path: Path) -> None:
+    """Generate the mesh of ``nodes`` nodes into ``path``: whole and valid or not.
+
+    Raises
+    ------
+    ValueError
+        The file gmsh wrote does not read back as the mesh it made (naming
+        ``path``); nothing is left in the cache.
+    """
+    from idbench_fem.bodies.geometry import mesh_series
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    # a folder beside the file, so that the rename is atomic (parallel runs)
+    with tempfile.TemporaryDirectory(dir=path.parent, prefix=".tmp-") as tmp:
+        (info,) = mesh_series(geometry, [nodes], tmp)
+        try:
+            mesh = read_mesh(info.path)
+        except ValueError as exc:
+            raise ValueError(
+                f"generated mesh {str(path)!r}: the file gmsh wrote is unusable "
+                f"({exc}); is the disk full?"
+            ) from None
+        found = (len(mesh.points), len(mesh.tets))
+        if found != (info.nodes, info.tets) or not np.isfinite(mesh.points).all():
+            raise ValueError(
+                f"generated mesh {str(path)!r}: the file gmsh wrote has "
+                f"{found[0]} nodes and {found[1]} tets, gmsh made {info.nodes} "
+                f"and {info.tets}; is the disk full?"
+            )
+        os.replace(info.path, path)
 
 
 def _listed(body: Body, path: Path) -> Path:
