@@ -32,8 +32,10 @@ def main(argv: list[str] | None = None) -> int:
 
     Bad input, an unusable output folder or a failed write end in one line on
     stderr and exit status 2; an unexpected error in one line and status 1
-    (``--debug`` shows its traceback); Ctrl-C in status 130.
+    (``--debug`` shows its traceback); a Dask scheduler lost mid-sweep in one
+    line and status 3 (rerun to resume); Ctrl-C in status 130.
     """
+    from idbench.distributed import ClusterLost
     from idbench.interfaces import ModelFailure
     from idbench.results import ResultsError
 
@@ -67,6 +69,8 @@ def main(argv: list[str] | None = None) -> int:
         return _fail(exc, 2, debug)
     except ModelFailure as exc:
         return _fail(exc, 2, debug, "the simulation failed (check the settings): ")
+    except ClusterLost as exc:  # no bad input, no bug: the cluster went away
+        return _fail(exc, 3, debug)
     except OSError as exc:
         if isinstance(exc, BrokenPipeError):  # e.g. `idbench plugins | head`
             _silence_stdout()
@@ -196,6 +200,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
         model=args.model,
         shorthand_settings=options or None,
     )
+    if args.scheduler and logging.getLogger().getEffectiveLevel() > logging.INFO:
+        from idbench.distributed import quiet_logging
+
+        quiet_logging()  # a lost scheduler is said once, below, not by Dask
     the_plan = plan(config, Session(reg))
     if args.dry_run:
         nodes = ", ".join(f"{m}: {n} nodes" for m, n in the_plan.nodes.items())

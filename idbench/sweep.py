@@ -15,7 +15,7 @@ import os
 import platform
 import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,7 +23,14 @@ from typing import Any
 import pandas as pd
 
 from idbench.config import CompareConfig, ConfigError, build_settings, suggest
-from idbench.executors import THREAD_ENV, execute_all, start_method, started
+from idbench.distributed import ClusterLost, connect, execute_on_dask
+from idbench.executors import (
+    THREAD_ENV,
+    RunResult,
+    execute_all,
+    start_method,
+    started,
+)
 from idbench.interfaces import ForwardModel, ModelFailure, ModelSpec
 from idbench.plugins import Registry, build_registry
 from idbench.posterior import PosteriorSettings, check_budget
@@ -343,16 +350,21 @@ def _compare(
     )
     total = len(the_plan.runs)
     count = total - len(pending)
+    client = None
     if pending:
         try:
+            if scheduler:  # before the truths are computed: a wrong address fails fast
+                client = connect(scheduler)
             prepare(pending, session)
-        except ConfigError:
-            store.discard_if_unused()  # so fixed settings can use the folder
+        except BaseException as exc:
+            if client is not None:
+                client.close()
+            if isinstance(exc, ConfigError):
+                store.discard_if_unused()  # so fixed settings can use the folder
             raise
+    results: Generator[RunResult, None, None]
     if scheduler:
-        from idbench.distributed import execute_on_dask
-
-        results = execute_on_dask(pending, scheduler)
+        results = execute_on_dask(pending, client, scheduler) if pending else _none()
     else:
         results = execute_all(
             pending,
@@ -378,7 +390,21 @@ def _compare(
         results.close()
         store.consolidate(order)
         raise
+    except ClusterLost as exc:  # the runs not back are not stored: a rerun does them
+        if store.finished():
+            store.consolidate(order)
+        else:
+            store.discard_if_unused()
+        raise ClusterLost(
+            exc.address,
+            f"{count} of {total} runs stored; rerun the same command to resume",
+        ) from None
     return store.consolidate(order)
+
+
+def _none() -> Generator[RunResult, None, None]:
+    """No results (a resume with nothing left to run)."""
+    yield from ()
 
 
 def prepare(runs: list[RunSpec], session: Session) -> None:
