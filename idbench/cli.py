@@ -295,11 +295,17 @@ def cmd_info(args: argparse.Namespace) -> int:
             f"set with --model-option NAME=VALUE or in a TOML file as "
             f"[model.{args.name}] NAME = VALUE"
         )
+    import shutil
+    import textwrap
+
     width = max(len(r["name"]) for r in rows)
+    indent = " " * (width + 4)
+    columns = max(shutil.get_terminal_size().columns, width + 44)
     for r in rows:
         print(f"  {r['name']:<{width}}  {r['type']} = {r['default']!r}")
-        if r["meaning"]:
-            print(f"  {'':<{width}}  {r['meaning']}")
+        if r["meaning"]:  # in full, wrapped (never cut)
+            print(textwrap.fill(r["meaning"], columns - 1, initial_indent=indent,
+                                subsequent_indent=indent))  # fmt: skip
     return 0
 
 
@@ -314,6 +320,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     import meshio
     import numpy as np
 
+    from idbench.config import proposed_scenarios
     from idbench.interfaces import ModelSpec
     from idbench.session import model_settings, true_values
     from idbench.truth import simulate_path
@@ -332,8 +339,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             f"unknown model {model_name!r}; allowed: {', '.join(sorted(reg.models))}"
         )
     settings = model_settings(reg, model_name, model_options(args))
+    own = {sc.name: sc for sc in proposed_scenarios(settings, model_name)}
     try:
-        scenario = reg.scenario(args.scenario)
+        scenario = own.get(args.scenario) or reg.scenario(args.scenario)
     except KeyError as exc:
         raise UsageError(str(exc.args[0])) from None
     spec = ModelSpec(args.mesh, scenario, n_steps=args.steps, settings=settings)

@@ -22,7 +22,13 @@ from typing import Any
 
 import pandas as pd
 
-from idbench.config import CompareConfig, ConfigError, build_settings, suggest
+from idbench.config import (
+    CompareConfig,
+    ConfigError,
+    build_settings,
+    proposed_scenarios,
+    suggest,
+)
 from idbench.distributed import ClusterLost, connect, execute_on_dask
 from idbench.executors import (
     THREAD_ENV,
@@ -90,6 +96,12 @@ def plan(config: CompareConfig, session: Session) -> Plan:
     config = config.resolve(reg)
     assert config.model and config.scenarios and config.meshes and config.truth_mesh
     _known("model", [config.model], reg.models, reg)
+    settings = model_settings(
+        reg, config.model, config.model_settings.get(config.model, {})
+    )
+    own = proposed_scenarios(settings, config.model)  # e.g. a body file's
+    if own:
+        reg = reg.with_scenarios(list(own), reg.models[config.model].plugin)
     _known("estimator", config.estimators, reg.estimators, reg)
     _known("scenario", config.scenarios, reg.scenarios, reg)
     _known("reference estimator", [config.reference], reg.estimators, reg)
@@ -103,11 +115,8 @@ def plan(config: CompareConfig, session: Session) -> Plan:
     for name in config.model_settings:
         _known("model (in model settings)", [name], reg.models, reg)
         model_settings(reg, name, config.model_settings[name])
-    for name, settings in config.estimator_settings.items():
-        _check_estimator_settings(reg, name, settings)
-    settings = model_settings(
-        reg, config.model, config.model_settings.get(config.model, {})
-    )
+    for name, given in config.estimator_settings.items():
+        _check_estimator_settings(reg, name, given)
     probe = _build(reg, config, config.meshes[0], settings)
     _check_posterior(config, probe.parameters.p)
     setup = Setup(
@@ -415,7 +424,7 @@ def prepare(runs: list[RunSpec], session: Session) -> None:
     """
     seen = set()
     for spec in runs:
-        scen = session.registry.scenario(spec.scenario)
+        scen = session.scenario(spec, spec.scenario)
         for name in (spec.scenario, scen.transfer):
             key = spec.truth_product_key(name) if name else None
             if name and key not in seen:
@@ -426,6 +435,10 @@ def prepare(runs: list[RunSpec], session: Session) -> None:
                     raise ConfigError(
                         f"the truth ({spec.setup.truth_mesh}, {name}) cannot be "
                         f"simulated with these settings: {exc}"
+                    ) from None
+                except (ValueError, OSError) as exc:  # its model cannot be built
+                    raise ConfigError(
+                        f"the truth ({spec.setup.truth_mesh}, {name}): {exc}"
                     ) from None
 
 
