@@ -221,7 +221,8 @@ class CompareConfig:
                 f"unknown model {model!r}{suggest(model, registry.models)}; "
                 f"allowed: {allowed}{registry.broken()}"
             )
-        defaults = self._proposed(registry, model) or registry.models[model].defaults
+        proposed = self._proposed(registry, model)
+        defaults = proposed or registry.models[model].defaults
         fill: dict[str, Any] = {"model": model}
         if defaults is not None:
             quick = dict(defaults.quick) if self.quick else {}
@@ -239,11 +240,13 @@ class CompareConfig:
         missing = [k for k in fill if k not in given and fill[k] is None]
         merged = {**fill, **given}
         for name in ("truth_mesh", "meshes", "scenarios", "prior"):
-            if merged.get(name) is None:
+            empty = name not in given and merged.get(name) == ()  # proposed empty
+            if merged.get(name) is None or empty:
                 missing.append(name)
         if missing:
+            who = "with these settings proposes" if proposed else "registers"
             raise ConfigError(
-                f"model {model!r} registers no default for {', '.join(missing)}: "
+                f"model {model!r} {who} no default for {', '.join(missing)}: "
                 "give them (see idbench compare --help)"
             )
         merged["model_settings"] = self.model_settings
