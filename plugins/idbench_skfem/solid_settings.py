@@ -113,13 +113,19 @@ class SolidSettings:
     def proposed_scenarios(self) -> list[Scenario]:
         """The body's manipulations as scenarios (their loads name ``body``).
 
+        None for a shipped body: the plugin registers its manipulations, and
+        a registry built by hand (a study giving them other transfer targets)
+        keeps its own.
+
         Raises
         ------
         ValueError
             The body file is missing or invalid (one line).
         """
-        from idbench_skfem.bodies import get_body
+        from idbench_skfem.bodies import SHIPPED, get_body
 
+        if self.body in SHIPPED:
+            return []
         return body_scenarios(get_body(self.body), self.body)
 
     def proposed_defaults(self) -> ModelDefaults | None:
