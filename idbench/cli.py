@@ -32,8 +32,10 @@ def main(argv: list[str] | None = None) -> int:
 
     Bad input, an unusable output folder or a failed write end in one line on
     stderr and exit status 2; an unexpected error in one line and status 1
-    (``--debug`` shows its traceback); Ctrl-C in status 130.
+    (``--debug`` shows its traceback); a Dask scheduler lost mid-sweep in one
+    line and status 3 (rerun to resume); Ctrl-C in status 130.
     """
+    from idbench.distributed import ClusterLost
     from idbench.interfaces import ModelFailure
     from idbench.lock import FolderBusy
     from idbench.results import ResultsError
@@ -68,6 +70,8 @@ def main(argv: list[str] | None = None) -> int:
         return _fail(exc, 2, debug)
     except ModelFailure as exc:
         return _fail(exc, 2, debug, "the simulation failed (check the settings): ")
+    except ClusterLost as exc:  # no bad input, no bug: the cluster went away
+        return _fail(exc, 3, debug)
     except OSError as exc:
         if isinstance(exc, BrokenPipeError):  # e.g. `idbench plugins | head`
             _silence_stdout()
@@ -213,6 +217,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
         model=args.model,
         shorthand_settings=options or None,
     )
+    if args.scheduler and logging.getLogger().getEffectiveLevel() > logging.INFO:
+        from idbench.distributed import quiet_logging
+
+        quiet_logging()  # a lost scheduler is said once, below, not by Dask
     the_plan = plan(config, Session(reg))
     if args.dry_run:
         nodes = ", ".join(f"{m}: {n} nodes" for m, n in the_plan.nodes.items())
@@ -356,12 +364,19 @@ def cmd_info(args: argparse.Namespace) -> int:
             f"set with --model-option NAME=VALUE or in a TOML file as "
             f"[model.{args.name}] NAME = VALUE"
         )
+    import shutil
+    import textwrap
+
     width = max(len(printable(r["name"])) for r in rows)
+    indent = " " * (width + 4)
+    columns = max(shutil.get_terminal_size().columns, width + 44)
     for r in rows:
         name, kind_ = printable(r["name"]), printable(r["type"])
         print(f"  {name:<{width}}  {kind_} = {printable(repr(r['default']))}")
-        if r["meaning"]:
-            print(f"  {'':<{width}}  {printable(r['meaning'], join_lines=True)}")
+        if r["meaning"]:  # in full, wrapped (never cut)
+            meaning = printable(r["meaning"], join_lines=True)
+            print(textwrap.fill(meaning, columns - 1, initial_indent=indent,
+                                subsequent_indent=indent))  # fmt: skip
     return 0
 
 
@@ -376,6 +391,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     import meshio
     import numpy as np
 
+    from idbench.config import proposed_scenarios
     from idbench.interfaces import ModelSpec
     from idbench.session import model_settings, true_values
     from idbench.truth import simulate_path
@@ -394,8 +410,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             f"unknown model {model_name!r}; allowed: {', '.join(sorted(reg.models))}"
         )
     settings = model_settings(reg, model_name, model_options(args))
+    own = {sc.name: sc for sc in proposed_scenarios(settings, model_name)}
     try:
-        scenario = reg.scenario(args.scenario)
+        scenario = own.get(args.scenario) or reg.scenario(args.scenario)
     except KeyError as exc:
         raise UsageError(str(exc.args[0])) from None
     spec = ModelSpec(args.mesh, scenario, n_steps=args.steps, settings=settings)

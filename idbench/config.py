@@ -19,7 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from idbench.scenario import Sparsity
+from idbench.interfaces import ModelDefaults
+from idbench.scenario import Scenario, Sparsity
 
 MAX_RUNS_ENV = "IDBENCH_MAX_RUNS"
 DEFAULT_MAX_RUNS = 100_000
@@ -236,7 +237,8 @@ class CompareConfig:
                 f"unknown model {model!r}{suggest(model, registry.models)}; "
                 f"allowed: {allowed}{registry.broken()}"
             )
-        defaults = registry.models[model].defaults
+        proposed = self._proposed(registry, model)
+        defaults = proposed or registry.models[model].defaults
         fill: dict[str, Any] = {"model": model}
         if defaults is not None:
             quick = dict(defaults.quick) if self.quick else {}
@@ -254,11 +256,13 @@ class CompareConfig:
         missing = [k for k in fill if k not in given and fill[k] is None]
         merged = {**fill, **given}
         for name in ("truth_mesh", "meshes", "scenarios", "prior"):
-            if merged.get(name) is None:
+            empty = name not in given and merged.get(name) == ()  # proposed empty
+            if merged.get(name) is None or empty:
                 missing.append(name)
         if missing:
+            who = "with these settings proposes" if proposed else "registers"
             raise ConfigError(
-                f"model {model!r} registers no default for {', '.join(missing)}: "
+                f"model {model!r} {who} no default for {', '.join(missing)}: "
                 "give them (see idbench compare --help)"
             )
         merged["model_settings"] = self.model_settings
@@ -266,6 +270,22 @@ class CompareConfig:
         merged["true"] = self.true
         merged["posterior_settings"] = self.posterior_settings
         return CompareConfig(**merged)
+
+    def _proposed(self, registry: Any, model: str) -> ModelDefaults | None:
+        """The defaults the model's settings propose (see :func:`proposed_defaults`).
+
+        Settings that cannot be built propose nothing here: the plan names
+        the bad value.
+        """
+        cls = registry.models[model].settings
+        if cls is None or not callable(getattr(cls, "proposed_defaults", None)):
+            return None
+        given = self.model_settings.get(model, {})
+        try:
+            settings = build_settings(cls, given, f"model {model!r}")
+        except ConfigError:
+            return None
+        return proposed_defaults(settings, model)
 
     def sparsities(self) -> list[Sparsity]:
         """Every combination of the sparsity axes."""
@@ -467,6 +487,72 @@ def _kind(hint: Any, plural: bool = False) -> str:
             inner = " or ".join(dict.fromkeys(_kind(a, True) for a in args))
             parts.append(f"a list of {inner or 'values'}")
     return " or ".join(parts) or str(hint)
+
+
+def proposed_defaults(settings: Any, model: str) -> ModelDefaults | None:
+    """The comparison a model's settings object proposes (None: the registered).
+
+    A settings class may define ``proposed_defaults()`` returning a
+    :class:`~idbench.interfaces.ModelDefaults` (or None) for what the user
+    leaves open (truth mesh, meshes, scenarios, prior, ``--quick``), in place
+    of the defaults registered with the model: the ``solid`` model's body
+    file proposes its own meshes and manipulation.
+
+    Raises
+    ------
+    ConfigError
+        One line for the method's ValueError (bad input, e.g. a body file)
+        or a bug (naming the model), or a result of the wrong type.
+    """
+    out = _ask(settings, "proposed_defaults", model)
+    if out is not None and not isinstance(out, ModelDefaults):
+        raise ConfigError(
+            f"model {model!r}: proposed_defaults() returned {type(out).__name__}, "
+            "not idbench.ModelDefaults or None"
+        )
+    return out
+
+
+def proposed_scenarios(settings: Any, model: str) -> tuple[Scenario, ...]:
+    """The scenarios a model's settings object brings (empty: none).
+
+    A settings class may define ``proposed_scenarios()`` returning
+    :class:`~idbench.Scenario` objects that exist for this configuration only
+    (a body file's manipulations). Within a comparison of that model they
+    take precedence over registered scenarios of the same name; every worker
+    finds them the same way, from the run's settings.
+
+    Raises
+    ------
+    ConfigError
+        As :func:`proposed_defaults`; also for an item that is no Scenario.
+    """
+    out = _ask(settings, "proposed_scenarios", model)
+    scenarios = tuple(out or ())
+    for sc in scenarios:
+        if not isinstance(sc, Scenario):
+            raise ConfigError(
+                f"model {model!r}: proposed_scenarios() gave {sc!r}, not an "
+                "idbench.Scenario"
+            )
+    return scenarios
+
+
+def _ask(settings: Any, method: str, model: str) -> Any:
+    """Call ``settings.method()`` if it exists; its errors as one ConfigError."""
+    call = getattr(settings, method, None)
+    if not callable(call):
+        return None
+    try:
+        return call()
+    except ConfigError:
+        raise
+    except ValueError as exc:  # the user's input, as the model says it
+        raise ConfigError(str(exc)) from None
+    except Exception as exc:  # a plugin's own bug, still one clean line
+        raise ConfigError(
+            f"model {model!r}: {method}() raised {type(exc).__name__}: {exc}"
+        ) from None
 
 
 def suggest(key: str, allowed: Any) -> str:

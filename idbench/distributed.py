@@ -6,7 +6,9 @@ from the shared cache (computed once by the client before dispatch, see
 :func:`idbench.sweep.prepare`) and sends back the run's rows. Results stream
 back in completion order and are written by the client as they arrive, exactly
 as in the serial path. A run whose worker dies is retried once by Dask, then
-recorded as failed.
+recorded as failed. A lost scheduler (or connection to it) is no run's fault:
+the sweep stops with :class:`ClusterLost`, the runs that had not come back are
+not recorded, and a rerun resumes them.
 
 Workers should run one BLAS thread each (``OMP_NUM_THREADS=1``,
 ``MKL_NUM_THREADS=1``) and see the same ``IDBENCH_CACHE_DIR`` (a shared file
@@ -15,6 +17,8 @@ system) or compute the truth themselves.
 
 from __future__ import annotations
 
+import asyncio
+import concurrent.futures
 import logging
 from collections.abc import Generator
 from typing import Any
@@ -25,7 +29,35 @@ from idbench.runspec import RunSpec
 
 log = logging.getLogger(__name__)
 
-def _client(address: str) -> Any:
+CONNECT_TIMEOUT_S = 10
+"""Seconds :func:`connect` tries to reach the scheduler."""
+
+CLOSE_TIMEOUT_S = 5
+"""Seconds :func:`execute_on_dask` waits for its client to close."""
+
+
+class ClusterLost(RuntimeError):
+    """The Dask scheduler, or the connection to it, was lost mid-sweep.
+
+    Attributes
+    ----------
+    address
+        The scheduler's address.
+    """
+
+    def __init__(self, address: str, detail: str) -> None:
+        super().__init__(f"lost the Dask scheduler at {address}: {detail}")
+        self.address = address
+
+
+def connect(address: str) -> Any:
+    """A :class:`distributed.Client` of the scheduler at ``address``.
+
+    Raises
+    ------
+    ConfigError
+        Without ``distributed``, or if nobody answers at ``address``.
+    """
     try:
         from distributed import Client
     except ImportError:
@@ -34,7 +66,7 @@ def _client(address: str) -> Any:
             "pip install 'idbench[dask]'"
         ) from None
     try:
-        return Client(address, timeout="10s")
+        return Client(address, timeout=CONNECT_TIMEOUT_S)
     except Exception as exc:  # bad address (ValueError), nobody there (OSError)
         raise ConfigError(
             f"--scheduler {address!r}: cannot connect ({type(exc).__name__}: {exc}); "
@@ -42,13 +74,48 @@ def _client(address: str) -> Any:
         ) from None
 
 
+def quiet_logging() -> None:
+    """Silence distributed's own log messages below CRITICAL (the CLI without -v).
+
+    Importing ``distributed`` configures its loggers (``distributed``,
+    ``distributed.client``, ...), so this imports it first, then lowers them;
+    a lost scheduler is then said once, by idbench, not by its reconnection
+    attempts' tracebacks.
+    """
+    try:
+        import distributed  # noqa: F401  (configures its loggers)
+    except ImportError:
+        return
+    for name in list(logging.root.manager.loggerDict):
+        if name == "distributed" or name.startswith("distributed."):
+            logging.getLogger(name).setLevel(logging.CRITICAL)
+
+
+def _lost(exc: BaseException, client: Any) -> bool:
+    """Whether ``exc`` says the scheduler or the connection is gone (no run's fault)."""
+    cancelled = (concurrent.futures.CancelledError, asyncio.CancelledError)
+    if isinstance(exc, (*cancelled, OSError, TimeoutError)):
+        return True  # a run cancelled, the comm closed (CommClosedError is an OSError)
+    return getattr(client, "status", "running") not in ("running", "newly-created")
+
+
 def execute_on_dask(
-    runs: list[RunSpec], address: str
+    runs: list[RunSpec], client: Any, address: str
 ) -> Generator[RunResult, None, None]:
-    """Execute ``runs`` on the Dask scheduler at ``address``; yield as they finish."""
+    """Execute ``runs`` through ``client`` of ``address`` (see :func:`connect`).
+
+    Yields each run's result as it finishes.
+
+    The client is closed when the generator ends (also when it is closed).
+
+    Raises
+    ------
+    ClusterLost
+        When the scheduler or the connection is lost; runs not yet yielded
+        were not recorded by anyone and should run again.
+    """
     from distributed import as_completed
 
-    client = _client(address)
     try:
         futures = {
             client.submit(
@@ -59,13 +126,19 @@ def execute_on_dask(
         for fut in as_completed(futures):
             spec = futures[fut]
             try:
-                yield fut.result()
+                result = fut.result()
             except Exception as exc:  # KilledWorker after retries, lost connection
+                if _lost(exc, client):
+                    raise ClusterLost(address, f"{type(exc).__name__}") from None
                 log.warning("run %s lost on the cluster: %s", spec.run_id, exc)
-                yield worker_lost(
+                result = worker_lost(
                     spec, f"lost on the cluster: {type(exc).__name__}: {exc}"
                 )
             finally:
                 fut.release()
+            yield result
     finally:
-        client.close()
+        try:
+            client.close(timeout=CLOSE_TIMEOUT_S)
+        except Exception as exc:  # a scheduler gone: nothing left to close
+            log.debug("closing the Dask client: %r", exc)

@@ -26,7 +26,11 @@ def register_models(register: Callable[..., None]) -> None:
     ``volume``). ``settings`` is the dataclass of the model's own settings (all
     fields with defaults; set with ``--model-option NAME=VALUE`` or
     ``[model.NAME]`` in TOML), ``defaults`` what a comparison uses when the user
-    does not say (:class:`idbench.ModelDefaults`); both optional.
+    does not say (:class:`idbench.ModelDefaults`); both optional. A settings
+    object may define ``proposed_defaults()`` (a ModelDefaults or None,
+    replacing ``defaults`` for those settings) and ``proposed_scenarios()``
+    (Scenarios that exist for those settings only; see
+    :func:`idbench.config.proposed_scenarios`).
     """
 
 

@@ -1,9 +1,10 @@
 """What a registered estimator or model can be set to: fields, defaults, meaning.
 
-The meaning of a setting is the first sentence of its entry in the numpy
-docstring's Attributes or Parameters section, asked first of the class that
-declares the field. Private fields (leading ``_``) and fields not in
-``__init__`` are never listed.
+The meaning of a setting is its whole entry in the numpy docstring's
+Attributes or Parameters section (never cut after a first sentence, which
+would end at "e.g."), asked first of the class that declares the field.
+Private fields (leading ``_``) and fields not in ``__init__`` are never
+listed.
 """
 
 from __future__ import annotations
@@ -53,7 +54,7 @@ def summary_line(obj: Any) -> str:
 
 
 def _meaning(cls: type, name: str) -> str:
-    """First line of ``name``'s entry in a numpy docstring's Attributes/Parameters.
+    """``name``'s entry in a numpy docstring's Attributes/Parameters, in full.
 
     The class that declares the field is asked first, then the others of the
     MRO.
@@ -67,7 +68,7 @@ def _meaning(cls: type, name: str) -> str:
 
 
 def _doc_entries(doc: str) -> dict[str, str]:
-    """``{name: first sentence of its description}`` of Attributes/Parameters."""
+    """``{name: its whole description, one line}`` of Attributes/Parameters."""
     lines = inspect.cleandoc(doc).splitlines()
     out: dict[str, str] = {}
     section = False
@@ -85,11 +86,16 @@ def _doc_entries(doc: str) -> dict[str, str]:
         elif names:
             for n in names:
                 out[n] = f"{out.get(n, '')} {line.strip()}".strip()
-    return {n: _sentence(t) for n, t in out.items()}
+    return {n: _plain(t) for n, t in out.items()}
+
+
+def _plain(text: str) -> str:
+    """``text`` without reST markup."""
+    return text.replace("``", "").replace(":class:", "").replace("~", "")
 
 
 def _sentence(text: str) -> str:
     """The first sentence of ``text``, without reST markup."""
-    text = text.replace("``", "").replace(":class:", "").replace("~", "")
+    text = _plain(text)
     end = text.find(". ")
     return text if end < 0 else text[: end + 1]

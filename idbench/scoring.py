@@ -226,7 +226,7 @@ def empty_parameter_columns(spec: RunSpec) -> dict[str, Any]:
 
 def transfer(spec: RunSpec, session: Session, theta: FloatArray) -> dict[str, Any]:
     """Shape error on the scenario's transfer path with the identified value."""
-    target = session.registry.scenario(spec.scenario).transfer
+    target = session.scenario(spec, spec.scenario).transfer
     out: dict[str, Any] = {
         "transfer_scenario": target or "",
         "transfer_error": np.nan,

@@ -13,7 +13,13 @@ from typing import Any
 
 import numpy as np
 
-from idbench.config import ConfigError, build_settings, public_settings, typed_values
+from idbench.config import (
+    ConfigError,
+    build_settings,
+    proposed_scenarios,
+    public_settings,
+    typed_values,
+)
 from idbench.files import stable_hash
 from idbench.interfaces import (
     FloatArray,
@@ -26,6 +32,7 @@ from idbench.interfaces import (
 from idbench.plugins import Registry, build_registry
 from idbench.posterior import Posterior, PosteriorSettings, reference_posterior
 from idbench.runspec import RunSpec
+from idbench.scenario import Scenario
 from idbench.truth import Truth, simulate_path, simulate_truth
 
 log = logging.getLogger(__name__)
@@ -166,6 +173,25 @@ class Session:
         self._refs: dict[str, FloatArray] = {}
         self._direct: dict[str, FloatArray] = {}
         self._posteriors: dict[str, Posterior | None] = {}
+        self._own: dict[Any, dict[str, Scenario]] = {}
+
+    def scenario(self, spec: RunSpec, name: str) -> Scenario:
+        """The scenario ``name`` of ``spec``'s comparison.
+
+        The model settings' own scenarios first (``proposed_scenarios()``,
+        e.g. a body file's manipulations), else the registered one: a worker
+        that builds its registry from the installed plugins finds them too.
+        """
+        setup = spec.setup
+        key = (setup.model, setup.model_settings)
+        own = self._own.get(key)
+        if own is None:
+            settings = model_settings(
+                self.registry, setup.model, dict(setup.model_settings)
+            )
+            found = proposed_scenarios(settings, setup.model)
+            own = self._own[key] = {sc.name: sc for sc in found}
+        return own[name] if name in own else self.registry.scenario(name)
 
     def model(
         self, spec: RunSpec, mesh: str, scenario: str | None = None, role: str = "est"
@@ -184,7 +210,7 @@ class Session:
             )
             ms = ModelSpec(
                 mesh=mesh,
-                scenario=self.registry.scenario(scenario),
+                scenario=self.scenario(spec, scenario),
                 n_steps=setup.steps,
                 markers=spec.obs_points,
                 settings=settings,
@@ -267,7 +293,7 @@ class Session:
         scenario's and the transfer scenario's).
         """
         keys = {("reference", spec.reference_key())}
-        target = self.registry.scenario(spec.scenario).transfer
+        target = self.scenario(spec, spec.scenario).transfer
         for scenario in (spec.scenario, target):
             if scenario:
                 keys.add(("direct", spec.direct_key(scenario)))

@@ -17,15 +17,28 @@ import os
 import platform
 import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from idbench.config import CompareConfig, ConfigError, build_settings, suggest
-from idbench.executors import THREAD_ENV, execute_all, start_method, started
+from idbench.config import (
+    CompareConfig,
+    ConfigError,
+    build_settings,
+    proposed_scenarios,
+    suggest,
+)
+from idbench.distributed import ClusterLost, connect, execute_on_dask
+from idbench.executors import (
+    THREAD_ENV,
+    RunResult,
+    execute_all,
+    start_method,
+    started,
+)
 from idbench.files import stable_hash
 from idbench.interfaces import ForwardModel, ModelFailure, ModelSpec
 from idbench.plugins import Registry, build_registry, used_plugins
@@ -96,6 +109,12 @@ def plan(config: CompareConfig, session: Session) -> Plan:
     config = config.resolve(reg)
     assert config.model and config.scenarios and config.meshes and config.truth_mesh
     _known("model", [config.model], reg.models, reg)
+    settings = model_settings(
+        reg, config.model, config.model_settings.get(config.model, {})
+    )
+    own = proposed_scenarios(settings, config.model)  # e.g. a body file's
+    if own:
+        reg = reg.with_scenarios(list(own), reg.models[config.model].plugin)
     _known("estimator", config.estimators, reg.estimators, reg)
     _known("scenario", config.scenarios, reg.scenarios, reg)
     _known("reference estimator", [config.reference], reg.estimators, reg)
@@ -109,11 +128,8 @@ def plan(config: CompareConfig, session: Session) -> Plan:
     for name in config.model_settings:
         _known("model (in model settings)", [name], reg.models, reg)
         model_settings(reg, name, config.model_settings[name])
-    for name, settings in config.estimator_settings.items():
-        _check_estimator_settings(reg, name, settings)
-    settings = model_settings(
-        reg, config.model, config.model_settings.get(config.model, {})
-    )
+    for name, given in config.estimator_settings.items():
+        _check_estimator_settings(reg, name, given)
     probe = _build(reg, config, config.meshes[0], settings)
     _check_posterior(config, probe.parameters.p)
     check_prior(probe.parameters, config.prior, config.model)  # type: ignore[arg-type]
@@ -447,16 +463,21 @@ def _run(
     )
     total = len(the_plan.runs)
     count = total - len(pending)
+    client = None
     if pending:
         try:
+            if scheduler:  # before the truths are computed: a wrong address fails fast
+                client = connect(scheduler)
             prepare(pending, session)
-        except ConfigError:
-            store.discard_if_unused()  # so fixed settings can use the folder
+        except BaseException as exc:
+            if client is not None:
+                client.close()
+            if isinstance(exc, ConfigError):
+                store.discard_if_unused()  # so fixed settings can use the folder
             raise
+    results: Generator[RunResult, None, None]
     if scheduler:
-        from idbench.distributed import execute_on_dask
-
-        results = execute_on_dask(pending, scheduler)
+        results = execute_on_dask(pending, client, scheduler) if pending else _none()
     else:
         results = execute_all(
             pending,
@@ -482,7 +503,21 @@ def _run(
         results.close()
         store.consolidate(order)
         raise
+    except ClusterLost as exc:  # the runs not back are not stored: a rerun does them
+        if store.finished():
+            store.consolidate(order)
+        else:
+            store.discard_if_unused()
+        raise ClusterLost(
+            exc.address,
+            f"{count} of {total} runs stored; rerun the same command to resume",
+        ) from None
     return store.consolidate(order)
+
+
+def _none() -> Generator[RunResult, None, None]:
+    """No results (a resume with nothing left to run)."""
+    yield from ()
 
 
 def prepare(runs: list[RunSpec], session: Session) -> None:
@@ -493,7 +528,7 @@ def prepare(runs: list[RunSpec], session: Session) -> None:
     """
     seen = set()
     for spec in runs:
-        scen = session.registry.scenario(spec.scenario)
+        scen = session.scenario(spec, spec.scenario)
         for name in (spec.scenario, scen.transfer):
             key = spec.truth_product_key(name) if name else None
             if name and key not in seen:
@@ -504,6 +539,10 @@ def prepare(runs: list[RunSpec], session: Session) -> None:
                     raise ConfigError(
                         f"the truth ({spec.setup.truth_mesh}, {name}) cannot be "
                         f"simulated with these settings: {exc}"
+                    ) from None
+                except (ValueError, OSError) as exc:  # its model cannot be built
+                    raise ConfigError(
+                        f"the truth ({spec.setup.truth_mesh}, {name}): {exc}"
                     ) from None
 
 

@@ -7,9 +7,11 @@ nobody listens on must fail fast with a :class:`ConfigError`.
 
 from __future__ import annotations
 
+import logging
 import os
 import re
 import signal
+import socket
 import time
 
 import numpy as np
@@ -17,6 +19,7 @@ import pandas as pd
 import pytest
 
 from idbench.config import CompareConfig, ConfigError
+from idbench.distributed import ClusterLost
 from idbench.sweep import compare
 
 distributed = pytest.importorskip("distributed")
@@ -141,3 +144,149 @@ def test_unreachable_scheduler_is_a_config_error(cache, tmp_path):
     with pytest.raises(ConfigError, match=re.escape(address)):
         compare(tiny(), tmp_path / "nobody", scheduler=address)
     assert time.monotonic() - start < 30
+    assert not (tmp_path / "nobody" / "manifest.json").exists()
+
+
+def closed_port() -> str:
+    """The address of a local TCP port nobody listens on (bound, then closed)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    return f"tcp://127.0.0.1:{port}"
+
+
+def test_failed_connection_leaves_the_folder_usable(cache, tmp_path, monkeypatch):
+    """Nothing stored: no manifest, so other settings may use the folder; runs
+    stored before: kept, with their manifest."""
+    monkeypatch.setattr("idbench.distributed.CONNECT_TIMEOUT_S", 1, raising=False)
+    out = tmp_path / "out"
+    with pytest.raises(ConfigError, match="cannot connect"):
+        compare(tiny(), out, scheduler=closed_port())
+    assert not (out / "manifest.json").exists()
+    runs, _ = compare(tiny(seeds=1), out)  # other settings: the folder is free
+    assert (runs["status"] == "ok").all()
+    first = sorted(runs["run_id"])[0]
+    for part in (out / "parts").glob(f"{first}.*"):
+        part.unlink()  # one run left to do
+    with pytest.raises(ConfigError, match="cannot connect"):
+        compare(tiny(seeds=1), out, scheduler=closed_port())
+    assert (out / "manifest.json").exists()
+    assert len(list((out / "parts").glob("*.runs.parquet"))) == len(runs) - 1
+
+
+@pytest.fixture
+def threads_cluster(cache):
+    """A cluster in this process (worker threads), which a test may close."""
+    cl = distributed.LocalCluster(
+        n_workers=1,
+        threads_per_worker=1,
+        processes=False,
+        protocol="tcp",
+        host="127.0.0.1",
+        dashboard_address=None,
+    )
+    try:
+        yield cl
+    finally:
+        cl.close()
+
+
+def stored(out) -> pd.DataFrame:
+    parts = sorted((out / "parts").glob("*.runs.parquet"))
+    return pd.concat([pd.read_parquet(p) for p in parts]) if parts else pd.DataFrame()
+
+
+@pytest.mark.parametrize("after", [0, 2])
+def test_lost_scheduler_stops_and_resumes(
+    after, threads_cluster, cache, tmp_path, monkeypatch
+):
+    """The scheduler closed after ``after`` stored runs (0: before any came
+    back): one error naming it and the count, no run recorded as failed for
+    it, no manifest when nothing is stored, and a rerun completes the sweep."""
+    import idbench.sweep
+
+    config = tiny(seeds=3)
+    out = tmp_path / "lost"
+    address = threads_cluster.scheduler_address
+    if after == 0:
+        prepare = idbench.sweep.prepare
+
+        def prepare_then_close(runs, session):
+            prepare(runs, session)
+            threads_cluster.close()
+
+        monkeypatch.setattr(idbench.sweep, "prepare", prepare_then_close)
+
+    def progress(done, total, row):
+        if done == after:
+            threads_cluster.close()
+
+    with pytest.raises(ClusterLost) as lost:
+        compare(config, out, scheduler=address, progress=progress)
+    message = str(lost.value)
+    assert message.startswith(f"lost the Dask scheduler at {address}: "), message
+    assert "\n" not in message
+    count = int(re.search(r": (\d+) of 6 runs stored; rerun", message).group(1))
+    rows = stored(out)
+    assert count == len(rows) >= after
+    if after == 0:
+        assert count == 0
+        assert not (out / "manifest.json").exists()
+    else:
+        assert (rows["status"] == "ok").all(), rows[["status", "error"]]
+        assert len(pd.read_parquet(out / "runs.parquet")) == count
+    monkeypatch.undo()
+    with distributed.LocalCluster(
+        n_workers=1,
+        threads_per_worker=1,
+        processes=False,
+        protocol="tcp",
+        host="127.0.0.1",
+        dashboard_address=None,
+    ) as again:
+        runs, _ = compare(config, out, scheduler=again.scheduler_address)
+    assert len(runs) == 6 and runs["run_id"].is_unique
+    assert (runs["status"] == "ok").all(), runs[["status", "error"]]
+
+
+@pytest.fixture
+def dask_log_levels():
+    """Restore the loggers' levels that the CLI lowers."""
+    names = [n for n in logging.root.manager.loggerDict if n.startswith("distributed")]
+    levels = {n: logging.getLogger(n).level for n in names}
+    yield
+    for name, level in levels.items():
+        logging.getLogger(name).setLevel(level)
+
+
+def test_cli_says_a_lost_scheduler_in_one_line(
+    threads_cluster, cache, tmp_path, monkeypatch, capfd, dask_log_levels
+):
+    from idbench.cli import main
+    from idbench.results import ResultStore
+
+    write = ResultStore.write
+    writes: list[str] = []
+
+    def write_then_close(self, run, traces):
+        write(self, run, traces)
+        writes.append(run["run_id"])
+        if len(writes) == 2:
+            threads_cluster.close()
+
+    monkeypatch.setattr(ResultStore, "write", write_then_close)
+    out = tmp_path / "cli"
+    address = threads_cluster.scheduler_address
+    argv = ["compare", "--scheduler", address, "--out", str(out), "-q"]
+    argv += ["--truth-mesh", "20x3x3", "--meshes", "6x2x2", "--steps", "6"]
+    argv += ["--seeds", "3", "--estimators", "ro-ukf,rls"]
+    capfd.readouterr()
+    code = main(argv)
+    captured = capfd.readouterr()
+    assert code == 3
+    lines = [line for line in captured.err.splitlines() if line.strip()]
+    assert lines == [
+        f"idbench: error: lost the Dask scheduler at {address}: 2 of 6 runs "
+        "stored; rerun the same command to resume"
+    ], captured.err
+    assert set(stored(out)["status"]) == {"ok"}

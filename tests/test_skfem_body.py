@@ -59,7 +59,8 @@ def _raw(**over):
             {"name": "push", "kind": "traction", "region": {"box": {
                 "lower": [L - 1e-9, -1, -1], "upper": [1, 1, 1]}},
              "traction": [0.0, -10.0, 0.0]},
-            {"name": "squeeze", "kind": "pressure", "region": "right",
+            {"name": "squeeze", "kind": "pressure", "region": {"box": {
+                "lower": [L / 2 - 1e-9, -1, -1], "upper": [1, 1, 1]}},
              "pressure": 50.0},
             {"name": "sag", "kind": "gravity", "acceleration": [0, 0, -9.81]},
             {"name": "lift", "kind": "grasp", "point": [L - 0.03, W / 2, H + 0.001],

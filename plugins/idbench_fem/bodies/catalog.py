@@ -7,8 +7,9 @@ compare --meshes`` passes to the ``solid`` model) is one of
 - ``truth``: the body's ``[mesh] truth``;
 - a mesh file path (anything meshio reads);
 - a file name stem of the body's meshes (``liver-n500``);
-- a node count ``N``: the body's mesh named ``*-nN``, else, for a body with
-  ``[mesh] generate``, a mesh of ``N`` nodes generated on first use.
+- a node count ``N``: the body's mesh named ``*-nN``; else, for a body with
+  ``[mesh] generate``, a mesh of ``N`` nodes generated on first use; else the
+  body's mesh file that has ``N`` nodes (whatever it is called).
 
 Meshes of a ``[mesh] generate`` body that are missing are generated into
 the cache folder (``$IDBENCH_CACHE_DIR/meshes/GEOMETRY``, by default the
@@ -192,6 +193,7 @@ def mesh_file(body: Body, spec: str) -> Path:
             if int(spec) < 50:
                 raise ValueError(f"mesh {spec!r}: need at least 50 nodes")
             return _generated(body, f"{body.mesh.geometry}-n{spec}.msh")
+        return _by_node_count(body, int(spec))
     path = Path(spec).expanduser()
     if path.is_file():
         return path.resolve()
@@ -200,6 +202,38 @@ def mesh_file(body: Body, spec: str) -> Path:
         f"mesh {spec!r}: not a file, nor one of {body.source}'s meshes ({names}, "
         "truth)" + (", nor a node count" if body.mesh.geometry else "")
     )
+
+
+def _by_node_count(body: Body, n: int) -> Path:
+    """The body's listed mesh file with ``n`` nodes (as the model sees them)."""
+    listed = [*body.mesh.models, body.mesh.truth]
+    counts = []
+    for path in listed:
+        if path.is_file():
+            nodes = len(get_mesh(path).points)
+            if nodes == n:
+                return path
+            counts.append(f"{path.stem} {nodes}")
+    raise ValueError(
+        f"mesh {str(n)!r}: no mesh of {body.source} has {n} nodes (its meshes: "
+        f"{', '.join(counts) or 'none on disk'}); give a node count, a file name "
+        "stem, truth or a mesh file path"
+    )
+
+
+def mesh_spec(body: Body, path: Path) -> str:
+    """How ``--meshes`` names the body's mesh file ``path``.
+
+    N for a file named ``*-nN``, else its file name stem (``truth`` for the
+    truth if its stem is another mesh's too).
+    """
+    m = _SIZE.search(path.stem)
+    if m is not None:
+        return m.group(1)
+    stems = [p.stem for p in (*body.mesh.models, body.mesh.truth)]
+    if stems.count(path.stem) > 1 and path == body.mesh.truth:
+        return "truth"
+    return path.stem
 
 
 @functools.lru_cache(maxsize=8)

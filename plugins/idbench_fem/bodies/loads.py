@@ -12,7 +12,13 @@ Each manipulation is a dead load proportional to the load fraction t in [0, 1]
 - gravity: :math:`f_a = t\, \rho\, \mathbf{g}\, V_e / 4` for each vertex of
   each tet (exact for P1);
 - grasp: a total force F spread uniformly over the patch area,
-  :math:`f_a = t\, \mathbf{F} (A_f / 3) / A_{patch}`.
+  :math:`f_a = t\, \mathbf{F} (A_f / 3) / A_{patch}`, i.e. a uniform
+  traction F / A_patch on the boundary facets around the surface point
+  nearest to ``point`` (:func:`~idbench_fem.bodies.mesh.patch_facets`).
+
+A traction or pressure needs a surface: a region name that is only a volume
+group of the mesh is refused (its facet set is the volume's whole boundary,
+the fixed face included).
 
 The totals are exactly t times (traction x area), (-p x sum n A), (rho g V)
 and F.
@@ -100,6 +106,15 @@ def nodal_forces(
             raise ValueError(f"{what}: gravity needs a material density > 0")
         return t * gravity_forces(mesh, density, np.asarray(m.vector))
     assert m.region is not None
+    name = m.region.name
+    surface_load = m.kind in ("traction", "pressure")
+    if surface_load and name is not None and mesh.volume_only(name):
+        raise ValueError(
+            f"{what}: region {name!r} is a volume region of mesh {mesh.path!r}: a "
+            f"{m.kind} loads a surface, and this one would load the volume's whole "
+            "boundary (the fixed face too); name a surface group or select the "
+            "surface with box, sphere, half_space or patch"
+        )
     facets = region_facets(mesh, m.region, what=f"{what}: region")
     if m.kind == "traction":
         return t * traction_forces(mesh, facets, np.asarray(m.vector))

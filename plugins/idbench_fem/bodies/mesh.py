@@ -98,6 +98,9 @@ class SolidMesh:
     node_sets
         Name -> node indices, for every named set (its cells' nodes) and the
         file's point sets.
+    surface_names
+        The names given as surface groups (triangles) or point sets; a name
+        only in ``cell_sets`` is a volume, whose facet set is its boundary.
     """
 
     path: str
@@ -108,6 +111,11 @@ class SolidMesh:
     cell_sets: dict[str, IntArray] = field(default_factory=dict)
     facet_sets: dict[str, IntArray] = field(default_factory=dict)
     node_sets: dict[str, IntArray] = field(default_factory=dict)
+    surface_names: frozenset[str] = frozenset()
+
+    def volume_only(self, name: str) -> bool:
+        """Whether ``name`` is a volume region with no surface group of that name."""
+        return name in self.cell_sets and name not in self.surface_names
 
     @property
     def names(self) -> list[str]:
@@ -300,9 +308,11 @@ def from_arrays(
             inside = np.zeros(n_nodes, dtype=bool)
             inside[node_sets[name]] = True
             facet_sets[name] = np.flatnonzero(inside[facets].all(axis=1))
+    surface_names = frozenset({*(triangle_sets or {}), *(point_sets or {})})
     return SolidMesh(
-        path, points, tets, facets, facet_tets, cells, facet_sets, node_sets
-    )
+        path, points, tets, facets, facet_tets, cells, facet_sets, node_sets,
+        surface_names,
+    )  # fmt: skip
 
 
 def read_mesh(path: str | Path) -> SolidMesh:

@@ -51,9 +51,9 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from idbench import Cost, ModelSpec, ParameterSpec, Scenario
+from idbench import ConfigError, Cost, ModelSpec, ParameterSpec, Scenario
 from idbench_fem.bodies import resolve
-from idbench_fem.bodies.catalog import get_body, get_mesh, mesh_file
+from idbench_fem.bodies.catalog import body_path, get_body, get_mesh, mesh_file
 from idbench_fem.bodies.description import Body
 from idbench_fem.bodies.loads import nodal_forces
 from idbench_fem.bodies.mesh import SolidMesh, extent, project_to_surface
@@ -62,7 +62,7 @@ from idbench_fem.fem.interpolation import barycentric, weights_matrix
 from idbench_fem.fem.law_assembly import LawAssembler
 from idbench_fem.fem.solver import resolve_backend
 from idbench_fem.fem.svk_assembly import Assembler
-from idbench_fem.models.solid_settings import SolidSettings
+from idbench_fem.models.solid_settings import DEFAULT_BODY, SolidSettings
 
 log = logging.getLogger(__name__)
 
@@ -378,8 +378,9 @@ def make_model(spec: ModelSpec) -> SolidModel:
     """Build the model of ``spec`` (registered as ``"solid"``).
 
     ``spec.scenario.load`` names the manipulation (``{"manipulation": NAME}``,
-    optionally ``"body"``: else the settings' body); ``spec.mesh`` is a mesh
-    spec of that body (:mod:`idbench_fem.bodies.catalog`).
+    optionally ``"body"``: else the settings' body; a settings' body other
+    than the default must be that body); ``spec.mesh`` is a mesh spec of that
+    body (:mod:`idbench_fem.bodies.catalog`).
 
     Raises
     ------
@@ -399,7 +400,15 @@ def make_model(spec: ModelSpec) -> SolidModel:
             f"scenario {spec.scenario.name!r}: the solid model needs a load "
             f"{{'manipulation': NAME[, 'body': FILE]}}, got {load!r}"
         )
-    body = get_body(str(load.get("body", settings.body)))
+    named = str(load.get("body", settings.body))
+    body = get_body(named)
+    if settings.body != DEFAULT_BODY and body_path(named) != body_path(settings.body):
+        own = get_body(settings.body)
+        raise ConfigError(
+            f"scenario {spec.scenario.name!r} is a manipulation of body {named!r}, "
+            f"not of the model's body {settings.body!r} (its manipulations: "
+            f"{', '.join(m.name for m in own.manipulations)})"
+        )
     body.manipulation(name)  # one line if unknown
     mesh = get_mesh(mesh_file(body, spec.mesh))
     reference = get_mesh(mesh_file(body, settings.reference or "truth"))

@@ -4,8 +4,11 @@ Every ``[[manipulation]]`` of a body is a scenario whose load names it:
 ``{"body": "liver", "manipulation": "grasp-lift"}`` (``body`` omitted: the
 model's ``body`` setting). The plugin registers the shipped examples'
 manipulations and those of the body files listed in ``$IDBENCH_BODIES``
-(separated by the OS path separator, ``:`` on Linux), so that a user's own
-body needs no plugin of its own.
+(separated by the OS path separator, ``:`` on Linux). A body given as the
+``body`` setting needs neither: its settings propose its manipulations as
+scenarios and its meshes as the comparison's defaults
+(:meth:`SolidSettings.proposed_scenarios`,
+:meth:`SolidSettings.proposed_defaults`).
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ import os
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from idbench import Scenario
+from idbench import ModelDefaults, Scenario
 from idbench_fem.bodies.description import Body
 from idbench_fem.fem.materials import LAWS
 from idbench_fem.fem.solver import BACKENDS
@@ -25,6 +28,8 @@ log = logging.getLogger(__name__)
 
 BODIES_ENV = "IDBENCH_BODIES"
 KERNELS = ("auto", "general")
+DEFAULT_BODY = "liver"
+"""The default ``body``: the registered defaults (``SOLID_DEFAULTS``) are its."""
 
 
 @dataclass(frozen=True)
@@ -35,7 +40,9 @@ class SolidSettings:
     ----------
     body
         The body description: a TOML path or a shipped example (``liver``,
-        ``kidney``); used when a scenario's load names no body.
+        ``kidney``). Its manipulations are scenarios and, when the comparison
+        names none, its first manipulation, model meshes and truth are the
+        comparison's; a scenario of another body is refused.
     law
         Material law override (``svk`` or ``neo-hookean``; None: the body's).
     nu
@@ -44,10 +51,13 @@ class SolidSettings:
         Mesh spec on which markers are snapped and shape-error points are
         placed, shared by every mesh of a comparison (None: the body's truth).
         Give the comparison's truth mesh when it is not the body's.
-    rtol, atol, max_iterations
-        Newton tolerance (relative to the step's external force), absolute
-        floor (relative to the end force) and iteration limit (None: 1e-8,
-        1e-12, 25, as the beam's).
+    rtol
+        Newton tolerance, relative to the step's external force (None: 1e-8,
+        as the beam's).
+    atol
+        Newton's absolute floor, relative to the end force (None: 1e-12).
+    max_iterations
+        Newton iteration limit (None: 25).
     solver
         ``"pardiso"`` or ``"scipy"`` (None: ``$IDBENCH_SOLVER`` or the best).
     kernel
@@ -61,7 +71,7 @@ class SolidSettings:
         beam's setting of that name). Not part of the run's identity.
     """
 
-    body: str = "liver"
+    body: str = DEFAULT_BODY
     law: str | None = None
     nu: float | None = None
     reference: str | None = None
@@ -99,6 +109,51 @@ class SolidSettings:
         p = self.processes
         if p is not None and (not isinstance(p, int) or isinstance(p, bool) or p < 1):
             raise ValueError(f"processes {p!r}: need a whole number >= 1")
+
+    def proposed_scenarios(self) -> list[Scenario]:
+        """The body's manipulations as scenarios (their loads name ``body``).
+
+        None for a shipped body: the plugin registers its manipulations, and
+        a registry built by hand (a study giving them other transfer targets)
+        keeps its own.
+
+        Raises
+        ------
+        ValueError
+            The body file is missing or invalid (one line).
+        """
+        from idbench_fem.bodies.catalog import SHIPPED, get_body
+
+        if self.body in SHIPPED:
+            return []
+        return body_scenarios(get_body(self.body), self.body)
+
+    def proposed_defaults(self) -> ModelDefaults | None:
+        """The comparison the body proposes, None for the default body.
+
+        Its first manipulation, its model meshes (a mesh named ``*-nN`` by its
+        node count N, another by its file name stem), its truth, and a prior
+        of (E/2, E/2) with E the body's; ``--quick``: the first two model
+        meshes against the finest model mesh (the truth if there are two or
+        fewer). The default body (the liver) keeps the registered defaults.
+        """
+        if self.body == DEFAULT_BODY:
+            return None
+        from idbench_fem.bodies.catalog import get_body, mesh_spec
+
+        body = get_body(self.body)
+        meshes = tuple(mesh_spec(body, p) for p in body.mesh.models)
+        truth = mesh_spec(body, body.mesh.truth)
+        E = body.material.E
+        finest = meshes[-1] if len(meshes) > 2 else truth
+        quick = {"meshes": meshes[:2], "truth_mesh": finest}
+        return ModelDefaults(
+            truth_mesh=truth,
+            meshes=meshes,
+            scenarios=(body.manipulations[0].name,),
+            prior=(E / 2, E / 2),
+            quick=quick,
+        )
 
     def identity(self) -> list[Any]:
         """What of these settings identifies the data (seeds the noise).
