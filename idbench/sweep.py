@@ -155,7 +155,7 @@ def plan(config: CompareConfig, session: Session) -> Plan:
     for mesh in config.meshes:
         truth = models[config.truth_mesh]
         check_truth_mesh(truth, config.truth_mesh, models[mesh], mesh)
-    runs, inputs = model_inputs(runs, session, config, settings)
+    runs, inputs = model_inputs(runs, session, config, settings, reg)
     solves, work = 0, {}
     for spec in runs:
         model = session.model(spec, spec.mesh)
@@ -175,7 +175,11 @@ def plan(config: CompareConfig, session: Session) -> Plan:
 
 
 def model_inputs(
-    runs: list[RunSpec], session: Session, config: CompareConfig, settings: Any
+    runs: list[RunSpec],
+    session: Session,
+    config: CompareConfig,
+    settings: Any,
+    reg: Registry,
 ) -> tuple[list[RunSpec], list[dict[str, Any]]]:
     """The runs with their ``inputs`` digest, and what each of their models read.
 
@@ -186,6 +190,9 @@ def model_inputs(
     digest covers the models of its mesh and of the truth mesh, on its
     scenario and on its transfer scenario.
 
+    ``reg`` is the comparison's registry, with the scenarios the model's settings
+    propose (:func:`idbench.config.proposed_scenarios`).
+
     Returns
     -------
     runs
@@ -194,7 +201,6 @@ def model_inputs(
         One per model: ``key`` (its model key), ``role`` (``est`` or
         ``truth``), ``mesh``, ``scenario`` and ``describe``, JSON-able.
     """
-    reg = session.registry
     described: dict[str, dict[str, Any]] = {}
     out = []
     for spec in runs:
