@@ -20,7 +20,7 @@ from idbench import Cost, ModelSpec, ParameterSpec, Scenario
 from idbench_skfem import mesh as meshes
 from idbench_skfem.assembly import Assembler
 from idbench_skfem.batched import BatchedSteps
-from idbench_skfem.newton import CHORD_RATIO
+from idbench_skfem.newton import ASSEMBLY_BUFFERS, CHORD_RATIO, freeze
 from idbench_skfem.probes import grid_points, interpolation_matrix, marker_points
 from idbench_skfem.regions import parameter_regions
 from idbench_skfem.settings import BeamSettings, EndTraction
@@ -147,6 +147,8 @@ class SvkBeam(BatchedSteps):
 
         self.last_residuals: list[float] = []
         self._cost = [0, 0, 0]
+        freeze(self)  # shared by the copies runs get (see NewtonSolve.__copy__)
+        freeze(self._asm, keep=ASSEMBLY_BUFFERS)
 
     # -- the ForwardModel protocol -------------------------------------------
 

@@ -58,6 +58,7 @@ from idbench_skfem.batched import BatchedSteps
 from idbench_skfem.bodies import get_body, get_mesh, mesh_file
 from idbench_skfem.body import Body
 from idbench_skfem.loads import nodal_forces
+from idbench_skfem.newton import ASSEMBLY_BUFFERS, freeze
 from idbench_skfem.probes import _barycentric
 from idbench_skfem.solid_assembly import LawAssembler
 from idbench_skfem.solid_settings import SolidSettings
@@ -177,6 +178,8 @@ class SolidModel(BatchedSteps):
         self._reference = reference.path
         self._cost = [0, 0, 0]
         self.last_residuals: list[float] = []
+        freeze(self)  # shared by the copies runs get (see NewtonSolve.__copy__)
+        freeze(self._asm, keep=ASSEMBLY_BUFFERS)
 
     # -- the ForwardModel protocol -------------------------------------------
 
