@@ -45,12 +45,12 @@ def fingerprint(model: ForwardModel) -> dict[str, str]:
     model's to protect (read-only), as are its caches.
     """
     spec = model.parameters
+    default = None if spec.default is None else list(spec.default)
     out = {
         "n_steps": repr(getattr(model, "n_steps", None)),
         "parameters": stable_hash(
-            [list(spec.names), list(spec.lower), list(spec.upper),
-             None if spec.default is None else list(spec.default)]
-        ),  # fmt: skip
+            [list(spec.names), list(spec.lower), list(spec.upper), default]
+        ),
         "describe": stable_hash(model.describe()),
     }
     for name, value in sorted(_attributes(model).items()):

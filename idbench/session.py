@@ -16,7 +16,6 @@ import numpy as np
 
 from idbench.config import ConfigError, build_settings, public_settings
 from idbench.files import stable_hash
-from idbench.isolation import changes, fingerprint, private_copy
 from idbench.interfaces import (
     FloatArray,
     ForwardModel,
@@ -25,6 +24,7 @@ from idbench.interfaces import (
     ParameterSpec,
     Prior,
 )
+from idbench.isolation import changes, fingerprint, private_copy
 from idbench.plugins import Registry, build_registry
 from idbench.posterior import Posterior, PosteriorSettings, reference_posterior
 from idbench.runspec import RunSpec

@@ -264,7 +264,8 @@ class BatchedSteps(NewtonSolve):
             assert self._recipe is not None
             if not box:  # the first start: stop them with the model
                 weakref.finalize(owner, helpers.close_all, box)
-            box[:] = helpers.start(owner, self.processes - 1, self._recipe, helper_solve)
+            count = self.processes - 1
+            box[:] = helpers.start(owner, count, self._recipe, helper_solve)
             if not box:  # could not start one: do not try at every step
                 self.processes = owner.processes = 1
         return [h for h in box if h.alive]
