@@ -220,6 +220,11 @@ class ForwardModel(Protocol):
     scalar outputs, recorded per step for the truth in the traces table, e.g.
     a tip displacement), ``sensitivity`` (see :class:`SensitiveModel`).
     :func:`idbench.testing.check_model` checks them.
+
+    A model is built once per process and each run works with
+    ``copy.copy`` of it (:mod:`idbench.isolation`): define ``__copy__`` if a
+    shallow copy would share state that runs write (caches, counters), and
+    make the arrays the copies share read-only.
     """
 
     parameters: ParameterSpec
