@@ -257,17 +257,54 @@ def _run(
     traces: list[dict[str, Any]],
     phase: Callable[[str], None] | None = None,
 ) -> None:
-    model = session.model(spec, spec.mesh)
-    metrics_model = session.model(spec, spec.mesh, role="metrics")
-    row["model_nodes"] = getattr(model, "n_nodes", np.nan)
-    row["truth_nodes"] = session.truth(spec).nodes
-    row.update(scoring.empty_parameter_columns(spec))
-
-    cls = session.registry.estimator(spec.estimator)
+    # the estimator gets a private copy of the model, checked after the run
+    # (idbench.isolation): what it does to it cannot reach later runs
+    master, model = session.lend(spec, spec.mesh)
     who = (
         f"estimator {spec.estimator!r} "
         f"(plugin {session.registry.estimators[spec.estimator].plugin!r})"
     )
+    try:
+        _run_on(spec, session, (master, model), who, row, traces, phase)
+    except BaseException as exc:
+        _check_returned(session, master, model, who, exc)
+        raise
+    _check_returned(session, master, model, who, None)
+
+
+def _check_returned(
+    session: Session,
+    master: ForwardModel,
+    model: ForwardModel,
+    who: str,
+    failure: BaseException | None,
+) -> None:
+    """EstimatorError if the run changed its model (or the master: discarded)."""
+    changed = session.returned(master, model)
+    if changed:
+        raise EstimatorError(
+            f"{who} changed the model it was given ({', '.join(changed)}); "
+            "the run's results cannot be trusted"
+        ) from failure
+
+
+def _run_on(
+    spec: RunSpec,
+    session: Session,
+    models: tuple[ForwardModel, ForwardModel],
+    who: str,
+    row: dict[str, Any],
+    traces: list[dict[str, Any]],
+    phase: Callable[[str], None] | None = None,
+) -> None:
+    """:func:`_run`'s work with the lent ``models`` (master, copy)."""
+    master, model = models
+    metrics_model = session.model(spec, spec.mesh, role="metrics")
+    row["model_nodes"] = getattr(master, "n_nodes", np.nan)
+    row["truth_nodes"] = session.truth(spec).nodes
+    row.update(scoring.empty_parameter_columns(spec))
+
+    cls = session.registry.estimator(spec.estimator)
     with _blame(who, "its constructor"):
         try:
             estimator = cls(**estimator_arguments(cls, spec.settings, spec.seed))
@@ -284,7 +321,7 @@ def _run(
     with _deadline(spec.timeout):  # the estimator's own work, not shared inputs
         t_start = time.perf_counter()
         with _blame(who, "start()"):
-            estimator.start(model, session.prior(model, spec))
+            estimator.start(model, session.prior(master, spec))
         est, means, stds = _estimate(
             spec, estimator, who, stream, truth, direct, traces,
             (model, metrics_model), t_start,
@@ -293,6 +330,8 @@ def _run(
         phase("scoring")
     if spec.estimator == spec.setup.reference and not spec.settings:
         # this run *is* the reference fit on its data: no need to fit it again
+        # (unless it changed its model: then it is no one's reference)
+        _check_returned(session, master, model, who, None)
         if session.known_reference(spec) is None:
             session.remember_reference(spec, means[-1])
     row.update(scoring.final_columns(spec, session, means, stds, traces, est))
@@ -319,8 +358,8 @@ def _estimate(
     stds (K, p). The shape error uses the estimator's own state where it has
     one, else one forward solve with the current estimate (not counted).
     """
-    model, metrics_model = models
-    p = model.parameters.p
+    _, metrics_model = models  # bounds from the metrics model (not lent out)
+    p = metrics_model.parameters.p
     shadow = metrics_model.reset()
     means = np.full((spec.setup.steps, p), np.nan)
     stds = np.full((spec.setup.steps, p), np.nan)
@@ -332,7 +371,7 @@ def _estimate(
             est = estimator.update(k, obs)
             mean, std = _checked(who, est, p, k)
         dt = time.perf_counter() - t0
-        if not model.parameters.contains(mean):
+        if not metrics_model.parameters.contains(mean):
             raise Diverged(f"estimate {mean} non-finite or outside bounds", step=k)
         means[k - 1], stds[k - 1] = mean, std
         if est.state is not None:

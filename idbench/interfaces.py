@@ -224,6 +224,11 @@ class ForwardModel(Protocol):
     a truth that is another body than a model mesh, or not finer, is refused
     (:mod:`idbench.validity`).
     :func:`idbench.testing.check_model` checks them.
+
+    A model is built once per process and each run works with
+    ``copy.copy`` of it (:mod:`idbench.isolation`): define ``__copy__`` if a
+    shallow copy would share state that runs write (caches, counters), and
+    make the arrays the copies share read-only.
     """
 
     parameters: ParameterSpec

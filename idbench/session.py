@@ -29,6 +29,7 @@ from idbench.interfaces import (
     ParameterSpec,
     Prior,
 )
+from idbench.isolation import changes, fingerprint, private_copy
 from idbench.plugins import Registry, build_registry
 from idbench.posterior import Posterior, PosteriorSettings, reference_posterior
 from idbench.runspec import RunSpec
@@ -169,6 +170,7 @@ class Session:
     def __init__(self, registry: Registry | None = None) -> None:
         self.registry = registry or build_registry()
         self._models: dict[str, ForwardModel] = {}
+        self._prints: dict[int, dict[str, str]] = {}  # by id of a master model
         self._truths: dict[str, Truth] = {}
         self._refs: dict[str, FloatArray] = {}
         self._direct: dict[str, FloatArray] = {}
@@ -196,7 +198,11 @@ class Session:
     def model(
         self, spec: RunSpec, mesh: str, scenario: str | None = None, role: str = "est"
     ) -> ForwardModel:
-        """The forward model of ``mesh`` on ``scenario`` (one per role)."""
+        """The forward model of ``mesh`` on ``scenario`` (one per role).
+
+        Built once and kept (the *master*); code that hands a model to a
+        plugin gives it :meth:`lend`'s copy instead.
+        """
         scenario = scenario or spec.scenario
         # execution settings (not in model_key) still pick the model object: a
         # long-lived session must not serve a later sweep an earlier one's
@@ -215,8 +221,40 @@ class Session:
                 markers=spec.obs_points,
                 settings=settings,
             )
-            self._models[key] = self.registry.model(setup.model)(ms)
+            model = self.registry.model(setup.model)(ms)
+            self._prints[id(model)] = fingerprint(model)
+            self._models[key] = model
         return self._models[key]
+
+    def lend(
+        self, spec: RunSpec, mesh: str, scenario: str | None = None, role: str = "est"
+    ) -> tuple[ForwardModel, ForwardModel]:
+        """The master of :meth:`model` and a private copy of it for one run.
+
+        See :mod:`idbench.isolation`; give both back to :meth:`returned`.
+        """
+        master = self.model(spec, mesh, scenario, role)
+        return master, private_copy(master)
+
+    def returned(self, master: ForwardModel, copy: ForwardModel) -> list[str]:
+        """What a run changed in its copy or in the master (empty: nothing).
+
+        Compared with the master's fingerprint when it was built
+        (:func:`idbench.isolation.fingerprint`). A changed master is
+        discarded: the next run gets one built anew.
+        """
+        before = self._prints.get(id(master))
+        if before is None:  # discarded already
+            return []
+        changed = set(changes(before, fingerprint(copy)))
+        in_master = changes(before, fingerprint(master))
+        if in_master:
+            changed.update(in_master)
+            self._prints.pop(id(master))
+            for key in [k for k, m in self._models.items() if m is master]:
+                del self._models[key]
+            log.warning("a run changed a shared model (%s): built anew", in_master)
+        return sorted(changed)
 
     def theta_true(self, spec: RunSpec) -> FloatArray:
         """True parameters (p,), in the model's order."""
@@ -313,12 +351,12 @@ class Session:
         """The reference estimator fitted on the run's own data."""
         key = spec.reference_key()
         if key not in self._refs:
-            model = self.model(spec, spec.mesh, role="ref")
-            p = model.parameters.p
+            master, model = self.lend(spec, spec.mesh, role="ref")
+            p = master.parameters.p
             try:
                 cls = self.registry.estimator(spec.setup.reference)
                 est = cls(**estimator_arguments(cls, {}, spec.seed))
-                est.start(model, self.prior(model, spec))
+                est.start(model, self.prior(master, spec))
                 e = None
                 for k, obs in enumerate(self.observations(spec), start=1):
                     e = est.update(k, obs)
@@ -327,6 +365,13 @@ class Session:
                 )
             except Exception as exc:
                 log.warning("reference fit failed for %s: %s", spec.mesh, exc)
+                self._refs[key] = np.full(p, np.nan)
+            changed = self.returned(master, model)
+            if changed:
+                log.warning(
+                    "reference fit for %s: %r changed the model it was given (%s)",
+                    spec.mesh, spec.setup.reference, ", ".join(changed),
+                )  # fmt: skip
                 self._refs[key] = np.full(p, np.nan)
         return self._refs[key]
 

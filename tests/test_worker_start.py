@@ -351,6 +351,13 @@ def test_forked_and_spawned_workers_give_the_same_numbers(monkeypatch, tmp_path:
     fork, spawn = tables["fork"], tables["spawn"]
     assert len(fork) == 6 and (fork["status"] == "ok").all()
     assert list(fork.index) == list(spawn.index)
-    for col in ("E_final", "E_ref", "shape_error_final"):  # to round-off (BLAS)
-        np.testing.assert_allclose(fork[col], spawn[col], rtol=1e-12, err_msg=col)
+    # Forked workers run the models the parent built, spawned ones build their
+    # own: each with the kernel and solver its process chose when building
+    # (numba or numpy, PARDISO or SuperLU: IDBENCH_NUMBA, IDBENCH_SOLVER and
+    # what earlier code in the process did). Those agree to the Newton
+    # tolerance, not bitwise, and batch-ls's fit (E_ref) stops at its own
+    # tolerance: 5.7e-10 apart after a full test suite. What ran before in a
+    # session does not matter (tests/test_isolation.py: bitwise).
+    for col in ("E_final", "E_ref", "shape_error_final"):
+        np.testing.assert_allclose(fork[col], spawn[col], rtol=1e-9, err_msg=col)
     assert (fork["n_solves"] == spawn["n_solves"]).all()

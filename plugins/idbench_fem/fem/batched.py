@@ -187,6 +187,7 @@ class BatchedSteps(NewtonSolve):
     _recipe: Callable[[], Any] | None = None
     _batch_anchor: _PreviousCall | None = None
     _batch_stats: BatchStats | None = None
+    RUN_CACHES = (*NewtonSolve.RUN_CACHES, "_batch_anchor", "_batch_stats")
 
     def external_force(self, k: int) -> FloatArray:  # pragma: no cover
         """External force on the free dofs at load step ``k``, (n_state,)."""
@@ -257,15 +258,16 @@ class BatchedSteps(NewtonSolve):
         box = self._helpers
         if any(not h.owned for h in box):  # a forked copy of this model
             step_workers.close_all(box)  # (the copies of the sockets only)
+        # a run's copy (see NewtonSolve.__copy__) uses its master's helpers
+        owner = self.__dict__.get("_master", self)
         if self.processes > 1 and (not box or all(h.closed for h in box)):
             assert self._recipe is not None
             if not box:  # the first start: stop them with the model
-                weakref.finalize(self, step_workers.close_all, box)
-            box[:] = step_workers.start(
-                self, self.processes - 1, self._recipe, helper_solve
-            )
+                weakref.finalize(owner, step_workers.close_all, box)
+            count = self.processes - 1
+            box[:] = step_workers.start(owner, count, self._recipe, helper_solve)
             if not box:  # could not start one: do not try at every step
-                self.processes = 1
+                self.processes = owner.processes = 1
         return [h for h in box if h.alive]
 
     def close(self) -> None:

@@ -10,6 +10,7 @@ halving of the update while an element would invert (det F <= 0).
 
 from __future__ import annotations
 
+import copy
 import functools
 from typing import Any
 
@@ -31,6 +32,29 @@ tangent, no factorization); a weaker cut refactors. Near the solution the
 tangent hardly changes, so chords converge almost as fast as Newton steps at a
 fraction of their cost (the factorization is 70-85% of a Newton iteration
 from 4,000 nodes up). The tolerance test is on the true residual either way."""
+
+
+ASSEMBLY_BUFFERS = ("_block_work", "_blocks", "_u_full")
+"""The assemblers' work arrays, written by every assembly (not frozen)."""
+
+
+def freeze(obj: Any, keep: tuple[str, ...] = ()) -> None:
+    """Make the arrays ``obj`` holds directly read-only (but those in ``keep``).
+
+    Also the arrays of the scipy sparse matrices it holds. The models'
+    constants are shared by the copies their runs get (:meth:`NewtonSolve.__copy__`):
+    a plugin that writes into one gets a ValueError (its run fails, naming
+    it) instead of changing every later run.
+    """
+    for name, value in vars(obj).items():
+        if name in keep:
+            continue
+        arrays = [value]
+        if hasattr(value, "indptr") and hasattr(value, "data"):  # scipy sparse
+            arrays = [value.data, value.indices, value.indptr]
+        for a in arrays:
+            if isinstance(a, np.ndarray):
+                a.flags.writeable = False
 
 
 class NewtonSolve:
@@ -75,6 +99,32 @@ class NewtonSolve:
         return make_solver(self.backend, self._pattern.indptr, self._pattern.indices)
 
     _factored_key: tuple[bytes, bytes] | None = None
+
+    RUN_CACHES: tuple[str, ...] = ("_factored_key", "last_update_factored")
+    """Attributes a copy for a run (:meth:`__copy__`) starts without: it
+    starts from the class defaults, as a model just built."""
+
+    def __copy__(self) -> Any:
+        """A copy for one run: its own counters, caches and assembler object.
+
+        idbench gives each run ``copy.copy`` of the model it built once
+        (:mod:`idbench.isolation`), so what a run assigns to its model stays
+        in its copy. The copy shares the master's read-only arrays (see
+        :func:`freeze`), its sparse pattern and its linear solver (built here
+        first, so that no run pays for them): every run's first solve
+        factors, so the factorization the solver holds from an earlier run
+        is never used, and a run's numbers depend on the run only.
+        """
+        self._solver  # noqa: B018  (built once, on the master)
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        for name in self.RUN_CACHES:
+            new.__dict__.pop(name, None)
+        new._cost = list(self._cost)
+        new.last_residuals = []
+        new._asm = copy.copy(self._asm)
+        new.__dict__["_master"] = self.__dict__.get("_master", self)
+        return new
 
     def _key(self, theta: FloatArray, u: FloatArray) -> tuple[bytes, bytes]:
         return np.asarray(theta, dtype=np.float64).tobytes(), u.tobytes()

@@ -26,7 +26,7 @@ from idbench_fem.fem.interpolation import (
     interpolation_matrix,
     marker_points,
 )
-from idbench_fem.fem.newton import CHORD_RATIO
+from idbench_fem.fem.newton import ASSEMBLY_BUFFERS, CHORD_RATIO, freeze
 from idbench_fem.fem.solver import resolve_backend
 from idbench_fem.fem.svk_assembly import Assembler
 from idbench_fem.models.beam_settings import BeamSettings, EndTraction
@@ -154,6 +154,8 @@ class SvkBeam(BatchedSteps):
 
         self.last_residuals: list[float] = []
         self._cost = [0, 0, 0]
+        freeze(self)  # shared by the copies runs get (see NewtonSolve.__copy__)
+        freeze(self._asm, keep=ASSEMBLY_BUFFERS)
 
     # -- the ForwardModel protocol -------------------------------------------
 

@@ -60,6 +60,7 @@ from idbench_fem.bodies.mesh import SolidMesh, extent, project_to_surface
 from idbench_fem.fem.batched import BatchedSteps
 from idbench_fem.fem.interpolation import barycentric, weights_matrix
 from idbench_fem.fem.law_assembly import LawAssembler
+from idbench_fem.fem.newton import ASSEMBLY_BUFFERS, freeze
 from idbench_fem.fem.solver import resolve_backend
 from idbench_fem.fem.svk_assembly import Assembler
 from idbench_fem.models.solid_settings import DEFAULT_BODY, SolidSettings
@@ -178,6 +179,8 @@ class SolidModel(BatchedSteps):
         self._reference = reference.path
         self._cost = [0, 0, 0]
         self.last_residuals: list[float] = []
+        freeze(self)  # shared by the copies runs get (see NewtonSolve.__copy__)
+        freeze(self._asm, keep=ASSEMBLY_BUFFERS)
 
     # -- the ForwardModel protocol -------------------------------------------
 
