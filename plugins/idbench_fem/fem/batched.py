@@ -166,6 +166,26 @@ class _Anchor:
     unsettled: bool = False
 
 
+@dataclass
+class _PathStep:
+    """What :meth:`BatchedSteps._path_step` leaves for the next call.
+
+    Attributes
+    ----------
+    k, start, final
+        Its load step, starting state and solution.
+    theta_f, factorizations
+        The parameters of the factorization the solver holds and the model's
+        count of factorizations then (reused only if nothing refactored since).
+    """
+
+    k: int
+    start: FloatArray
+    final: FloatArray
+    theta_f: FloatArray
+    factorizations: int
+
+
 class BatchedSteps(NewtonSolve):
     """Mixin: :meth:`step_many` for a Newton model whose force is linear in theta.
 
@@ -187,6 +207,7 @@ class BatchedSteps(NewtonSolve):
     _recipe: Callable[[], Any] | None = None
     _batch_anchor: _Anchor | None = None
     _batch_stats: BatchStats | None = None
+    _last_path_step: _PathStep | None = None
 
     def external_force(self, k: int) -> FloatArray:  # pragma: no cover
         """External force on the free dofs at load step ``k``, (n_state,)."""
@@ -243,6 +264,64 @@ class BatchedSteps(NewtonSolve):
             If any pair fails (the caller may retry pairs with ``step``).
         """
         return step_many(self, thetas, k, states)
+
+    def _path_step(
+        self, theta: FloatArray, k: int, state: FloatArray, modulus: FloatArray
+    ) -> FloatArray:
+        """One load step along a path, reusing the last step's factorization.
+
+        The rule (:data:`CHORD_LIMITS` for when to refactor): when this call
+        continues the previous one on this model (step k after k - 1, from
+        the state that call returned, bitwise) and the solver still holds the
+        factorization that call left (no factorization since), the step
+        starts from the secant prediction ``state + (state - previous
+        start)`` (from ``state`` if that inverts an element or has a larger
+        residual) and iterates chords with that factorization, scaled to
+        ``theta`` as in :func:`step_many`; a chord that cuts |r| by less than
+        SLOW, or MAX_MODIFIED chords in a row, refactor at the iterate.
+        Otherwise it is the model's plain Newton from ``state``. Either way
+        the result meets the same residual test, so it equals a fresh solve
+        to the Newton tolerance (not bitwise), and the same calls on a fresh
+        model give the same numbers (the cache is this instance's and keyed
+        on its own last call).
+        """
+        u = np.array(state, dtype=np.float64)
+        f_ext = self.external_force(k)
+        prev = self._last_path_step
+        self._last_path_step = None
+        out = None
+        if (
+            prev is not None
+            and prev.k == k - 1
+            and prev.factorizations == self.factorizations
+            and np.array_equal(prev.final, u)
+        ):
+            asm = self._asm
+            tol = max(self.rtol * float(np.linalg.norm(f_ext)), self.atol)
+            kin = asm.kinematics(u, modulus)
+            res = asm.forces(kin) - f_ext
+            guess = u + (u - prev.start)
+            kin_g = asm.kinematics(guess, modulus)
+            if np.all(kin_g.det > 0):
+                res_g = asm.forces(kin_g) - f_ext
+                if np.linalg.norm(res_g) < np.linalg.norm(res):
+                    u, kin, res = guess, kin_g, res_g
+            if np.all(kin.det > 0):
+                self.last_residuals = [float(np.linalg.norm(res))]
+                out, theta_f = _modified_newton(
+                    self, theta, modulus, f_ext, u, kin, res, tol, k,
+                    prev.theta_f, _region_weights(self),
+                )  # fmt: skip
+                self.last_update_factored = False
+        if out is None:
+            out, _ = self._newton(modulus, f_ext, np.array(state, dtype=np.float64), k)
+            theta_f = theta
+        assert theta_f is not None
+        self._last_path_step = _PathStep(
+            k, np.array(state, dtype=np.float64), out.copy(),
+            np.array(theta_f, dtype=np.float64), self.factorizations,
+        )  # fmt: skip
+        return out
 
     def _step_helpers(self) -> list[Helper]:
         """The live helper processes (``processes - 1``, started on first use).
