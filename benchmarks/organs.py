@@ -28,6 +28,7 @@ one-core figures.
 from __future__ import annotations
 
 import argparse
+import itertools
 import tempfile
 import time
 from pathlib import Path
@@ -53,7 +54,7 @@ def liver_slabs(folder: Path, p: int) -> Path:
     x[0], x[-1] = -1.0, 1.0
     boxes = ", ".join(
         f"{{ box = {{ lower = [{a}, -1.0, -1.0], upper = [{b}, 1.0, 1.0] }} }}"
-        for a, b in zip(x[:-1], x[1:], strict=True)
+        for a, b in itertools.pairwise(x)
     )
     path = folder / f"liver-p{p}.toml"
     path.write_text(f"{text}\n[parameters]\nregions = [{boxes}]\n")
