@@ -20,7 +20,8 @@ ratios hold on a loaded machine; absolute times do not):
   computed) as a multiple of ``B`` (target <= 1.5) and of one factorization
   plus solve alone, and its factorizations a step.
 
-Run ``python benchmarks/organs.py`` (``--quick``: 200-node meshes, 2 repeats).
+Run ``python benchmarks/organs.py`` (``--quick``: 200-300-node meshes, at most
+2 repeats; ``--only liver kidney``: those cases).
 Set OMP_NUM_THREADS / MKL_NUM_THREADS / OPENBLAS_NUM_THREADS = 1 for
 one-core figures.
 """
@@ -152,7 +153,13 @@ def main() -> None:
         for label, body, manipulation, mesh in cases:
             if args.only and label not in args.only:
                 continue
-            case(label, body, manipulation, mesh, 2 if small else args.repeat)
+            case(
+                label,
+                body,
+                manipulation,
+                mesh,
+                min(args.repeat, 2) if small else args.repeat,
+            )
 
 
 if __name__ == "__main__":
