@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import idbench
+from idbench_fem.fem import batched
 from idbench_fem.models.solid import make_model
 
 pytest.importorskip("gmsh")  # the organs' meshes are generated on first use
@@ -67,3 +68,34 @@ def test_a_step_not_continuing_the_last_one_is_plain_newton():
     assert model.factorizations > f0
     fresh = _liver()
     np.testing.assert_array_equal(v, fresh.step(theta, 3, path[1]))
+
+
+def test_useful_chords_counts_the_chords_before_a_discarded_one():
+    assert batched._useful_chords(["c", "x", "F", "c"]) == 1
+    assert batched._useful_chords(["x", "F"]) == 0
+    assert batched._useful_chords(["c", "c"]) is None  # converged by chords
+    assert batched._useful_chords(["c", "F", "x"]) is None  # refactored first
+    assert batched._useful_chords([]) is None
+
+
+def test_a_path_step_skips_the_chord_that_stalled_on_the_step_before(monkeypatch):
+    """On the liver the second chord of each step stalls (a soft mode the old
+    tangent misses): the next step refactors after one chord instead."""
+    theta = np.array([4000.0])
+
+    def discarded(model):
+        wasted = 0
+        u = model.reset()
+        for k in range(1, model.n_steps + 1):
+            u = model.step(theta, k, u)
+            wasted += model._last_path_step.record.count("x")
+        return wasted, u
+
+    learned, u_learned = discarded(_liver(8))
+    monkeypatch.setattr(batched, "_useful_chords", lambda record: None)
+    blind, u_blind = discarded(_liver(8))
+    assert blind >= 4  # the stall happens at (nearly) every step without the rule
+    assert learned <= 1  # with it, at most the first time
+    np.testing.assert_allclose(
+        u_learned, u_blind, rtol=0, atol=1e-7 * np.abs(u_blind).max()
+    )

@@ -63,7 +63,7 @@ from __future__ import annotations
 import functools
 import weakref
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -179,12 +179,19 @@ class _PathStep:
     theta_f, factorizations
         The parameters of the factorization the solver holds and the model's
         count of factorizations then (reused only if nothing refactored since).
+    record, chords
+        Its chord iterations (:func:`_modified_newton`'s record) and how many
+        chords the next step makes before it refactors (None: no limit): the
+        chords kept before one raised |r| (:func:`_useful_chords`), or the
+        limit it had itself if it still had to refactor.
     """
 
     k: int
     path: tuple[FloatArray, ...]
     theta_f: FloatArray
     factorizations: int
+    record: list[str] = field(default_factory=list)
+    chords: int | None = None
 
 
 PATH_ORDER = 2
@@ -289,7 +296,8 @@ class BatchedSteps(NewtonSolve):
         :data:`PATH_ORDER`, or a secant after one step; from ``state`` if the
         prediction inverts an element or has a residual above the load
         increment, which is the residual at ``state``) and iterates
-        chords with that factorization, scaled to
+        chords with that factorization (refactoring after as many chords as
+        paid on the step before, if one there raised |r|), scaled to
         ``theta`` as in :func:`step_many`; a chord that cuts |r| by less than
         SLOW, or MAX_MODIFIED chords in a row, refactor at the iterate.
         Otherwise it is the model's plain Newton from ``state``. Either way
@@ -303,6 +311,7 @@ class BatchedSteps(NewtonSolve):
         prev = self._last_path_step
         self._last_path_step = None
         out = None
+        record: list[str] = []
         continues = (
             prev is not None and prev.k == k - 1 and np.array_equal(prev.path[0], u)
         )
@@ -311,7 +320,7 @@ class BatchedSteps(NewtonSolve):
             asm = self._asm
             tol = max(self.rtol * float(np.linalg.norm(f_ext)), self.atol)
             coef = _EXTRAPOLATION[min(PATH_ORDER, len(prev.path) - 1)]
-            guess = sum(c * x for c, x in zip(coef, prev.path, strict=False))
+            guess = np.sum([c * x for c, x in zip(coef, prev.path, strict=False)], 0)
             kin = asm.kinematics(guess, modulus)
             res = asm.forces(kin) - f_ext
             # the residual at ``state`` (converged at step k - 1) is the load
@@ -326,7 +335,7 @@ class BatchedSteps(NewtonSolve):
                 self.last_residuals = [float(np.linalg.norm(res))]
                 out, theta_f = _modified_newton(
                     self, theta, modulus, f_ext, u, kin, res, tol, k,
-                    prev.theta_f, _region_weights(self),
+                    prev.theta_f, _region_weights(self), prev.chords, record,
                 )  # fmt: skip
                 self.last_update_factored = False
         if out is None:
@@ -336,9 +345,13 @@ class BatchedSteps(NewtonSolve):
         path: tuple[FloatArray, ...] = (out.copy(), np.array(state, dtype=np.float64))
         if continues and prev is not None:
             path += prev.path[1:PATH_ORDER]
+        chords = _useful_chords(record)
+        if chords is None and continues and prev is not None and "F" in record:
+            chords = prev.chords  # the limit held and a refactorization was due
         self._last_path_step = _PathStep(
-            k, path, np.array(theta_f, dtype=np.float64), self.factorizations
-        )
+            k, path, np.array(theta_f, dtype=np.float64), self.factorizations,
+            record, chords,
+        )  # fmt: skip
         return out
 
     def _step_helpers(self) -> list[Helper]:
@@ -375,6 +388,25 @@ class BatchedSteps(NewtonSolve):
         if self._batch_stats is None:
             self._batch_stats = BatchStats()
         return self._batch_stats
+
+
+def _useful_chords(record: list[str]) -> int | None:
+    """Chords that paid on the previous path step before one raised |r|.
+
+    From a :func:`_modified_newton` record: when its chords with the
+    factorization it was given ran into a discarded one (``"x"``) before any
+    refactorization, the number kept before it (the next step refactors
+    after as many, saving the wasted chord); else None (no limit).
+    """
+    n = 0
+    for event in record:
+        if event == "c":
+            n += 1
+        elif event == "x":
+            return n
+        else:
+            return None
+    return None
 
 
 def _central(log_thetas: FloatArray) -> int:
@@ -780,13 +812,18 @@ def _modified_newton(
     k: int,
     theta_f: FloatArray | None,
     weights: FloatArray,
+    first_chords: int | None = None,
+    record: list[str] | None = None,
 ) -> tuple[FloatArray, FloatArray | None]:
     """Chord iterations with the factored tangent, refactoring when they are slow.
 
     ``kin`` and ``res`` are the kinematics (None: computed when needed) and the
     residual at the start ``u``; ``theta_f`` is the theta of the factorization
     held (None: none, the first iteration factors). Returns the converged state
-    and the theta of the factorization now held.
+    and the theta of the factorization now held. ``first_chords``: refactor
+    after that many chords with the given factorization, before any test
+    says so (0: at once). ``record`` gets "c" for each chord kept, "x" for
+    one discarded (it raised |r|) and "F" for each factorization.
     """
     asm = model._asm
     stats = model.batch_stats
@@ -795,13 +832,15 @@ def _modified_newton(
     if norm <= tol:
         return u, theta_f
     first = norm
-    refactor = theta_f is None
+    refactor = theta_f is None or first_chords == 0
     modified = full = in_row = 0
+    log = [] if record is None else record
     while True:
         if refactor:
             if kin is None:
                 kin = asm.kinematics(u, modulus)
             model._factor(kin, modulus, k)
+            log.append("F")
             theta_f = theta
             scale = 1.0
             full += 1
@@ -842,7 +881,12 @@ def _modified_newton(
                 step=k,
             )
         if norm_new > norm and not refactor:
+            log.append("x")
             refactor = True  # the chord step made it worse: discard it, refactor
             continue
+        if not refactor:
+            log.append("c")
         refactor = norm_new > slow * norm or in_row >= most
+        if first_chords is not None and full == 0 and in_row >= first_chords:
+            refactor = True
         u, kin, res, norm = u_new, kin_new, res_new, norm_new
