@@ -9,7 +9,10 @@
 2. The same body with the compressible neo-Hookean law against FElupe's
    ``NeoHookeCompressible`` (the same strain energy,
    W = mu/2 (I1 - 3) - mu ln J + lambda/2 (ln J)^2), one quadrature point,
-   PARDISO, the same residual test: times and the displacement agreement.
+   PARDISO, the same residual test: times and the displacement agreement,
+   and FElupe's time over the neo-Hookean path's (target >= 3), with the
+   compiled kernels (:mod:`idbench_fem.fem.law_kernels`) and with the numpy
+   ones (``IDBENCH_NUMBA=0`` when the model is built: the kernels before).
 
 Run ``python benchmarks/solid.py`` (about 250, 1,000 and 4,000 nodes) or
 ``--quick`` (250 and 1,000).
@@ -18,6 +21,7 @@ Run ``python benchmarks/solid.py`` (about 250, 1,000 and 4,000 nodes) or
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -119,6 +123,21 @@ def solid(body, **settings):
     return make_model(spec)
 
 
+def numpy_kernels(body):
+    """The ``solid`` model of ``body`` with the numpy kernels (IDBENCH_NUMBA=0)."""
+    old = os.environ.get("IDBENCH_NUMBA")
+    os.environ["IDBENCH_NUMBA"] = "0"
+    try:
+        model = solid(body)
+    finally:
+        if old is None:
+            del os.environ["IDBENCH_NUMBA"]
+        else:
+            os.environ["IDBENCH_NUMBA"] = old
+    assert not model._asm.compiled
+    return model
+
+
 def felupe_neo_hooke(beam, model):
     m = fem.Mesh(beam.points, beam.tets, "tetra")
     region = fem.RegionTetra(m)
@@ -170,7 +189,7 @@ def main():
     head = (
         f"{'nodes':>6} | {'svk-beam s':>10} {'solid s':>8} {'ratio':>6} "
         f"{'general s':>9} {'max|du|/|u|':>11} | {'NH s':>7} {'FElupe s':>8} "
-        f"{'its':>7} {'max|du|/|u|':>11}"
+        f"{'its':>7} {'max|du|/|u|':>11} | {'FE/NH':>6} {'numpy s':>8} {'FE/NHnp':>7}"
     )
     print(head)
     print("-" * len(head))
@@ -184,16 +203,17 @@ def main():
             (t_beam, t_solid, t_gen), (u_beam, u_solid, u_gen) = race(models)
             scale = np.abs(u_beam).max()
             d_svk = max(np.abs(u_solid - u_beam).max(), np.abs(u_gen - u_beam).max())
-            nh = solid(nh_body)
+            nh, nh_np = solid(nh_body), numpy_kernels(nh_body)
             c0 = nh.cost()
-            (t_nh,), (u_nh,) = race([nh], repeat=3)
+            (t_nh, t_np), (u_nh, _) = race([nh, nh_np], repeat=3)
             its_nh = (nh.cost() - c0).newton_its // 4  # warm-up + 3 runs
             t_fe, u_fe, its_fe = felupe_neo_hooke(beam, nh)
             d_nh = np.abs(u_nh - u_fe).max() / np.abs(u_fe).max()
         print(
             f"{len(beam.points):>6} | {t_beam:>10.3f} {t_solid:>8.3f} "
             f"{t_solid / t_beam:>6.2f} {t_gen:>9.3f} {d_svk / scale:>11.1e} | "
-            f"{t_nh:>7.3f} {t_fe:>8.3f} {its_nh:>3}/{its_fe:<3} {d_nh:>11.1e}"
+            f"{t_nh:>7.3f} {t_fe:>8.3f} {its_nh:>3}/{its_fe:<3} {d_nh:>11.1e} | "
+            f"{t_fe / t_nh:>6.2f} {t_np:>8.3f} {t_fe / t_np:>7.2f}"
         )
         if d_nh > 1e-6:
             print(f"  WARNING: neo-Hookean differs from FElupe by {d_nh:.1e}")

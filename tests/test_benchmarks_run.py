@@ -16,12 +16,18 @@ import pytest
 
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
 FELUPE = importlib.util.find_spec("felupe") is not None
+GMSH = importlib.util.find_spec("gmsh")
 
 CASES = [
     (["filters.py", "--quick", "--repeat", "1"], "x solve"),
     (["kernel.py", "--sizes", "100"], "tangent_data"),
     (["startup.py", "--repeat", "1"], "ms"),
     (["sweep.py", "--quick", "--repeat", "1"], "speedup / bound"),
+    pytest.param(
+        ["organs.py", "--quick", "--repeat", "1", "--only", "liver"],
+        "fact/step",
+        marks=pytest.mark.skipif(GMSH is None, reason="the organs' meshes need gmsh"),
+    ),
     pytest.param(
         ["forward.py", "--sizes", "100"],
         "ratio",

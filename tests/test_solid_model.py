@@ -81,8 +81,10 @@ def test_solid_on_the_beam_equals_svk_beam(tmp_path, kernel):
     np.testing.assert_allclose(s.external_force(4), b.external_force(4), rtol=1e-12)
     us, ub = run(s, 5000.0), run(b, 5000.0)
     assert np.abs(us).max() > 1e-3  # a large deformation, not a trivial one
-    np.testing.assert_allclose(us, ub, rtol=0, atol=1e-10 * np.abs(ub).max())
-    np.testing.assert_allclose(s.observe(us), b.observe(ub), rtol=1e-10)
+    # equal to the Newton tolerance: the solid's steps along a path reuse the
+    # previous step's factorization (chords from a secant prediction)
+    np.testing.assert_allclose(us, ub, rtol=0, atol=1e-8 * np.abs(ub).max())
+    np.testing.assert_allclose(s.observe(us), b.observe(ub), rtol=1e-8)
     Js = s.sensitivity(np.array([5000.0]), 4, us)
     Jb = b.sensitivity(np.array([5000.0]), 4, ub)
     np.testing.assert_allclose(Js, Jb, rtol=1e-8)

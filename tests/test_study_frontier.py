@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 
 def test_full_ukf_costs_more_than_ro_ukf_on_the_same_mesh(study, tmp_path):
@@ -23,3 +24,22 @@ def test_full_ukf_costs_more_than_ro_ukf_on_the_same_mesh(study, tmp_path):
     assert np.all(table.loc[table["best_30hz"], "within_30hz"])
     module.plot(table, tmp_path / "realtime_frontier.png")
     assert (tmp_path / "realtime_frontier.png").stat().st_size > 1000
+
+
+def test_organ_frontier_quick_has_rates_shape_errors_and_moduli(study, tmp_path):
+    pytest.importorskip("gmsh")  # the liver's meshes are made on first use
+    module = study("realtime_frontier")
+    table = module.compute_organ("liver", quick=True, out=tmp_path)
+    quick = module.ORGAN_QUICK
+    # one row per (mesh, estimator), every one with a rate, an error and an E
+    assert len(table) == len(quick["meshes"]) * len(quick["estimators"])
+    assert set(table["estimator"]) == set(quick["estimators"])
+    assert table["model_nodes"].nunique() == len(quick["meshes"])
+    assert np.all(table["rate_hz"] > 0)
+    assert np.all(np.isfinite(table["shape_error_final"]))
+    ratio = table["E_final"] / table["E_true"]
+    assert np.all((ratio > 0.3) & (ratio < 3)), ratio.tolist()
+    module.plot(table, tmp_path / "f.png", "liver grasp-lift")
+    assert (tmp_path / "f.png").stat().st_size > 1000
+    with pytest.raises(ValueError, match="organ 'heart': allowed are liver, kidney"):
+        module.compute_organ("heart", quick=True)

@@ -24,6 +24,11 @@ scatter from element matrices to its data are built once.
 :class:`idbench_fem.fem.svk_assembly.Assembler` (``kinematics``, ``forces``,
 ``region_forces``, ``pattern``, ``tangent_data``, the dof maps), so either
 serves the same Newton.
+
+Where numba works (:func:`idbench_fem.fem.kernels.available`), kinematics,
+internal force and tangent come from the compiled one-pass loops of
+:mod:`idbench_fem.fem.law_kernels` (about an order of magnitude faster, equal
+to round-off); the numpy code here is the reference and the fallback.
 """
 
 from __future__ import annotations
@@ -34,7 +39,8 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from idbench_fem.fem.materials import Material, strain_variation
+from idbench_fem.fem import kernels, law_kernels
+from idbench_fem.fem.materials import Material, lame, strain_variation
 from idbench_fem.fem.svk_assembly import Pattern, shape_gradients
 
 FloatArray = NDArray[np.float64]
@@ -45,11 +51,16 @@ _I = np.arange(3)
 
 @dataclass
 class LawKinematics:
-    """Per-element state at one displacement: F and S (T, 3, 3), det F (T,)."""
+    """Per-element state at one displacement: F and S (T, 3, 3), det F (T,).
+
+    ``forces`` is the assembled internal force (n,) when the compiled kernel
+    computed it in the same pass, else None.
+    """
 
     F: FloatArray
     S: FloatArray
     det: FloatArray
+    forces: FloatArray | None = None
 
 
 class LawAssembler:
@@ -64,20 +75,31 @@ class LawAssembler:
     law
         A :class:`idbench_fem.fem.materials.Material` with
         ``linear_in_modulus``; it is evaluated at unit modulus.
+    compiled
+        Use the compiled kernels (:mod:`~.law_kernels`); None: where numba
+        works and ``IDBENCH_NUMBA`` is not 0, for the laws they know.
     """
 
     STACKS = False
     """One state at a time (:class:`~.svk_assembly.Assembler` takes stacks)."""
 
-    compiled = False
-    """Numpy kernels only (the compiled one is SVK's, :mod:`~.kernels`)."""
-
     def __init__(
-        self, points: FloatArray, tets: IntArray, free: NDArray[np.bool_], law: Material
+        self,
+        points: FloatArray,
+        tets: IntArray,
+        free: NDArray[np.bool_],
+        law: Material,
+        compiled: bool | None = None,
     ) -> None:
         if not law.linear_in_modulus:
             raise ValueError(f"law {law.name!r}: need a law linear in the modulus")
         self.law = law.with_modulus(1.0)  # type: ignore[attr-defined]
+        self._code = law_kernels.LAW_CODES.get(law.name, -1)
+        if compiled is None:
+            compiled = kernels.available()
+        self.compiled = bool(compiled) and self._code >= 0
+        """Whether the compiled kernels are used (else numpy)."""
+        self._lam, self._mu = lame(1.0, law.nu)
         self.tets = np.asarray(tets, dtype=np.int64)
         self.n_nodes = len(points)
         self.n_elements = len(tets)
@@ -99,6 +121,7 @@ class LawAssembler:
             shape=(self.n_free, ed.size),
         )
         self._patterns: dict[bool, Pattern] = {}
+        self._emaps: dict[bool, IntArray] = {}
         self._u_full = np.zeros(3 * self.n_nodes)
 
     def kinematics(self, state: FloatArray, modulus: FloatArray) -> LawKinematics:
@@ -111,6 +134,12 @@ class LawAssembler:
         modulus
             Young's modulus per element (T,).
         """
+        if self.compiled:
+            F, S, det, f = law_kernels.law_kinematics(
+                self._code, state, modulus, self.element_dofs, self.grads,
+                self.volumes, self._lam, self._mu, self.n_free,
+            )  # fmt: skip
+            return LawKinematics(F, S, det, f)
         u = self._u_full
         u[self.free_dofs] = state
         ue = u.reshape(-1, 3)[self.tets]  # (T, 4, 3)
@@ -129,6 +158,8 @@ class LawAssembler:
 
     def forces(self, kin: LawKinematics) -> FloatArray:
         """Assembled internal force on the free dofs (n,)."""
+        if kin.forces is not None:  # the compiled kernel's, computed with kin
+            return kin.forces.copy()
         return self._force_scatter @ self.element_forces(kin).ravel()
 
     def region_forces(
@@ -178,10 +209,17 @@ class LawAssembler:
         )
         pat = Pattern(indptr.astype(np.int32), c.astype(np.int32), scatter, upper)
         self._patterns[upper] = pat
+        self._emaps[upper] = law_kernels.scatter_map(src, pos, n_el)
         return pat
 
     def tangent_data(
         self, kin: LawKinematics, modulus: FloatArray, pattern: Pattern
     ) -> FloatArray:
         """CSR data of the free-free tangent in ``pattern`` (from :meth:`pattern`)."""
+        if self.compiled:
+            return law_kernels.law_tangent(
+                self._code, kin.F, kin.S, kin.det, modulus, self.grads,
+                self.volumes, self._lam, self._mu, self._emaps[pattern.upper],
+                pattern.nnz,
+            )  # fmt: skip
         return pattern.scatter @ self.element_tangents(kin, modulus).ravel()

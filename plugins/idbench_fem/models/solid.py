@@ -70,9 +70,10 @@ log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-MODEL_VERSION = "solid/2"
+MODEL_VERSION = "solid/3"
 """Changes when a solution changes beyond round-off (the truth cache keys on it);
-2: chord steps in Newton (same tolerance)."""
+2: chord steps in Newton (same tolerance); 3: a step continuing the previous
+one reuses its factorization, from a secant prediction (same tolerance)."""
 
 RTOL = 1e-8
 ATOL = 1e-12
@@ -209,6 +210,11 @@ class SolidModel(BatchedSteps):
             raise ValueError(f"state has shape {u.shape}, expected ({self.n_state},)")
         self._cost[0] += 1
         self._factored_key = None
+        if substeps == 1:  # along a path: reuses the last step's factorization
+            u = self._path_step(theta, k, u, modulus)
+            self._remember_factorization(theta, u)
+            return u
+        self._last_path_step = None
         for j in range(1, substeps + 1):
             t = (k - 1 + j / substeps) / self.n_steps
             u, _ = self._newton(modulus, t * self._f_end, u, k)
