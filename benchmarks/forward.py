@@ -29,10 +29,10 @@ import felupe as fem
 import numpy as np
 import pypardiso
 
-from idbench_skfem import mesh as meshes
-from idbench_skfem.model import SvkBeam
-from idbench_skfem.scenarios import SCENARIOS
-from idbench_skfem.settings import EndTraction
+from idbench_fem.bodies import box as meshes
+from idbench_fem.models.beam import SvkBeam
+from idbench_fem.models.beam_scenarios import SCENARIOS
+from idbench_fem.models.beam_settings import EndTraction
 
 E, NU = 5000.0, 0.45
 N_STEPS = 4

@@ -5,7 +5,7 @@ element matrices as B^T D B by batched matmul, reproduced here) and
 :meth:`Assembler.element_tangent_blocks` (10 node-pair blocks, elements last),
 plus the full ``tangent_data`` (kernel and scatter to CSR) and, for scale, the
 kinematics + internal force (a Newton residual) with numpy and with the
-compiled kernel (:mod:`idbench_skfem.kernels`, if numba is installed) and one
+compiled kernel (:mod:`idbench_fem.fem.kernels`, if numba is installed) and one
 PARDISO factorization. Best of 20; ratios against the old kernel and the
 numpy residual in the same run.
 
@@ -19,9 +19,9 @@ import time
 
 import numpy as np
 
-from idbench_skfem import mesh as meshes
-from idbench_skfem.model import SvkBeam
-from idbench_skfem.scenarios import SCENARIOS
+from idbench_fem.bodies import box as meshes
+from idbench_fem.models.beam import SvkBeam
+from idbench_fem.models.beam_scenarios import SCENARIOS
 
 
 def old_element_tangents(asm, kin, modulus):

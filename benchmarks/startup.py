@@ -2,7 +2,7 @@
 
 ``import pypardiso`` builds a solver at import time, which (when
 ``ctypes.util.find_library`` fails, as in a virtualenv) globs all of
-site-packages for ``mkl_rt``; :func:`idbench_skfem.solver._mkl` finds it in the
+site-packages for ``mkl_rt``; :func:`idbench_fem.fem.solver._mkl` finds it in the
 ``mkl`` distribution's file list instead. Each is timed in fresh interpreters
 (scipy imported first in both, so only the look-up differs), best of
 ``--repeat``; the ratio is printed.
@@ -19,7 +19,7 @@ import sys
 PRELUDE = "import time, scipy.sparse, scipy.sparse.linalg; t = time.perf_counter(); "
 CASES = {
     "pypardiso": PRELUDE + "import pypardiso; lib = pypardiso.PyPardisoSolver().libmkl",
-    "idbench": PRELUDE + "from idbench_skfem.solver import _mkl; lib = _mkl()",
+    "idbench": PRELUDE + "from idbench_fem.fem.solver import _mkl; lib = _mkl()",
 }
 SUFFIX = "; print(time.perf_counter() - t)"
 

@@ -2,7 +2,7 @@
 
 The study ends by noting that no strategy exists to choose effective parameter
 values for a coarse mesh. This script calibrates one offline
-(:func:`idbench_skfem.calibrate.calibrate`): the 510-node model's best constant E
+(:func:`idbench_fem.tools.calibrate.calibrate`): the 510-node model's best constant E
 against the 11,700-node truth over traction directions from stretching (0 deg)
 to bending (90 deg) and ten load levels, interpolated as E_eff(direction,
 magnitude). It then drives the coarse model on manipulations held back from
@@ -20,7 +20,7 @@ from pathlib import Path
 import _cli
 import pandas as pd
 
-from idbench_skfem.calibrate import (
+from idbench_fem.tools.calibrate import (
     Calibration,
     CalibrationSettings,
     calibrate,
@@ -54,7 +54,7 @@ def compute(
         The :class:`Calibration` (table and interpolant), the collapse table
         (RMS relative error of E_eff predicted for unseen directions by each
         coordinate set) and the evaluation table (shape error per held-back
-        scenario and method, see :func:`idbench_skfem.calibrate.evaluate`).
+        scenario and method, see :func:`idbench_fem.tools.calibrate.evaluate`).
     """
     settings = CalibrationSettings(mesh=MESH, truth_mesh=TRUTH, steps=STEPS)
     eval_kw = {"steps": EVAL_STEPS, "seeds": SEEDS}

@@ -8,7 +8,7 @@ import pytest
 
 from idbench.cli import main
 from idbench.config import ConfigError
-from idbench_skfem.calibrate import (
+from idbench_fem.tools.calibrate import (
     Calibration,
     CalibrationSettings,
     calibrate,

@@ -25,7 +25,7 @@ def builtin_names() -> set[str]:
     reg = idbench.build_registry(idbench.get_plugin_manager(autoload=False))
     names: set[str] = set()
     for table in (reg.models, reg.scenarios, reg.estimators, reg.commands):
-        names |= {n for n, e in table.items() if e.plugin in ("skfem", "filters")}
+        names |= {n for n, e in table.items() if e.plugin in ("fem", "filters")}
     for entry in reg.models.values():
         d = entry.defaults
         if d is not None:

@@ -27,7 +27,7 @@ def registry() -> idbench.Registry:
 def beam(mesh: str, n_steps: int = 10, scenario: str = "bend-y", **kw):
     reg = registry()
     if "svk-beam" not in reg.models:
-        pytest.skip("no 'svk-beam' model registered (plugin idbench_skfem)")
+        pytest.skip("no 'svk-beam' model registered (plugin idbench_fem)")
     spec = ModelSpec(mesh=mesh, scenario=reg.scenario(scenario), n_steps=n_steps, **kw)
     return reg.model("svk-beam")(spec)
 

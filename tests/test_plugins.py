@@ -82,7 +82,7 @@ def add_plugin(
 
 def test_builtin_plugins_registered_without_autoload(pm: pluggy.PluginManager) -> None:
     names = {pm.get_name(p) for p in pm.get_plugins()}
-    assert {"skfem", "filters"} <= names
+    assert {"fem", "filters"} <= names
 
 
 def test_builtin_registry_contents(pm: pluggy.PluginManager) -> None:
@@ -91,11 +91,11 @@ def test_builtin_registry_contents(pm: pluggy.PluginManager) -> None:
     assert BUILTIN_MODELS <= set(reg.models)
     assert BUILTIN_ESTIMATORS <= set(reg.estimators)
     assert BUILTIN_SCENARIOS <= set(reg.scenarios)
-    assert reg.models["svk-beam"].plugin == "skfem"
+    assert reg.models["svk-beam"].plugin == "fem"
     for name in BUILTIN_ESTIMATORS:
         assert reg.estimators[name].plugin == "filters"
     for name in BUILTIN_SCENARIOS:
-        assert reg.scenarios[name].plugin == "skfem"
+        assert reg.scenarios[name].plugin == "fem"
         scenario = reg.scenario(name)
         assert isinstance(scenario, idbench.Scenario)
         assert scenario.name == name
@@ -186,7 +186,7 @@ def test_non_dataclass_estimator_rejected(
 def test_fixture_unregisters(pm: pluggy.PluginManager) -> None:
     # A fresh manager never carries plugins from earlier tests.
     names = {pm.get_name(p) for p in pm.get_plugins()}
-    assert names == {"skfem", "filters"}
+    assert names == {"fem", "filters"}
 
 
 # --- a plugin that raises while registering ---------------------------------
@@ -293,7 +293,7 @@ def test_autoload_flag_in_process(
     monkeypatch.setenv(AUTOLOAD_ENV, "1")
     pm = idbench.get_plugin_manager()
     assert pm.get_plugin("ep-plug") is None
-    assert {"skfem", "filters"} <= {pm.get_name(p) for p in pm.get_plugins()}
+    assert {"fem", "filters"} <= {pm.get_name(p) for p in pm.get_plugins()}
     # an explicit argument beats the environment
     assert idbench.get_plugin_manager(autoload=True).get_plugin("ep-plug") is not None
 
@@ -363,7 +363,8 @@ def test_readme_documents_every_hookspec() -> None:
 def test_import_idbench_loads_no_plugin() -> None:
     code = (
         "import sys, idbench, idbench.plugins, idbench.cli\n"
-        "bad = [m for m in ('idbench_skfem', 'idbench_filters') if m in sys.modules]\n"
+        "plugins = ('idbench_fem', 'idbench_filters', 'idbench_skfem')\n"
+        "bad = [m for m in plugins if m in sys.modules]\n"
         "assert not bad, bad\n"
     )
     proc = subprocess.run(
@@ -486,16 +487,16 @@ def test_third_party_plugin_via_entry_point(tmp_path: Path) -> None:
         assert rows["myplug"]["estimators"] == ["my-est"]
         assert rows["myplug"]["version"] == "0.0.7"
         assert rows["myplug"]["error"] == ""
-        assert {"skfem", "filters"} <= set(rows)
+        assert {"fem", "filters"} <= set(rows)
         assert "my-est" not in rows["filters"]["estimators"]
 
         # The autoload switch: third-party plugins off, built-ins stay.
         off = {r["name"]: r for r in _plugins_json({**env, AUTOLOAD_ENV: "1"})}
         assert "myplug" not in off
         assert all("my-est" not in r["estimators"] for r in off.values())
-        assert {"skfem", "filters"} <= set(off)
+        assert {"fem", "filters"} <= set(off)
         assert set(off["filters"]["estimators"]) >= BUILTIN_ESTIMATORS
-        assert set(off["skfem"]["scenarios"]) >= BUILTIN_SCENARIOS
+        assert set(off["fem"]["scenarios"]) >= BUILTIN_SCENARIOS
 
         # "0" means "not disabled".
         zero = {r["name"]: r for r in _plugins_json({**env, AUTOLOAD_ENV: "0"})}
@@ -507,3 +508,41 @@ def test_third_party_plugin_via_entry_point(tmp_path: Path) -> None:
         )
     rows_after = {r["name"] for r in _plugins_json(env)}
     assert "myplug" not in rows_after
+
+
+# --- the FE plugin's old name -------------------------------------------------
+
+
+def test_idbench_skfem_is_a_deprecated_alias_not_a_second_plugin() -> None:
+    code = textwrap.dedent(
+        """
+        import warnings
+        import idbench, idbench_fem
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            import idbench_skfem
+            from idbench_skfem import BEAM_DEFAULTS, SCENARIOS, SolidModel
+            from idbench_skfem.model import SvkBeam
+            from idbench_skfem import mesh
+        said = [str(w.message) for w in caught if w.category is DeprecationWarning]
+        assert any("import idbench_fem instead" in m for m in said), said
+        from idbench_fem.bodies import box
+        from idbench_fem.models.beam import SvkBeam as beam
+        assert SolidModel is idbench_fem.SolidModel and SvkBeam is beam
+        assert BEAM_DEFAULTS is idbench_fem.BEAM_DEFAULTS and mesh is box
+        assert SCENARIOS is idbench_fem.SCENARIOS
+        assert not hasattr(idbench_skfem, "register_models")
+        assert all(getattr(idbench_fem, n) is not None for n in idbench_fem.__all__)
+        reg = idbench.build_registry()
+        assert sorted(reg.models) == ["solid", "svk-beam"], reg.models
+        assert {e.plugin for e in reg.models.values()} == {"fem"}
+        pm = idbench.plugins.get_plugin_manager()
+        names = {pm.get_name(p) for p in pm.get_plugins()}
+        assert names == {"fem", "filters"}, names
+        assert idbench_skfem not in pm.get_plugins()
+        """
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr

@@ -30,7 +30,7 @@ from idbench.cli import main
 from idbench.config import CompareConfig, ConfigError
 from idbench.plugins import AUTOLOAD_ENV
 from idbench.sweep import compare
-from idbench_skfem import mesh as meshes
+from idbench_fem.bodies import box as meshes
 
 TRUTH, MODEL, STEPS = "12x3x3", "4x1x1", 5
 BUILTIN_ESTIMATORS = {"ro-ukf", "ukf", "enkf", "etkf", "rls", "lms", "batch-ls"}
@@ -498,8 +498,8 @@ def test_plugins_lists_builtins_when_third_party_plugins_fail(installed, capsys)
     assert main(["plugins", "--json"]) == 0
     rows = {r["name"]: r for r in json.loads(capsys.readouterr().out)}
     assert set(rows["filters"]["estimators"]) == BUILTIN_ESTIMATORS
-    assert rows["skfem"]["models"] == ["solid", "svk-beam"]
-    assert rows["filters"]["error"] == rows["skfem"]["error"] == ""
+    assert rows["fem"]["models"] == ["solid", "svk-beam"]
+    assert rows["filters"]["error"] == rows["fem"]["error"] == ""
     assert "registration exploded" in rows["explodes"]["error"]
     assert rows["explodes"]["estimators"] == []  # nothing half-registered
     assert "failed to load" in rows["missing"]["error"]

@@ -4,17 +4,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from oracles import svk_forms
 
 import idbench
-from idbench_skfem import _reference, mesh
-from idbench_skfem.model import SvkBeam
-from idbench_skfem.scenarios import SCENARIOS
+from idbench_fem.bodies import box
+from idbench_fem.models.beam import SvkBeam
+from idbench_fem.models.beam_scenarios import SCENARIOS
 
 
 def _model(nu=0.3, solver=None, spec="4x2x2"):
     options = {"regions": 2} | ({"solver": solver} if solver else {})
     return SvkBeam(
-        mesh.parse(spec),
+        box.parse(spec),
         SCENARIOS[3],
         n_steps=5,
         nu=nu,
@@ -52,7 +53,7 @@ def test_matches_scikit_fem_forms(nu):
     r = m.internal_force(theta, u)
     K = m.tangent(theta, u).toarray()
     free = np.setdiff1d(np.arange(m.n_nodes), m.beam.clamped)
-    r_ref, K_ref = _reference.residual_and_tangent(
+    r_ref, K_ref = svk_forms.residual_and_tangent(
         m.beam.points,
         m.beam.tets,
         free,

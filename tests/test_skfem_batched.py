@@ -9,17 +9,17 @@ from toymodels import LinearToy
 import idbench
 from idbench import ModelFailure, ModelSpec, Observation, Prior
 from idbench.testing import check_batch_model
+from idbench_fem.bodies import box
+from idbench_fem.models.beam import SvkBeam
+from idbench_fem.models.beam_scenarios import SCENARIOS
 from idbench_filters import RoUkf, Ukf
 from idbench_filters._common import advance_many
-from idbench_skfem import mesh
-from idbench_skfem.model import SvkBeam
-from idbench_skfem.scenarios import SCENARIOS
 
 E_TRUE = 5000.0
 
 
 def _beam(spec="6x2x2", n_steps=6, **kw):
-    return SvkBeam(mesh.parse(spec), SCENARIOS[0], n_steps=n_steps, **kw)
+    return SvkBeam(box.parse(spec), SCENARIOS[0], n_steps=n_steps, **kw)
 
 
 class NoBatch:
@@ -190,7 +190,7 @@ def test_a_run_does_not_depend_on_the_runs_before_it():
 def test_line_residuals_equal_assembled_ones():
     # p = 1: residuals of the predictions from the cubic along the line equal
     # the assembled residuals to round-off, and det F > 0 is judged alike
-    from idbench_skfem.batched import _line_residuals, _residuals
+    from idbench_fem.fem.batched import _line_residuals, _residuals
 
     model = _beam("8x2x2")
     k = 4
@@ -218,7 +218,7 @@ def test_line_residuals_equal_assembled_ones():
 
 
 def test_line_residuals_when_every_prediction_is_the_anchor():
-    from idbench_skfem.batched import _line_residuals, _residuals
+    from idbench_fem.fem.batched import _line_residuals, _residuals
 
     model = _beam("8x2x2")
     u_a = _path(model, [E_TRUE], 2)[-1]
@@ -235,7 +235,7 @@ def test_line_residuals_when_every_prediction_is_the_anchor():
 
 @pytest.mark.parametrize("beta", [0.0, 1.0, 2.0, 0.5])
 def test_prediction_steps_agree_to_first_order(beta):
-    from idbench_skfem.batched import _prediction_steps
+    from idbench_fem.fem.batched import _prediction_steps
 
     theta_a = np.array([5000.0, 3000.0])
     h = np.array([[1e-4, -2e-4]]) * theta_a
@@ -246,7 +246,7 @@ def test_prediction_steps_agree_to_first_order(beta):
 def test_prediction_in_inverse_theta_is_exact_for_a_linear_model():
     """u = c / theta: S = -u_a / theta_a, and u_a + S t equals u(theta) for any
     theta, however far (the linear-in-theta prediction does not)."""
-    from idbench_skfem.batched import _prediction_steps
+    from idbench_fem.fem.batched import _prediction_steps
 
     c, theta_a = np.array([2.0, -1.0, 0.5]), np.array([5000.0])
     u_a = c / theta_a

@@ -9,16 +9,22 @@ import meshio
 import numpy as np
 import pytest
 
-from idbench_skfem import body as bodies
-from idbench_skfem import resolve, solidmesh
-from idbench_skfem.loads import (
+from idbench_fem.bodies import description as bodies
+from idbench_fem.bodies import resolve
+from idbench_fem.bodies.loads import (
     gravity_forces,
     nodal_forces,
     patch_forces,
     pressure_forces,
     traction_forces,
 )
-from idbench_skfem.solidmesh import Region, closest_on_triangles
+from idbench_fem.bodies.mesh import (
+    Region,
+    closest_on_triangles,
+    from_arrays,
+    inside,
+    read_mesh,
+)
 
 L, W, H = 0.2, 0.03, 0.04
 
@@ -32,7 +38,7 @@ def beam():
     )
     p, t = m.p.T, m.t.T
     centroids = p[t].mean(axis=1)
-    return solidmesh.from_arrays(
+    return from_arrays(
         p,
         t,
         "beam",
@@ -301,14 +307,14 @@ def test_mesh_files_without_tets_or_inverted(tmp_path):
     path = tmp_path / "surface.vtu"
     meshio.write(path, meshio.Mesh(p, [("triangle", np.array([[0, 1, 2]]))]))
     with pytest.raises(ValueError) as exc:
-        solidmesh.read_mesh(path)
+        read_mesh(path)
     _one_line(exc, "surface.vtu", "no 'tetra' cells", "triangle")
     folded = np.array([[0, 1, 2, 3], [1, 2, 3, 0]])  # the same tet twice
     with pytest.raises(ValueError) as exc:
-        solidmesh.from_arrays(p, folded, "folded")
+        from_arrays(p, folded, "folded")
     _one_line(exc, "folded", "inverted")
     with pytest.raises(ValueError) as exc:
-        solidmesh.read_mesh(tmp_path / "nope.msh")
+        read_mesh(tmp_path / "nope.msh")
     _one_line(exc, "nope.msh", "does not exist")
 
 
@@ -354,7 +360,7 @@ def test_body_file_with_a_gmsh_liver(tmp_path):
     b = bodies.load_body(tmp_path / "body.toml")
     paths = resolve.mesh_paths(b)  # generates the two meshes
     assert [p.name for p in paths] == ["liver-n120.msh", "liver-n250.msh"]
-    meshes = [solidmesh.read_mesh(p) for p in paths]
+    meshes = [read_mesh(p) for p in paths]
     resolve.check(b, meshes)
     coarse, truth = meshes
     # the same fixed patch on both: its area is resolution-independent up to facets
@@ -364,7 +370,7 @@ def test_body_file_with_a_gmsh_liver(tmp_path):
     assert np.all(markers[:, 1] >= -1e-9)  # anterior: y >= 0
     grid = resolve.shape_error_points(b, truth)
     assert len(grid) > 10
-    assert solidmesh.inside(coarse, grid).all()  # the margin keeps them locatable
+    assert inside(coarse, grid).all()  # the margin keeps them locatable
     f = nodal_forces(b.manipulation("sag-90"), coarse, 1060.0)
     assert f.sum(0)[1] == pytest.approx(-9.81 * 1060.0 * coarse.volumes.sum())
     assert b.material.make(E=1.0).linear_in_modulus
@@ -376,7 +382,7 @@ EXAMPLES = __import__("pathlib").Path(__file__).resolve().parent.parent / "examp
 @pytest.mark.parametrize(("geometry", "size"), [("liver", 150), ("kidney", 250)])
 def test_example_bodies_resolve_on_small_meshes(tmp_path, geometry, size):
     pytest.importorskip("gmsh")
-    from idbench_skfem.geometry import make_meshes
+    from idbench_fem.bodies.geometry import make_meshes
 
     b = bodies.load_body(EXAMPLES / geometry / "body.toml")
     assert b.material.law == "neo-hookean"
@@ -386,7 +392,7 @@ def test_example_bodies_resolve_on_small_meshes(tmp_path, geometry, size):
     assert b.mesh.truth.name == f"{geometry}-n16000.msh"
     assert b.mesh.truth.parent == EXAMPLES / geometry / "meshes"
     (path,) = make_meshes(geometry, [size], tmp_path)
-    mesh = solidmesh.read_mesh(path)
+    mesh = read_mesh(path)
     resolve.check(b, [mesh])  # every name and selector resolves
     for m in b.manipulations:
         total = nodal_forces(m, mesh, b.material.density).sum(0)

@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("gmsh")
 meshio = pytest.importorskip("meshio")
 
-from idbench_skfem import geometry  # noqa: E402
+from idbench_fem.bodies import geometry  # noqa: E402
 
 
 @pytest.fixture(scope="module")

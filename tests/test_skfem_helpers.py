@@ -15,12 +15,13 @@ import numpy as np
 import pytest
 
 from idbench import ModelFailure, Observation, Prior
+from idbench_fem.bodies import box
+from idbench_fem.fem import batched
+from idbench_fem.fem.step_workers import Helper, HelperLost
+from idbench_fem.models.beam import SvkBeam
+from idbench_fem.models.beam_scenarios import SCENARIOS
+from idbench_fem.models.beam_settings import BeamSettings
 from idbench_filters import RoUkf
-from idbench_skfem import batched, mesh
-from idbench_skfem.helpers import Helper, HelperLost
-from idbench_skfem.model import SvkBeam
-from idbench_skfem.scenarios import SCENARIOS
-from idbench_skfem.settings import BeamSettings
 
 SPREAD = 0.3
 """Log-normal spread of the regional moduli: far enough apart that the
@@ -29,7 +30,7 @@ anchor's predictions settle no pair, so the helpers get work."""
 
 def _beam(processes: int = 1) -> SvkBeam:
     return SvkBeam(
-        mesh.parse("8x2x2"), SCENARIOS[0], n_steps=4, parameters="E_regions",
+        box.parse("8x2x2"), SCENARIOS[0], n_steps=4, parameters="E_regions",
         options={"regions": 4, "processes": processes},
     )  # fmt: skip
 
@@ -232,7 +233,7 @@ def test_helpers_of_models_in_two_threads_do_not_stop_each_other(caplog):
         except Exception as exc:  # reported below
             errors.append(exc)
 
-    with caplog.at_level(logging.WARNING, logger="idbench_skfem.helpers"):
+    with caplog.at_level(logging.WARNING, logger="idbench_fem.fem.step_workers"):
         threads = [threading.Thread(target=run) for _ in range(2)]
         for t in threads:
             t.start()
@@ -255,7 +256,7 @@ def test_predictions_take_the_form_of_the_parameters(monkeypatch, p, beta):
 
     monkeypatch.setattr(batched, "_prediction_steps", spy)
     if p == 1:
-        model = SvkBeam(mesh.parse("8x2x2"), SCENARIOS[0], n_steps=4)
+        model = SvkBeam(box.parse("8x2x2"), SCENARIOS[0], n_steps=4)
         thetas = np.array([[4000.0], [5000.0], [6000.0]])
     else:
         model, thetas = _beam(), _thetas()
@@ -294,7 +295,7 @@ def test_a_lost_helper_is_replaced_by_this_process(caplog, sigpipe_default):
     assert helper.calls == 1
     helper._process.kill()
     helper._process.wait()
-    with caplog.at_level(logging.WARNING, logger="idbench_skfem.helpers"):
+    with caplog.at_level(logging.WARNING, logger="idbench_fem.fem.step_workers"):
         new = model.step_many(thetas, 2, states)
     assert "helper process was lost" in caplog.text
     assert not helper.alive and model._step_helpers() == []
@@ -351,11 +352,11 @@ def test_a_script_without_a_main_guard_can_use_helpers(tmp_path):
         textwrap.dedent(
             """
             import numpy as np
-            from idbench_skfem import mesh
-            from idbench_skfem.model import SvkBeam
-            from idbench_skfem.scenarios import SCENARIOS
+            from idbench_fem.bodies import box
+            from idbench_fem.models.beam import SvkBeam
+            from idbench_fem.models.beam_scenarios import SCENARIOS
 
-            m = SvkBeam(mesh.parse("6x2x2"), SCENARIOS[0], n_steps=2,
+            m = SvkBeam(box.parse("6x2x2"), SCENARIOS[0], n_steps=2,
                         parameters="E_regions", options={"regions": 4, "processes": 2})
             th = 5000.0 * np.exp(0.3 * np.random.default_rng(0).normal(size=(5, 4)))
             u = m.step_many(th, 1, np.tile(m.reset(), (5, 1)))
@@ -392,7 +393,7 @@ def test_a_helper_inside_a_long_solve_ends_with_its_killed_parent(tmp_path):
             """
             import os, signal
             import sleepy
-            from idbench_skfem.helpers import Helper
+            from idbench_fem.fem.step_workers import Helper
 
             helper = Helper(sleepy.build, sleepy.solve)
             helper.submit(600.0)  # the helper is ready, now in a 10-minute solve

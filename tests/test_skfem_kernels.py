@@ -7,11 +7,11 @@ import sys
 import numpy as np
 import pytest
 
-from idbench_skfem import kernels
-from idbench_skfem import mesh as meshes
-from idbench_skfem.assembly import Assembler
-from idbench_skfem.model import SvkBeam
-from idbench_skfem.scenarios import SCENARIOS
+from idbench_fem.bodies import box as meshes
+from idbench_fem.fem import kernels
+from idbench_fem.fem.svk_assembly import Assembler
+from idbench_fem.models.beam import SvkBeam
+from idbench_fem.models.beam_scenarios import SCENARIOS
 
 numba = pytest.importorskip("numba")  # in the test extra; optional for users
 

@@ -6,19 +6,23 @@ import meshio
 import numpy as np
 import pytest
 
-from idbench_skfem import mesh
-from idbench_skfem.probes import grid_points, interpolation_matrix, marker_points
+from idbench_fem.bodies import box
+from idbench_fem.fem.interpolation import (
+    grid_points,
+    interpolation_matrix,
+    marker_points,
+)
 
 
 def test_divisions_spec():
-    m = mesh.parse("14x3x3")
+    m = box.parse("14x3x3")
     assert m.points.shape == (15 * 4 * 4, 3)
     assert m.tets.shape == (14 * 9 * 6, 4)
-    np.testing.assert_allclose(m.size, [mesh.LENGTH, mesh.WIDTH, mesh.HEIGHT])
+    np.testing.assert_allclose(m.size, [box.LENGTH, box.WIDTH, box.HEIGHT])
     assert len(m.clamped) == 16
     assert len(m.loaded_faces) == 2 * 9
     np.testing.assert_allclose(
-        m.nodal_traction_weights().sum(), mesh.WIDTH * mesh.HEIGHT
+        m.nodal_traction_weights().sum(), box.WIDTH * box.HEIGHT
     )
     x = m.points[m.tets]
     vol = np.einsum(
@@ -32,13 +36,13 @@ def test_divisions_spec():
     ("target", "expected"), [("240", (14, 3, 3)), ("239", (14, 3, 3))]
 )
 def test_node_count_spec(target, expected):
-    assert mesh.divisions_for_nodes(int(target)) == expected
-    assert len(mesh.parse(target).points) == 240
+    assert box.divisions_for_nodes(int(target)) == expected
+    assert len(box.parse(target).points) == 240
 
 
 @pytest.mark.parametrize("target", [500, 1000, 4000, 11000])
 def test_node_count_is_about_right_and_near_cubic(target):
-    nx, ny, nz = mesh.divisions_for_nodes(target)
+    nx, ny, nz = box.divisions_for_nodes(target)
     assert ny == nz
     assert abs((nx + 1) * (ny + 1) ** 2 / target - 1) < 0.1
     assert 0.5 < (0.2 / nx) / (0.03 / ny) < 2
@@ -57,16 +61,16 @@ def test_node_count_is_about_right_and_near_cubic(target):
 )
 def test_bad_specs_are_named(spec, match):
     with pytest.raises(ValueError, match=match):
-        mesh.parse(spec)
+        box.parse(spec)
 
 
 @pytest.mark.parametrize("suffix", [".vtu", ".msh"])
 def test_meshio_round_trip(tmp_path, suffix):
-    m = mesh.parse("6x2x2")
+    m = box.parse("6x2x2")
     path = tmp_path / f"beam{suffix}"
     kwargs = {"file_format": "gmsh22", "binary": False} if suffix == ".msh" else {}
     meshio.write(path, meshio.Mesh(m.points, [("tetra", m.tets)]), **kwargs)
-    back = mesh.parse(str(path))
+    back = box.parse(str(path))
     np.testing.assert_allclose(back.points, m.points)
     np.testing.assert_array_equal(back.tets, m.tets)
     np.testing.assert_array_equal(back.clamped, m.clamped)
@@ -80,7 +84,7 @@ def test_file_without_tets(tmp_path):
     pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=float)
     meshio.write(path, meshio.Mesh(pts, [("triangle", np.array([[0, 1, 2]]))]))
     with pytest.raises(ValueError, match="no 'tetra' cells"):
-        mesh.parse(str(path))
+        box.parse(str(path))
 
 
 def test_markers_order():
@@ -103,7 +107,7 @@ def test_grid_strictly_inside():
 
 
 def test_probe_interpolates_linear_fields_exactly():
-    m = mesh.parse("5x2x2")
+    m = box.parse("5x2x2")
     free = np.ones(len(m.points), bool)
     free[m.clamped] = False
     f2f = np.full(3 * len(m.points), -1)

@@ -6,13 +6,14 @@ import json
 
 import numpy as np
 import pytest
+from oracles import svk_forms
 
 import idbench
-from idbench_skfem import _reference, mesh
-from idbench_skfem.model import SvkBeam, make_model
-from idbench_skfem.scenarios import SCENARIOS
-from idbench_skfem.settings import end_traction
-from idbench_skfem.solver import pardiso_available, resolve_backend
+from idbench_fem.bodies import box
+from idbench_fem.fem.solver import pardiso_available, resolve_backend
+from idbench_fem.models.beam import SvkBeam, make_model
+from idbench_fem.models.beam_scenarios import SCENARIOS
+from idbench_fem.models.beam_settings import end_traction
 
 BEND_Y, BEND_Z, STRETCH_X, MIXED_30, MIXED_60 = SCENARIOS
 E_TRUE = np.array([5000.0])
@@ -33,11 +34,11 @@ def _tiny(direction=(0.0, -1.0, 0.0), magnitude=1e-4):
 
 
 def test_small_load_limit_is_linear_elasticity():
-    m = SvkBeam(mesh.parse("10x2x2"), _tiny((0.6, -0.8, 0.0)), n_steps=1, nu=0.45)
+    m = SvkBeam(box.parse("10x2x2"), _tiny((0.6, -0.8, 0.0)), n_steps=1, nu=0.45)
     u = m.displacement_field(m.step(E_TRUE, 1, m.reset()))
     f = np.zeros((m.n_nodes, 3))
     f[:, :] = m.beam.nodal_traction_weights()[:, None] * 1e-4 * np.array([0.6, -0.8, 0])
-    u_lin = _reference.linear_solution(
+    u_lin = svk_forms.linear_solution(
         m.beam.points, m.beam.tets, m.beam.clamped, f, 5000.0, 0.45
     )
     np.testing.assert_allclose(u, u_lin, rtol=0, atol=1e-5 * np.abs(u_lin).max())
@@ -53,7 +54,7 @@ def test_tip_deflection_matches_timoshenko():
     timoshenko = force * L**3 / (3 * E * inertia) + force * L / (kappa * shear * W * H)
     d = []
     for n in [(20, 4, 4), (30, 6, 6), (45, 9, 9)]:
-        m = SvkBeam(mesh.structured(*n), _tiny(magnitude=t), n_steps=1, nu=nu)
+        m = SvkBeam(box.structured(*n), _tiny(magnitude=t), n_steps=1, nu=nu)
         d.append(-m.tip(m.step(np.array([E]), 1, m.reset()))[1])
     d1, d2, d3 = d
     assert d1 < d2 < d3 < timoshenko  # stiff from below
@@ -75,7 +76,7 @@ def test_discretization_stiffening():
 
 def test_newton_converges_quadratically():
     m = SvkBeam(
-        mesh.parse("14x3x3"),
+        box.parse("14x3x3"),
         STRETCH_X,
         n_steps=1,
         options={"rtol": 1e-12, "atol": 0.0, "chord_ratio": 0.0},  # plain Newton
@@ -104,7 +105,7 @@ def test_twenty_steps_bitwise_deterministic():
 
 
 def test_step_is_stateless_and_counts_cost():
-    m = SvkBeam(mesh.parse("8x2x2"), BEND_Z, n_steps=4)
+    m = SvkBeam(box.parse("8x2x2"), BEND_Z, n_steps=4)
     u0 = m.reset()
     assert u0.shape == (m.n_state,) and not u0.any()
     u1 = m.step(E_TRUE, 1, u0)
@@ -119,14 +120,14 @@ def test_step_is_stateless_and_counts_cost():
 
 
 def test_substeps_reach_the_same_state():
-    m = SvkBeam(mesh.parse("8x2x2"), BEND_Y, n_steps=2)
+    m = SvkBeam(box.parse("8x2x2"), BEND_Y, n_steps=2)
     a = _run(m, E_TRUE)
     b = _run(m, E_TRUE, substeps=3)
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * np.abs(a).max())
 
 
 def test_model_failure_on_absurd_parameters():
-    m = SvkBeam(mesh.parse("8x2x2"), BEND_Y, n_steps=1)
+    m = SvkBeam(box.parse("8x2x2"), BEND_Y, n_steps=1)
     with pytest.raises(idbench.ModelFailure) as info:
         m.step(np.array([1e-3]), 1, m.reset())
     assert info.value.step == 1
@@ -137,7 +138,7 @@ def test_model_failure_on_absurd_parameters():
 
 
 def test_substeps_rescue_a_large_step():
-    m = SvkBeam(mesh.parse("8x2x2"), BEND_Y, n_steps=1, options={"max_iterations": 5})
+    m = SvkBeam(box.parse("8x2x2"), BEND_Y, n_steps=1, options={"max_iterations": 5})
     with pytest.raises(idbench.ModelFailure):
         m.step(np.array([1500.0]), 1, m.reset())
     u = m.step(np.array([1500.0]), 1, m.reset(), substeps=8)
@@ -145,7 +146,7 @@ def test_substeps_rescue_a_large_step():
 
 
 def test_bad_arguments():
-    m = SvkBeam(mesh.parse("4x2x2"), BEND_Y, n_steps=3)
+    m = SvkBeam(box.parse("4x2x2"), BEND_Y, n_steps=3)
     with pytest.raises(ValueError, match="k = 4"):
         m.step(E_TRUE, 4, m.reset())
     with pytest.raises(ValueError, match="shape"):
@@ -174,7 +175,7 @@ def test_bad_arguments():
 )
 def test_sensitivity_matches_finite_differences(options):
     m = SvkBeam(
-        mesh.parse("12x2x2"),
+        box.parse("12x2x2"),
         MIXED_60,
         n_steps=3,
         markers=5,
@@ -207,7 +208,7 @@ def test_sensitivity_after_chord_steps_is_as_good_as_a_fresh_factorization(scena
     # stretching converges after one Newton update and chord steps: the
     # factorization held is then a whole load increment old, so sensitivity()
     # must factor K(u) itself rather than refine from it (a 2e-5 error before)
-    m = SvkBeam(mesh.parse("12x3x3"), scenario, n_steps=3, markers=5)
+    m = SvkBeam(box.parse("12x3x3"), scenario, n_steps=3, markers=5)
     theta = E_TRUE
     u = _run(m, theta)
     reused = m.sensitivity(theta, 3, u)
@@ -220,40 +221,40 @@ def test_sensitivity_after_chord_steps_is_as_good_as_a_fresh_factorization(scena
 def test_chord_ratio_must_be_below_one():
     for bad in (-0.1, 1.0, 2.0):
         with pytest.raises(ValueError, match="chord_ratio"):
-            SvkBeam(mesh.parse("4x1x1"), STRETCH_X, options={"chord_ratio": bad})
+            SvkBeam(box.parse("4x1x1"), STRETCH_X, options={"chord_ratio": bad})
 
 
 def test_inclusion_with_background_slabs():
     """The box is the last region; the rest is split into ``regions`` slabs."""
-    box = (0.08, 0.12, 0.0075, 0.0225, 0.0075, 0.0225)
+    cuboid = (0.08, 0.12, 0.0075, 0.0225, 0.0075, 0.0225)
     m = SvkBeam(
-        mesh.parse("20x4x4"),
+        box.parse("20x4x4"),
         BEND_Y,
         n_steps=1,
         parameters="E_regions",
-        options={"inclusion": box, "regions": 3},
+        options={"inclusion": cuboid, "regions": 3},
     )
     assert m.parameters.names == tuple(f"E_region{r}" for r in range(4))
     c = m.beam.points[m.beam.tets].mean(axis=1)
-    inside = np.all((c >= box[0::2]) & (c <= box[1::2]), axis=1)
+    inside = np.all((c >= cuboid[0::2]) & (c <= cuboid[1::2]), axis=1)
     assert np.all(m._regions[inside] == 3)
     assert inside.sum() == 4 * 2 * 2 * 6  # the box is 4x2x2 hexes of this mesh
     slab = np.minimum((c[:, 0] / 0.2 * 3).astype(int), 2)
     np.testing.assert_array_equal(m._regions[~inside], slab[~inside])
     one = SvkBeam(
-        mesh.parse("20x4x4"), BEND_Y, n_steps=1, parameters="E_regions",
-        options={"inclusion": box},
+        box.parse("20x4x4"), BEND_Y, n_steps=1, parameters="E_regions",
+        options={"inclusion": cuboid},
     )  # fmt: skip
     np.testing.assert_array_equal(one._regions, inside.astype(int))
     with pytest.raises(ValueError, match="some slab contains no element"):
         SvkBeam(
-            mesh.parse("4x1x1"), BEND_Y, n_steps=1, parameters="E_regions",
+            box.parse("4x1x1"), BEND_Y, n_steps=1, parameters="E_regions",
             options={"inclusion": (0.0, 0.1, 0, 0.03, 0, 0.03), "regions": 2},
         )  # fmt: skip
 
 
 def test_single_modulus_sensitivity_is_minus_u_over_E_in_linear_limit():
-    m = SvkBeam(mesh.parse("10x2x2"), _tiny(), n_steps=1, markers=2)
+    m = SvkBeam(box.parse("10x2x2"), _tiny(), n_steps=1, markers=2)
     u = m.step(E_TRUE, 1, m.reset())
     np.testing.assert_allclose(
         m.sensitivity(E_TRUE, 1, u)[:, 0], -m.observe(u) / 5000.0, rtol=1e-5, atol=1e-20
@@ -268,7 +269,7 @@ def test_pardiso_and_scipy_agree(monkeypatch):
     states = {}
     for backend in ("pardiso", "scipy"):
         monkeypatch.setenv("IDBENCH_SOLVER", backend)
-        m = SvkBeam(mesh.parse("14x3x3"), MIXED_30, n_steps=4, markers=4)
+        m = SvkBeam(box.parse("14x3x3"), MIXED_30, n_steps=4, markers=4)
         assert m.backend == backend
         states[backend] = (_run(m, E_TRUE), m.sensitivity(E_TRUE, 4, _run(m, E_TRUE)))
     a, b = states["pardiso"], states["scipy"]

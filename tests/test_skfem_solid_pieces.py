@@ -4,21 +4,23 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from oracles import general_law
 
-from idbench_skfem import _generic, resolve, solidmesh
-from idbench_skfem import body as bodies
-from idbench_skfem.loads import nodal_forces
-from idbench_skfem.materials import NeoHookean, Svk
+from idbench_fem.bodies import description as bodies
+from idbench_fem.bodies import resolve
+from idbench_fem.bodies.loads import nodal_forces
+from idbench_fem.bodies.mesh import read_mesh
+from idbench_fem.fem.materials import NeoHookean, Svk
 
 pytest.importorskip("gmsh")
 
 
 @pytest.fixture(scope="module")
 def liver(tmp_path_factory):
-    from idbench_skfem.geometry import make_meshes
+    from idbench_fem.bodies.geometry import make_meshes
 
     (path,) = make_meshes("liver", [150], tmp_path_factory.mktemp("m"))
-    return solidmesh.read_mesh(path)
+    return read_mesh(path)
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +37,7 @@ def test_equilibrium_and_convergence(liver, body, name):
     fixed = resolve.fixed_nodes(body, liver)
     E = resolve.element_moduli(body, liver)
     rho = body.material.density
-    sol = _generic.solve(
+    sol = general_law.solve(
         body.material.make(), liver.points, liver.tets, E, fixed,
         lambda t: nodal_forces(m, liver, rho, t), steps=4,
     )  # fmt: skip
@@ -63,7 +65,7 @@ def test_neo_hookean_and_svk_agree_at_small_load(liver, body):
     diffs = []
     for scale in (0.02, 0.01):
         u = [
-            _generic.solve(
+            general_law.solve(
                 law(nu=0.47), liver.points, liver.tets, E, fixed,
                 lambda t, s=scale: s * nodal_forces(m, liver, 1060.0, t), steps=1,
             ).u

@@ -8,13 +8,13 @@ import sys
 
 import pytest
 
-from idbench_skfem import solver
+from idbench_fem.fem import solver
 
 
 def test_mkl_runtime_is_found_without_importing_pypardiso():
     pytest.importorskip("pypardiso")
     code = (
-        "import sys; from idbench_skfem.solver import _mkl, _mkl_rt_path; "
+        "import sys; from idbench_fem.fem.solver import _mkl, _mkl_rt_path; "
         "lib = _mkl(); print(_mkl_rt_path()); "
         "assert 'pypardiso' not in sys.modules, 'pypardiso was imported'"
     )

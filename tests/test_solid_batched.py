@@ -10,11 +10,11 @@ import pytest
 import idbench
 from idbench import Observation, Prior
 from idbench.testing import check_batch_model, check_model_settings
+from idbench_fem.bodies.catalog import body_path
+from idbench_fem.fem import batched
+from idbench_fem.models.solid import make_model
+from idbench_fem.models.solid_settings import SolidSettings
 from idbench_filters import RoUkf
-from idbench_skfem import batched
-from idbench_skfem.bodies import body_path
-from idbench_skfem.solid import make_model
-from idbench_skfem.solid_settings import SolidSettings
 
 pytest.importorskip("gmsh")  # the organs' meshes are generated on first use
 

@@ -5,17 +5,17 @@ from __future__ import annotations
 import meshio
 import numpy as np
 import pytest
+from oracles import general_law
 
 import idbench
 from idbench.testing import check_model
-from idbench_skfem import _generic
-from idbench_skfem import body as bodies
-from idbench_skfem.materials import NeoHookean
-from idbench_skfem.mesh import parse as beam_mesh
-from idbench_skfem.model import make_model as make_beam
-from idbench_skfem.settings import end_traction
-from idbench_skfem.solid import SolidModel, make_model
-from idbench_skfem.solid_assembly import LawAssembler
+from idbench_fem.bodies import description as bodies
+from idbench_fem.bodies.box import parse as beam_mesh
+from idbench_fem.fem.law_assembly import LawAssembler
+from idbench_fem.fem.materials import NeoHookean
+from idbench_fem.models.beam import make_model as make_beam
+from idbench_fem.models.beam_settings import end_traction
+from idbench_fem.models.solid import SolidModel, make_model
 
 
 def write_beam_body(tmp_path, spec="8x2x2", law="svk", nu=0.45, E=5000.0,
@@ -97,8 +97,8 @@ def test_general_kernel_matches_the_reference_kernel():
     asm = LawAssembler(beam.points, beam.tets, free, law)
     modulus = rng.uniform(1.0, 3.0, len(beam.tets))
     kin = asm.kinematics(u.ravel(), modulus)
-    grads, vol = _generic.shape_gradients(beam.points, beam.tets)
-    fe, Ke = _generic.element_kernel(law, u, beam.tets, grads, vol, modulus)
+    grads, vol = general_law.shape_gradients(beam.points, beam.tets)
+    fe, Ke = general_law.element_kernel(law, u, beam.tets, grads, vol, modulus)
     f_ref = np.bincount((3 * beam.tets[:, :, None] + np.arange(3)).ravel(),
                         fe.ravel(), u.size)  # fmt: skip
     np.testing.assert_allclose(asm.forces(kin), f_ref, rtol=1e-12, atol=1e-14)
@@ -269,7 +269,7 @@ def test_transfer_must_name_another_manipulation(tmp_path):
 
 
 def test_bad_settings():
-    from idbench_skfem.solid_settings import SolidSettings
+    from idbench_fem.models.solid_settings import SolidSettings
 
     for kw, word in (({"law": "rubber"}, "law"),
                      ({"kernel": "fast"}, "kernel"), ({"nu": 0.5}, "nu"),

@@ -129,7 +129,7 @@ def test_simulate_cli_rejects_bad_input(tmp_path, capsys):
 
 def test_simulate_cli_writes_the_models_cell_data(tmp_path, capsys, monkeypatch):
     """A model's optional ``cell_data()`` (region tags) goes with every step."""
-    from idbench_skfem import model as beam_model
+    from idbench_fem.models import beam as beam_model
 
     def cell_data(self):
         return {"region": np.arange(len(self.beam.tets), dtype=float)}

@@ -1,7 +1,7 @@
 r"""Reference: any hyperelastic law on P1 tets, and a plain Newton solve.
 
 Test oracle and prototype for the ``solid`` model, not its hot path. Per
-element, with one quadrature point (:mod:`idbench_skfem.materials`)
+element, with one quadrature point (:mod:`idbench_fem.fem.materials`)
 
 .. math::
 
@@ -23,7 +23,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spl
 from numpy.typing import NDArray
 
-from idbench_skfem.materials import Material, mandel, strain_variation
+from idbench_fem.fem.materials import Material, mandel, strain_variation
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

@@ -18,13 +18,13 @@ belongs to). The internal force is linear in theta,
 :math:`\partial u / \partial \theta_r = -K^{-1} g_r(u)`: one back-substitution
 per parameter with the last factorization.
 
-Newton's conventions are the beam's (:mod:`idbench_skfem.model`): converged
+Newton's conventions are the beam's (:mod:`idbench_fem.models.beam`): converged
 when :math:`\|r\| \le \max(\mathrm{rtol} \|f_{ext}(k)\|, \mathrm{atol})`
 with rtol = 1e-8 and atol = 1e-12 times the end force; each update is halved
 (up to 8 times) while an element would have det F <= 0.
 
 Sigma points of a filter step go through :meth:`SolidModel.step_many`
-(:mod:`idbench_skfem.batched`, as the beam's): one pair solved by Newton, the
+(:mod:`idbench_fem.fem.batched`, as the beam's): one pair solved by Newton, the
 others predicted from its sensitivity and corrected by chord steps on its
 scaled factorization (both laws are linear in the moduli), optionally shared
 with helper processes (setting ``processes``).
@@ -52,17 +52,17 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from idbench import Cost, ModelSpec, ParameterSpec, Scenario
-from idbench_skfem import resolve
-from idbench_skfem.assembly import Assembler
-from idbench_skfem.batched import BatchedSteps
-from idbench_skfem.bodies import get_body, get_mesh, mesh_file
-from idbench_skfem.body import Body
-from idbench_skfem.loads import nodal_forces
-from idbench_skfem.probes import _barycentric
-from idbench_skfem.solid_assembly import LawAssembler
-from idbench_skfem.solid_settings import SolidSettings
-from idbench_skfem.solidmesh import SolidMesh, project_to_surface
-from idbench_skfem.solver import resolve_backend
+from idbench_fem.bodies import resolve
+from idbench_fem.bodies.catalog import get_body, get_mesh, mesh_file
+from idbench_fem.bodies.description import Body
+from idbench_fem.bodies.loads import nodal_forces
+from idbench_fem.bodies.mesh import SolidMesh, project_to_surface
+from idbench_fem.fem.batched import BatchedSteps
+from idbench_fem.fem.interpolation import barycentric
+from idbench_fem.fem.law_assembly import LawAssembler
+from idbench_fem.fem.solver import resolve_backend
+from idbench_fem.fem.svk_assembly import Assembler
+from idbench_fem.models.solid_settings import SolidSettings
 
 log = logging.getLogger(__name__)
 
@@ -134,7 +134,7 @@ class SolidModel(BatchedSteps):
         free = np.ones(len(mesh.points), dtype=bool)
         free[fixed] = False
         self.n_nodes = len(mesh.points)
-        from idbench_skfem.materials import Material, make_material
+        from idbench_fem.fem.materials import Material, make_material
 
         law = cast(Material, make_material(self.law_name, 1.0, self.nu))
         if self.law_name == "svk" and s.kernel == "auto":
@@ -382,7 +382,7 @@ def _interpolation(
     k = min(k, len(mesh.tets))
     _, cand = cKDTree(x.mean(axis=1)).query(points, k=k)
     cand = np.asarray(cand).reshape(len(points), k)
-    bary = _barycentric(points[:, None, :], x[cand])  # (P, k, 4)
+    bary = barycentric(points[:, None, :], x[cand])  # (P, k, 4)
     best = bary.min(axis=2).argmax(axis=1)
     rows = np.arange(len(points))
     w = np.clip(bary[rows, best], 0.0, None)
@@ -395,13 +395,13 @@ def make_model(spec: ModelSpec) -> SolidModel:
 
     ``spec.scenario.load`` names the manipulation (``{"manipulation": NAME}``,
     optionally ``"body"``: else the settings' body); ``spec.mesh`` is a mesh
-    spec of that body (:mod:`idbench_skfem.bodies`).
+    spec of that body (:mod:`idbench_fem.bodies.catalog`).
 
     Raises
     ------
     ValueError
         One line: unknown body, manipulation or mesh, or a body that does not
-        fit the mesh (:mod:`idbench_skfem.resolve`).
+        fit the mesh (:mod:`idbench_fem.bodies.resolve`).
     """
     settings = spec.settings
     if settings is None:

@@ -5,8 +5,8 @@ deformation gradient F = I + H, the second Piola-Kirchhoff stress
 S = E_e (lambda tr(E) I + 2 mu E) with E = (H + H^T + H^T H) / 2, det F, and
 the assembled internal force f_a = V F S G_a on the free degrees of freedom
 (lambda and mu at unit modulus, E_e the element's modulus). It is the maths of
-:meth:`idbench_skfem.assembly.Assembler.kinematics` and
-:meth:`~idbench_skfem.assembly.Assembler.forces` without their ~40 numpy calls
+:meth:`idbench_fem.fem.svk_assembly.Assembler.kinematics` and
+:meth:`~idbench_fem.fem.svk_assembly.Assembler.forces` without their ~40 numpy calls
 of a few thousand elements each: about 11x faster at 500-1,100 nodes
 (``benchmarks/kernel.py``), equal to round-off (tests/test_skfem_kernels.py).
 A residual is half of a batched sigma point's cost, so this is what brings a

@@ -25,10 +25,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench_skfem.solidmesh import SolidMesh, region_facets
+from idbench_fem.bodies.mesh import SolidMesh, region_facets
 
 if TYPE_CHECKING:
-    from idbench_skfem.body import Manipulation
+    from idbench_fem.bodies.description import Manipulation
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -79,7 +79,7 @@ def nodal_forces(
     Parameters
     ----------
     manipulation
-        A parsed :class:`idbench_skfem.body.Manipulation`.
+        A parsed :class:`idbench_fem.bodies.description.Manipulation`.
     mesh
         The body's mesh (model or truth).
     density

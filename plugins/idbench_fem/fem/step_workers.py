@@ -1,9 +1,9 @@
 """Helper processes that solve some of a batched step's pairs (option ``processes``).
 
-With ``processes = n > 1`` a model's :func:`~idbench_skfem.batched.step_many`
+With ``processes = n > 1`` a model's :func:`~idbench_fem.fem.batched.step_many`
 splits the pairs it must iterate between ``n - 1`` helper processes and
 itself, in contiguous shares fixed by their order (so results do not depend
-on timing; see :mod:`idbench_skfem.batched` for which pairs and when). Each
+on timing; see :mod:`idbench_fem.fem.batched` for which pairs and when). Each
 helper is a process holding its own copy of the model (rebuilt from the
 constructor's arguments) and its own factorizations; a call ships thetas,
 predictions and given states (a few vectors of n floats) and gets the
@@ -13,11 +13,11 @@ in a process (:func:`start`).
 Threads did not pay here: a numpy residual evaluation is some 40 numpy calls
 on arrays of a few thousand elements, and two threads contending for the GIL
 ran them at half the speed of one (measured at 525 nodes, before the compiled
-kernel of :mod:`idbench_skfem.kernels`, which releases the GIL); processes do not
+kernel of :mod:`idbench_fem.fem.kernels`, which releases the GIL); processes do not
 share a GIL, and a pair (one factorization and a few chord iterations, ~4 ms at
 525 nodes) is long against a round trip through a pipe (~0.1 ms).
 
-A helper is ``python -m idbench_skfem.helpers`` on one end of a socket pair
+A helper is ``python -m idbench_fem.fem.step_workers`` on one end of a socket pair
 (not a multiprocessing child: spawning one re-imports the caller's main
 script, which a user's script without an ``if __name__ == "__main__"`` guard
 cannot survive). It starts on first use (about a second to import and build

@@ -140,6 +140,39 @@ def _det(a: FloatArray, b: FloatArray, c: FloatArray) -> FloatArray:
     return np.einsum("ti,ti->t", a, np.cross(b, c))
 
 
+def check_not_folded(
+    points: NDArray[np.float64], tets: NDArray[np.int64], spec: str
+) -> None:
+    """Raise ValueError if tetrahedra overlap their neighbours (inverted elements).
+
+    Vertex order is not a test of inversion (the tets were just re-oriented):
+    a tet is inverted when it lies on the same side of a shared face as its
+    neighbour, i.e. the two vertices opposite an interior face are not on
+    opposite sides of it, or a face is shared by more than two tets.
+    """
+    local = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])
+    faces = np.sort(tets[:, local].reshape(-1, 3), axis=1)
+    opposite = tets.reshape(-1)
+    p0, p1, p2 = (points[faces[:, i]] for i in range(3))
+    side = np.sign(
+        np.einsum("fi,fi->f", np.cross(p1 - p0, p2 - p0), points[opposite] - p0)
+    )
+    n = len(points)
+    keys = faces if n >= 2**21 else (faces[:, 0] * n + faces[:, 1]) * n + faces[:, 2]
+    _, inverse, counts = np.unique(
+        keys, axis=0, return_inverse=True, return_counts=True
+    )
+    inverse = inverse.reshape(-1)
+    balance = np.bincount(inverse, weights=side)
+    bad_face = (counts > 2) | ((counts == 2) & (balance != 0))
+    if np.any(bad_face):
+        bad = np.unique(np.flatnonzero(bad_face[inverse]) // 4)
+        raise ValueError(
+            f"mesh {spec!r}: has inverted tetrahedra ({len(bad)} overlap a "
+            f"neighbour, e.g. tetrahedron {int(bad[0])}); fix or remesh it"
+        )
+
+
 def from_arrays(
     points: FloatArray,
     tets: IntArray,
@@ -166,8 +199,6 @@ def from_arrays(
     ValueError
         No tets, degenerate or inverted tets, bad indices.
     """
-    from idbench_skfem.mesh import _check_not_folded
-
     points = np.ascontiguousarray(points, dtype=np.float64)
     tets = np.array(tets, dtype=np.int64)
     if tets.ndim != 2 or tets.shape[1] != 4 or len(tets) == 0:
@@ -193,7 +224,7 @@ def from_arrays(
         )
     flip = det < 0
     tets[flip, 2], tets[flip, 3] = tets[flip, 3].copy(), tets[flip, 2].copy()
-    _check_not_folded(points, tets, path)
+    check_not_folded(points, tets, path)
 
     faces = tets[:, _LOCAL_FACES].reshape(-1, 3)
     key = np.sort(faces, axis=1)
@@ -383,7 +414,7 @@ def inside(mesh: SolidMesh, points: FloatArray) -> NDArray[np.bool_]:
     """Whether each point lies in the body (in some tet, to round-off)."""
     from scipy.spatial import cKDTree
 
-    from idbench_skfem.probes import _barycentric
+    from idbench_fem.fem.interpolation import barycentric
 
     points = np.atleast_2d(np.asarray(points, dtype=float))
     x = mesh.points[mesh.tets]
@@ -393,7 +424,7 @@ def inside(mesh: SolidMesh, points: FloatArray) -> NDArray[np.bool_]:
     tree = cKDTree(centroids)
     for i, cand in enumerate(tree.query_ball_point(points, radius)):
         if cand:
-            lam = _barycentric(np.broadcast_to(points[i], (len(cand), 3)), x[cand])
+            lam = barycentric(np.broadcast_to(points[i], (len(cand), 3)), x[cand])
             result[i] = bool((lam.min(axis=1) >= -1e-9).any())
     return result
 

@@ -59,7 +59,7 @@ def grid_points(
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
-def _barycentric(points: FloatArray, x: FloatArray) -> FloatArray:
+def barycentric(points: FloatArray, x: FloatArray) -> FloatArray:
     """Barycentric coordinates of ``points`` (..., 3) in tets ``x`` (..., 4, 3)."""
     jac = np.stack([x[..., 1, :] - x[..., 0, :], x[..., 2, :] - x[..., 0, :],
                     x[..., 3, :] - x[..., 0, :]], axis=-1)  # fmt: skip
@@ -90,7 +90,7 @@ def locate(
     k = min(_CANDIDATES, len(tets))
     _, cand = cKDTree(x.mean(axis=1)).query(points, k=k)
     cand = np.asarray(cand).reshape(len(points), k)
-    bary = _barycentric(points[:, None, :], x[cand])  # (P, k, 4)
+    bary = barycentric(points[:, None, :], x[cand])  # (P, k, 4)
     worst = bary.min(axis=2)
     best = worst.argmax(axis=1)
     rows = np.arange(len(points))
@@ -98,7 +98,7 @@ def locate(
     out = bary[rows, best]
     miss = np.flatnonzero(worst[rows, best] < -_TOL)
     for i in miss:  # fallback: all tets (rare; big elements far from the point)
-        b = _barycentric(np.broadcast_to(points[i], (len(tets), 3)), x)
+        b = barycentric(np.broadcast_to(points[i], (len(tets), 3)), x)
         j = int(b.min(axis=1).argmax())
         if b[j].min() < -_TOL * max(1.0, scale):
             raise ValueError(f"point {points[i].tolist()} lies outside the mesh")

@@ -24,8 +24,8 @@ import re
 import tempfile
 from pathlib import Path
 
-from idbench_skfem.body import Body, load_body
-from idbench_skfem.solidmesh import SolidMesh, read_mesh
+from idbench_fem.bodies.description import Body, load_body
+from idbench_fem.bodies.mesh import SolidMesh, read_mesh
 
 SHIPPED = ("liver", "kidney")
 """Names of the shipped example bodies (``examples/NAME/body.toml``)."""
@@ -44,10 +44,10 @@ def body_path(spec: str) -> Path:
         If the file does not exist (naming the shipped examples).
     """
     if spec in SHIPPED:
-        here = Path(__file__).resolve().parent
+        package = Path(__file__).resolve().parent.parent  # idbench_fem/
         for candidate in (
-            here / "examples" / f"{spec}.toml",  # the wheel's copy
-            here.parent.parent / "examples" / spec / "body.toml",  # a checkout
+            package / "examples" / f"{spec}.toml",  # the wheel's copy
+            package.parent.parent / "examples" / spec / "body.toml",  # a checkout
         ):
             if candidate.is_file():
                 return candidate
@@ -95,7 +95,7 @@ def _generated(body: Body, name: str) -> Path:
             f"{body.source}: cannot generate {name!r}: generated meshes are "
             f"named {geometry}-nNODES.msh"
         )
-    from idbench_skfem.geometry import make_meshes
+    from idbench_fem.bodies.geometry import make_meshes
 
     folder.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=folder) as tmp:  # atomic for parallel runs

@@ -1,4 +1,8 @@
-"""Built-in model plugin: the St Venant-Kirchhoff beam and general solid bodies."""
+"""Built-in model plugin: the St Venant-Kirchhoff beam and general solid bodies.
+
+Folders: ``tools`` -> ``models`` -> ``bodies`` -> ``fem`` (each imports only
+those after it); the names of ``__all__`` are imported at first use.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +10,8 @@ from collections.abc import Callable
 from typing import Any
 
 import idbench
-from idbench_skfem.scenarios import SCENARIOS
+from idbench_fem.exports import HOME, load
+from idbench_fem.models.beam_scenarios import SCENARIOS
 
 
 @idbench.hookimpl
@@ -14,7 +19,7 @@ def register_scenarios(register: Callable[[Any], None]) -> None:
     """Register the beam's load paths (bend-y, bend-z, stretch-x, mixed-30/60)."""
     for scenario in SCENARIOS:
         register(scenario)
-    from idbench_skfem.solid_settings import all_scenarios
+    from idbench_fem.models.solid_settings import all_scenarios
 
     for scenario in all_scenarios({s.name for s in SCENARIOS}):
         register(scenario)
@@ -23,10 +28,10 @@ def register_scenarios(register: Callable[[Any], None]) -> None:
 @idbench.hookimpl
 def register_models(register: Callable[..., None]) -> None:
     """Register the cantilever as ``"svk-beam"`` and body TOMLs as ``"solid"``."""
-    from idbench_skfem.model import make_model
-    from idbench_skfem.settings import BeamSettings
-    from idbench_skfem.solid import make_model as make_solid
-    from idbench_skfem.solid_settings import SolidSettings
+    from idbench_fem.models.beam import make_model
+    from idbench_fem.models.beam_settings import BeamSettings
+    from idbench_fem.models.solid import make_model as make_solid
+    from idbench_fem.models.solid_settings import SolidSettings
 
     register("svk-beam", make_model, settings=BeamSettings, defaults=BEAM_DEFAULTS)
     register("solid", make_solid, settings=SolidSettings, defaults=SOLID_DEFAULTS)
@@ -35,7 +40,7 @@ def register_models(register: Callable[..., None]) -> None:
 @idbench.hookimpl
 def register_commands(register: Callable[[str, Any], None]) -> None:
     """Register ``idbench calibrate`` (the beam's effective-E map)."""
-    from idbench_skfem.commands import CALIBRATE
+    from idbench_fem.tools.commands import CALIBRATE
 
     register("calibrate", CALIBRATE)
 
@@ -64,3 +69,13 @@ SOLID_DEFAULTS = idbench.ModelDefaults(
     shorthands={"body": ("body", "body TOML path or shipped name (liver, kidney)")},
 )
 """The shipped liver (settings' default body): meshes by node count, grasp-lift."""
+
+
+
+
+__all__ = ["BEAM_DEFAULTS", "SCENARIOS", "SOLID_DEFAULTS", *sorted(HOME)]
+
+
+def __getattr__(name: str) -> Any:
+    """A name of ``__all__``, imported from its module at first use (PEP 562)."""
+    return load(name)

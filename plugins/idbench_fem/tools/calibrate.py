@@ -45,7 +45,7 @@ from idbench import (
     shape_error,
     simulate_truth,
 )
-from idbench_skfem.settings import EndTraction, end_traction
+from idbench_fem.models.beam_settings import EndTraction, end_traction
 
 FloatArray = NDArray[np.float64]
 

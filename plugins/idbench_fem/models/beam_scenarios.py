@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 from idbench import Scenario
-from idbench_skfem.settings import end_traction
+from idbench_fem.models.beam_settings import end_traction
 
 BEND_TRACTION = 8.9
 """End traction (Pa) for bending and mixed paths: tip moves about 0.05 m."""

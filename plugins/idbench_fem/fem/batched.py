@@ -20,7 +20,7 @@ unit parameters, :func:`_region_weights`; exact for one region at u = u_f).
    from the two previous increments when there are two, and is solved by
    chord iterations (below) with the factorization the previous call left,
    if nothing has refactored since; otherwise the model's own Newton
-   (:meth:`~idbench_skfem.newton.NewtonSolve._newton`) solves it from its
+   (:meth:`~idbench_fem.fem.newton.NewtonSolve._newton`) solves it from its
    given state. Nothing carries over a restart of the load path, so a
    filter run's results do not depend on what ran before it on the same
    model;
@@ -35,7 +35,7 @@ unit parameters, :func:`_region_weights`; exact for one region at u = u_f).
    the residuals of all predictions are evaluated together (vectorised over
    pairs), and only the pairs whose prediction misses the tolerance iterate.
 
-With the model option ``processes = n > 1`` (:mod:`idbench_skfem.helpers`)
+With the model option ``processes = n > 1`` (:mod:`idbench_fem.fem.step_workers`)
 the pairs that iterate are split in n contiguous shares, fixed by their
 order: n - 1 helper processes solve theirs (from no factorization) while this
 process solves the last share. When the previous call's predictions settled
@@ -70,12 +70,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from idbench import ModelFailure
-from idbench_skfem import helpers
-from idbench_skfem.helpers import Helper, HelperLost
-from idbench_skfem.newton import NewtonSolve
+from idbench_fem.fem import step_workers
+from idbench_fem.fem.newton import NewtonSolve
+from idbench_fem.fem.step_workers import Helper, HelperLost
 
 if TYPE_CHECKING:
-    from idbench_skfem.assembly import Kinematics
+    from idbench_fem.fem.svk_assembly import Kinematics
 
 FloatArray = NDArray[np.float64]
 
@@ -86,7 +86,7 @@ A chord iteration is refactored away when it reduces |r| by less than a
 factor SLOW, or after MAX_MODIFIED in a row. It costs a residual and a
 back-substitution: with numpy kernels about a quarter of a Newton iteration
 at 500 nodes (kernel and factorization), and a rate slower than 0.1 does not
-pay; with the compiled kernel (:mod:`idbench_skfem.kernels`) about a
+pay; with the compiled kernel (:mod:`idbench_fem.fem.kernels`) about a
 fifteenth, and chords pay down to 0.5. Measured on the RO-UKF path with p = 4
 (benchmarks/filters.py, one process): numpy 3.38 forward steps a step with
 (0.1, 6), 4.14 with (0.5, 15); compiled 2.62 with (0.1, 6) and 6.3
@@ -169,7 +169,7 @@ class _Anchor:
 class BatchedSteps(NewtonSolve):
     """Mixin: :meth:`step_many` for a Newton model whose force is linear in theta.
 
-    The model provides, besides :class:`~idbench_skfem.newton.NewtonSolve`'s
+    The model provides, besides :class:`~idbench_fem.fem.newton.NewtonSolve`'s
     needs, ``n_state``, ``n_steps``, ``_regions`` (each element's parameter,
     (T,)), ``external_force(k)``, ``_modulus(theta, k)`` (the elements'
     moduli, linear in theta), ``step`` and ``force_is_cubic`` (True where the
@@ -231,7 +231,7 @@ class BatchedSteps(NewtonSolve):
 
         ``thetas`` (r, p), ``states`` (r, n) -> states (r, n); row i equals
         ``step(thetas[i], k, states[i])`` to the Newton tolerance. See
-        :mod:`idbench_skfem.batched`. In ``cost()``, each pair counts as a
+        :mod:`idbench_fem.fem.batched`. In ``cost()``, each pair counts as a
         forward solve and each chord (modified Newton) iteration as a Newton
         iteration and a linear solve; ``factorizations`` counts the
         factorizations they share (with option ``processes``, the helper
@@ -248,7 +248,7 @@ class BatchedSteps(NewtonSolve):
         """The live helper processes (``processes - 1``, started on first use).
 
         One model's helpers run at a time in a thread (see
-        :func:`idbench_skfem.helpers.start`); this model's start again once
+        :func:`idbench_fem.fem.step_workers.start`); this model's start again once
         all of them were closed (by :meth:`close` or by another model's
         start). A lost helper is not replaced while others of this model live.
         A forked copy of the model starts its own (its starter's stay its
@@ -256,19 +256,21 @@ class BatchedSteps(NewtonSolve):
         """
         box = self._helpers
         if any(not h.owned for h in box):  # a forked copy of this model
-            helpers.close_all(box)  # (the copies of the sockets only)
+            step_workers.close_all(box)  # (the copies of the sockets only)
         if self.processes > 1 and (not box or all(h.closed for h in box)):
             assert self._recipe is not None
             if not box:  # the first start: stop them with the model
-                weakref.finalize(self, helpers.close_all, box)
-            box[:] = helpers.start(self, self.processes - 1, self._recipe, helper_solve)
+                weakref.finalize(self, step_workers.close_all, box)
+            box[:] = step_workers.start(
+                self, self.processes - 1, self._recipe, helper_solve
+            )
             if not box:  # could not start one: do not try at every step
                 self.processes = 1
         return [h for h in box if h.alive]
 
     def close(self) -> None:
         """Stop the helper processes, if any (they also stop with this process)."""
-        helpers.close_all(self._helpers)
+        step_workers.close_all(self._helpers)
 
     @property
     def batch_stats(self) -> BatchStats:

@@ -322,7 +322,10 @@ def mesh_series(
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    """Command line: ``python -m idbench_skfem.geometry liver --sizes 200,2000``."""
+    """Command line.
+
+    ``python -m idbench_fem.bodies.geometry liver --sizes 200,2000``.
+    """
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("geometry", choices=sorted(GEOMETRIES))
     parser.add_argument(

@@ -27,6 +27,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from idbench_fem.bodies.mesh import check_not_folded
+
 LENGTH = 0.2
 """Default beam length along x (m)."""
 
@@ -221,7 +223,7 @@ def from_arrays(
         )
     flip = det < 0
     tets[flip, 2], tets[flip, 3] = tets[flip, 3].copy(), tets[flip, 2].copy()
-    _check_not_folded(points, tets, spec)
+    check_not_folded(points, tets, spec)
     lower, upper = points.min(axis=0), points.max(axis=0)
     tol = 1e-9 * scale
     clamped = np.flatnonzero(np.abs(points[:, 0] - lower[0]) <= tol)
@@ -245,39 +247,6 @@ def from_arrays(
             "the beam must have flat end faces normal to x"
         )
     return BeamMesh(spec, points, tets, lower, upper, clamped, loaded)
-
-
-def _check_not_folded(
-    points: NDArray[np.float64], tets: NDArray[np.int64], spec: str
-) -> None:
-    """Raise ValueError if tetrahedra overlap their neighbours (inverted elements).
-
-    Vertex order is not a test of inversion (the tets were just re-oriented):
-    a tet is inverted when it lies on the same side of a shared face as its
-    neighbour, i.e. the two vertices opposite an interior face are not on
-    opposite sides of it, or a face is shared by more than two tets.
-    """
-    local = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])
-    faces = np.sort(tets[:, local].reshape(-1, 3), axis=1)
-    opposite = tets.reshape(-1)
-    p0, p1, p2 = (points[faces[:, i]] for i in range(3))
-    side = np.sign(
-        np.einsum("fi,fi->f", np.cross(p1 - p0, p2 - p0), points[opposite] - p0)
-    )
-    n = len(points)
-    keys = faces if n >= 2**21 else (faces[:, 0] * n + faces[:, 1]) * n + faces[:, 2]
-    _, inverse, counts = np.unique(
-        keys, axis=0, return_inverse=True, return_counts=True
-    )
-    inverse = inverse.reshape(-1)
-    balance = np.bincount(inverse, weights=side)
-    bad_face = (counts > 2) | ((counts == 2) & (balance != 0))
-    if np.any(bad_face):
-        bad = np.unique(np.flatnonzero(bad_face[inverse]) // 4)
-        raise ValueError(
-            f"mesh {spec!r}: has inverted tetrahedra ({len(bad)} overlap a "
-            f"neighbour, e.g. tetrahedron {int(bad[0])}); fix or remesh it"
-        )
 
 
 def read_file(path: str | Path, spec: str | None = None) -> BeamMesh:

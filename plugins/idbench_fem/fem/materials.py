@@ -16,7 +16,7 @@ Given deformation gradients F, shape (n, 3, 3), each law returns
   :math:`\mathbb{C} = \partial S / \partial \mathbf{E}`, (n, 3, 3, 3, 3), with
   major and minor symmetries;
 - :meth:`mandel_tangent`: the same tangent as a (n, 6, 6) matrix in Mandel
-  (orthonormal Voigt) form, the form :mod:`idbench_skfem.assembly` consumes.
+  (orthonormal Voigt) form, the form :mod:`idbench_fem.fem.svk_assembly` consumes.
 
 Here :math:`\mathbf{E} = (F^T F - I)/2` is the Green-Lagrange strain and
 :math:`C = F^T F = I + 2\mathbf{E}`; every law below depends on F only through
@@ -24,7 +24,7 @@ C, so :func:`deformation_from_strain` turns a strain into a valid F.
 
 Kernel contract
 ---------------
-The P1 kernel of :mod:`idbench_skfem.assembly` builds, per element, the
+The P1 kernel of :mod:`idbench_fem.fem.svk_assembly` builds, per element, the
 variations of E in Mandel order (11, 22, 33, sqrt2 12, sqrt2 13, sqrt2 23),
 ``B`` (T, 6, 12) (:func:`strain_variation`), and forms
 

@@ -17,9 +17,9 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from idbench import Scenario
-from idbench_skfem.body import Body
-from idbench_skfem.materials import LAWS
-from idbench_skfem.solver import BACKENDS
+from idbench_fem.bodies.description import Body
+from idbench_fem.fem.materials import LAWS
+from idbench_fem.fem.solver import BACKENDS
 
 log = logging.getLogger(__name__)
 
@@ -146,7 +146,7 @@ def body_scenarios(body: Body, spec: str) -> list[Scenario]:
 
 def registered_bodies() -> list[str]:
     """Body specs whose manipulations the plugin registers: shipped, then env."""
-    from idbench_skfem.bodies import SHIPPED
+    from idbench_fem.bodies.catalog import SHIPPED
 
     extra = [p for p in os.environ.get(BODIES_ENV, "").split(os.pathsep) if p.strip()]
     return [*SHIPPED, *(os.path.abspath(os.path.expanduser(p)) for p in extra)]
@@ -158,7 +158,7 @@ def all_scenarios(taken: set[str]) -> list[Scenario]:
     A body that cannot be read, or a duplicate name, is logged and skipped
     (one bad file must not disable the plugin).
     """
-    from idbench_skfem.bodies import get_body
+    from idbench_fem.bodies.catalog import get_body
 
     out: list[Scenario] = []
     seen = set(taken)

@@ -1,7 +1,7 @@
 """A body description resolved on a mesh: fixed nodes, markers, points, moduli.
 
-Each function takes a parsed :class:`idbench_skfem.body.Body` and a
-:class:`idbench_skfem.solidmesh.SolidMesh` and raises a one-line
+Each function takes a parsed :class:`idbench_fem.bodies.description.Body` and a
+:class:`idbench_fem.bodies.mesh.SolidMesh` and raises a one-line
 ``ValueError`` naming the body file, the region and the mesh when the
 description does not fit the mesh (unknown or empty region, markers off the
 body, regions that do not partition it, ...). :func:`check` runs them all.
@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench_skfem.solidmesh import (
+from idbench_fem.bodies.mesh import (
     Region,
     SolidMesh,
     inside,
@@ -26,7 +26,7 @@ from idbench_skfem.solidmesh import (
 )
 
 if TYPE_CHECKING:
-    from idbench_skfem.body import Body
+    from idbench_fem.bodies.description import Body
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -100,7 +100,7 @@ def shape_error_points(
     located in coarser meshes of the same body. With ``nodes = true``, the
     truth mesh's nodes that far inside.
     """
-    from idbench_skfem.probes import grid_points
+    from idbench_fem.fem.interpolation import grid_points
 
     se = body.shape_error
     margin = se.margin if margin is None else margin
@@ -169,7 +169,7 @@ def mesh_paths(body: Body) -> list[Path]:
     paths = [*body.mesh.models, body.mesh.truth]
     missing = [p for p in paths if not p.is_file()]
     if missing and body.mesh.geometry is not None:
-        from idbench_skfem.geometry import make_meshes
+        from idbench_fem.bodies.geometry import make_meshes
 
         make_meshes(body.mesh.geometry, list(body.mesh.sizes), missing[0].parent)
         missing = [p for p in paths if not p.is_file()]
@@ -186,7 +186,7 @@ def check(body: Body, meshes: list[SolidMesh] | None = None) -> None:
 
     Raises the first one-line ``ValueError`` met.
     """
-    from idbench_skfem.loads import nodal_forces
+    from idbench_fem.bodies.loads import nodal_forces
 
     if meshes is None:
         meshes = [read_mesh(p) for p in mesh_paths(body)]

@@ -62,8 +62,8 @@ identifiable unless a force is also observed.
 
 Errors are one-line ``ValueError``s naming the file, the bad value and what is
 allowed. Mesh-dependent checks (names, empty regions, markers off the body)
-happen when a region is resolved on a mesh (:mod:`idbench_skfem.resolve`;
-:func:`~idbench_skfem.resolve.check` does all of them).
+happen when a region is resolved on a mesh (:mod:`idbench_fem.bodies.resolve`;
+:func:`~idbench_fem.bodies.resolve.check` does all of them).
 """
 
 from __future__ import annotations
@@ -77,11 +77,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench_skfem.materials import LAWS, lame, make_material
-from idbench_skfem.solidmesh import (
+from idbench_fem.bodies.mesh import (
     SELECTORS,
     Region,
 )
+from idbench_fem.fem.materials import LAWS, lame, make_material
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -108,7 +108,7 @@ class Material:
     E_regions: tuple[tuple[str, float], ...] = ()
 
     def make(self, E: float | None = None):  # type: ignore[no-untyped-def]
-        """The law object of :mod:`idbench_skfem.materials` (at ``E`` if given)."""
+        """The law object of :mod:`idbench_fem.fem.materials` (at ``E`` if given)."""
         return make_material(self.law, self.E if E is None else E, self.nu)
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from idbench import ModelFailure, ParameterSpec
-from idbench_skfem.solver import SolverError, make_solver
+from idbench_fem.fem.solver import SolverError, make_solver
 
 FloatArray = NDArray[np.float64]
 

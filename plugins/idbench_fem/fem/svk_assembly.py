@@ -38,7 +38,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from idbench_skfem import kernels
+from idbench_fem.fem import kernels
 
 FloatArray = NDArray[np.float64]
 
@@ -72,7 +72,7 @@ class Kinematics:
     """Per-element state at one displacement, shapes (T, 3, 3) and (T,).
 
     ``forces`` is the assembled internal force (n,) when the compiled kernel
-    (:mod:`idbench_skfem.kernels`) computed it in the same pass, else None.
+    (:mod:`idbench_fem.fem.kernels`) computed it in the same pass, else None.
     """
 
     F: FloatArray
@@ -138,7 +138,7 @@ class Assembler:
         Poisson's ratio.
     compiled
         Evaluate kinematics and internal forces with the compiled kernel
-        (:mod:`idbench_skfem.kernels`); None: where numba is installed and
+        (:mod:`idbench_fem.fem.kernels`); None: where numba is installed and
         ``IDBENCH_NUMBA`` is not 0.
 
     Notes

@@ -17,14 +17,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from idbench import Cost, ModelSpec, ParameterSpec, Scenario
-from idbench_skfem import mesh as meshes
-from idbench_skfem.assembly import Assembler
-from idbench_skfem.batched import BatchedSteps
-from idbench_skfem.newton import CHORD_RATIO
-from idbench_skfem.probes import grid_points, interpolation_matrix, marker_points
-from idbench_skfem.regions import parameter_regions
-from idbench_skfem.settings import BeamSettings, EndTraction
-from idbench_skfem.solver import resolve_backend
+from idbench_fem.bodies import box as meshes
+from idbench_fem.bodies.regions import parameter_regions
+from idbench_fem.fem.batched import BatchedSteps
+from idbench_fem.fem.interpolation import (
+    grid_points,
+    interpolation_matrix,
+    marker_points,
+)
+from idbench_fem.fem.newton import CHORD_RATIO
+from idbench_fem.fem.solver import resolve_backend
+from idbench_fem.fem.svk_assembly import Assembler
+from idbench_fem.models.beam_settings import BeamSettings, EndTraction
 
 log = logging.getLogger(__name__)
 
@@ -57,19 +61,20 @@ class SvkBeam(BatchedSteps):
     nu
         Poisson's ratio.
     markers
-        Number of marker points (see :func:`idbench_skfem.probes.marker_points`).
+        Number of marker points (see
+        :func:`idbench_fem.fem.interpolation.marker_points`).
     grid
         Shape-error grid point counts (nx, ny, nz).
     parameters
-        ``"E"`` or ``"E_regions"`` (see :mod:`idbench_skfem.regions`).
+        ``"E"`` or ``"E_regions"`` (see :mod:`idbench_fem.bodies.regions`).
     options
         ``regions``, ``inclusion``, ``rtol``, ``atol``, ``max_iterations``,
         ``sensitivity_refine``, ``chord_ratio`` (see
-        :data:`idbench_skfem.newton.CHORD_RATIO`; 0: plain Newton), ``solver``
+        :data:`idbench_fem.fem.newton.CHORD_RATIO`; 0: plain Newton), ``solver``
         (``"pardiso"``/``"scipy"``; default
         from ``IDBENCH_SOLVER``), ``processes`` (default 1; n > 1: n - 1
         helper processes share the pairs of :meth:`step_many`, see
-        :mod:`idbench_skfem.helpers`).
+        :mod:`idbench_fem.fem.step_workers`).
 
     Attributes
     ----------

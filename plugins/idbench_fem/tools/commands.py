@@ -31,7 +31,7 @@ def _names(text: str) -> tuple[str, ...]:
 
 def configure(k: argparse.ArgumentParser) -> None:
     """The arguments of ``idbench calibrate``."""
-    from idbench_skfem.calibrate import ANGLES, HELD_BACK
+    from idbench_fem.tools.calibrate import ANGLES, HELD_BACK
 
     k.description = (
         "Map the effective E of a coarse beam mesh over load space: traction "
@@ -73,7 +73,7 @@ def configure(k: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """``idbench calibrate``: the E_eff map, its collapse and held-back scores."""
-    from idbench_skfem.calibrate import (
+    from idbench_fem.tools.calibrate import (
         ANGLES,
         HELD_BACK,
         CalibrationSettings,

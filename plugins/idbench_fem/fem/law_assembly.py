@@ -1,6 +1,6 @@
 r"""Vectorised internal force and tangent of any hyperelastic law on P1 tets.
 
-The general-law counterpart of :mod:`idbench_skfem.assembly` (which is the
+The general-law counterpart of :mod:`idbench_fem.fem.svk_assembly` (which is the
 St Venant-Kirchhoff fast path). With one quadrature point per element, the
 shape-function gradients G (T, 4, 3) and volumes V are constant; for all
 elements at once
@@ -15,13 +15,13 @@ elements at once
 
 with :math:`S_1` and :math:`D_1` the law's second Piola-Kirchhoff stress and
 Mandel tangent at unit Young's modulus (every law here is linear in E), B the
-Mandel strain variation (:func:`idbench_skfem.materials.strain_variation`)
+Mandel strain variation (:func:`idbench_fem.fem.materials.strain_variation`)
 and :math:`E_e` the element's modulus. The element matrices are one batched
 matmul; no Python loop runs over elements. The free-free CSR pattern and the
 scatter from element matrices to its data are built once.
 
 :class:`LawAssembler` has the public interface the ``solid`` model uses of
-:class:`idbench_skfem.assembly.Assembler` (``kinematics``, ``forces``,
+:class:`idbench_fem.fem.svk_assembly.Assembler` (``kinematics``, ``forces``,
 ``region_forces``, ``pattern``, ``tangent_data``, the dof maps), so either
 serves the same Newton.
 """
@@ -34,8 +34,8 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from idbench_skfem.assembly import Pattern, shape_gradients
-from idbench_skfem.materials import Material, strain_variation
+from idbench_fem.fem.materials import Material, strain_variation
+from idbench_fem.fem.svk_assembly import Pattern, shape_gradients
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -62,15 +62,15 @@ class LawAssembler:
     free
         Boolean mask of the nodes whose displacements are unknowns (N,).
     law
-        A :class:`idbench_skfem.materials.Material` with
+        A :class:`idbench_fem.fem.materials.Material` with
         ``linear_in_modulus``; it is evaluated at unit modulus.
     """
 
     STACKS = False
-    """One state at a time (:class:`~idbench_skfem.assembly.Assembler` takes stacks)."""
+    """One state at a time (:class:`~.svk_assembly.Assembler` takes stacks)."""
 
     compiled = False
-    """Numpy kernels only (the compiled one is SVK's, :mod:`idbench_skfem.kernels`)."""
+    """Numpy kernels only (the compiled one is SVK's, :mod:`~.kernels`)."""
 
     def __init__(
         self, points: FloatArray, tets: IntArray, free: NDArray[np.bool_], law: Material

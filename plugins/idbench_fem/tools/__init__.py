@@ -1,0 +1,1 @@
+"""Commands built on the models: ``idbench calibrate`` (the beam's effective-E map)."""

@@ -1,0 +1,1 @@
+"""Slow, obviously right references for the FE plugin's tests (not shipped)."""
