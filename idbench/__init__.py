@@ -8,7 +8,7 @@ from __future__ import annotations
 from typing import Any
 
 from idbench.config import ConfigError
-from idbench.filter import Analysis, Filter
+from idbench.filter import Analysis, Filter, noise_matrix
 from idbench.interfaces import (
     BatchModel,
     Cost,
@@ -22,8 +22,10 @@ from idbench.interfaces import (
     Observation,
     ParameterSpec,
     Prior,
+    ReactionModel,
     SensitiveModel,
     Skipped,
+    SurfaceModel,
 )
 from idbench.plugins import (
     Command,
@@ -81,13 +83,16 @@ __all__ = [
     "Prior",
     "Registry",
     "Scenario",
+    "ReactionModel",
     "SensitiveModel",
     "Skipped",
+    "SurfaceModel",
     "Sparsity",
     "__version__",
     "build_registry",
     "compare",
     "effective_path",
+    "noise_matrix",
     "get_plugin_manager",
     "hookimpl",
     "shape_error",

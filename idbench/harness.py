@@ -247,13 +247,15 @@ def _run(
             ) from None
     truth = session.truth(spec)
     stream = session.observations(spec)
+    session.frames(spec) if spec.observed_otherwise() else None  # shared, not timed
     direct = session.direct(spec)
     if phase is not None:
         phase("estimator")
     with _deadline(spec.timeout):  # the estimator's own work, not shared inputs
         t_start = time.perf_counter()
         with _blame(who, "start()"):
-            estimator.start(model, session.prior(model, spec))
+            seen = session.estimator_model(spec, model)  # h(x) of the run's
+            estimator.start(seen, session.prior(model, spec))  # observation model
         est, means, stds = _estimate(
             spec, estimator, who, stream, truth, direct, traces,
             (model, metrics_model), t_start,

@@ -235,7 +235,12 @@ class _Target:
                 continue
             if o.step != i:
                 raise ValueError(f"observation for step {o.step} at position {i}")
-            r = max(float(o.noise_std), settings.sigma_floor) ** 2
+            std = np.asarray(o.noise_std, dtype=float)
+            r: float | FloatArray = (
+                max(float(std), settings.sigma_floor) ** 2
+                if std.ndim == 0
+                else np.maximum(std, settings.sigma_floor) ** 2
+            )
             self.obs[i] = (np.asarray(o.values, dtype=float), r)
         if not self.obs:
             raise ValueError("no observations: the posterior is the prior")
@@ -308,7 +313,10 @@ class _Target:
                 y, r = self.obs[k]
                 for i in np.flatnonzero(alive):
                     h = np.asarray(model.observe(states[i]), dtype=float)
-                    ll[i] -= 0.5 * float(np.sum((y - h) ** 2)) / r
+                    if np.ndim(r) == 0:
+                        ll[i] -= 0.5 * float(np.sum((y - h) ** 2)) / r
+                    else:  # one variance per value
+                        ll[i] -= 0.5 * float(np.sum((y - h) ** 2 / r))
         self.failed += int(np.sum(~alive))
         ll[~alive] = -np.inf
         return ll
@@ -553,7 +561,7 @@ def model_error(
             y = np.asarray(obs[k].values, dtype=float)
             sq += float(np.sum((y - np.asarray(model.observe(u), dtype=float)) ** 2))
             n += y.size
-            noise += y.size * float(obs[k].noise_std) ** 2
+            noise += float(np.sum(np.broadcast_to(np.asarray(obs[k].noise_std) ** 2, y.shape)))
     return math.sqrt(max(0.0, (sq - noise) / n))
 
 

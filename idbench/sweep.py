@@ -28,6 +28,8 @@ from idbench.config import CompareConfig, ConfigError, build_settings, suggest
 from idbench.executors import THREAD_ENV, execute_all, start_method, started
 from idbench.files import stable_hash
 from idbench.interfaces import ForwardModel, ModelFailure, ModelSpec
+from idbench.observing import resolve as resolve_observations
+from idbench.observing import sense
 from idbench.plugins import Registry, build_registry, used_plugins
 from idbench.posterior import PosteriorSettings, check_budget
 from idbench.results import ResultStore
@@ -128,11 +130,15 @@ def plan(config: CompareConfig, session: Session) -> Plan:
     )
     runs = expand(config, setup)
     nodes: dict[str, int] = {}
+    built = []
     for mesh in (*config.meshes, config.truth_mesh):
         role = "truth" if mesh == config.truth_mesh else "est"
         build = functools.partial(session.model, runs[0], mesh, role=role)
         model = _build(reg, config, mesh, settings, build)
         nodes[mesh] = int(getattr(model, "n_nodes", 0))
+        built.append(model)
+    if config.observe != ("markers",) or config.observe_settings:
+        runs = expand(config, setup, resolve_observations(config, reg, built))
     runs, inputs = model_inputs(runs, session, config, settings)
     solves, work = 0, {}
     for spec in runs:
@@ -478,6 +484,8 @@ def prepare(runs: list[RunSpec], session: Session) -> None:
                         f"the truth ({spec.setup.truth_mesh}, {name}) cannot be "
                         f"simulated with these settings: {exc}"
                     ) from None
+        if spec.observed_otherwise():
+            sense(spec, session)
 
 
 def dispatch_order(runs: list[RunSpec], work: dict[str, float]) -> list[RunSpec]:

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from idbench import Analysis, Filter, ForwardModel, Observation, Prior
+from idbench import Analysis, Filter, ForwardModel, Observation, Prior, noise_matrix
 from idbench_filters._common import (
     FloatArray,
     advance_many,
@@ -144,10 +144,14 @@ class RoUkf(Filter):
             G = alpha * I @ Z.T  # (p, m)
             var = self.noise_var(observation) + self.model_error**2
             dz = Z - zbar[:, None]
-            self.innovation = (zbar, alpha * dz @ dz.T + var * np.eye(y.size))
+            self.innovation = (zbar, alpha * dz @ dz.T + noise_matrix(var, y.size))
             rinv = 1.0 / var
-            U = np.eye(I.shape[0]) + rinv * (G @ G.T)
-            x = x - L @ np.linalg.solve(U, rinv * (G @ zbar))
+            if np.ndim(rinv) == 0:
+                U = np.eye(I.shape[0]) + rinv * (G @ G.T)
+                x = x - L @ np.linalg.solve(U, rinv * (G @ zbar))
+            else:  # a diagonal R with one variance per value
+                U = np.eye(I.shape[0]) + (G * rinv) @ G.T
+                x = x - L @ np.linalg.solve(U, G @ (rinv * zbar))
             uinv = np.linalg.inv(U)
             uinv = 0.5 * (uinv + uinv.T)
         p_xi = L[nu:] @ uinv @ L[nu:].T
