@@ -31,6 +31,7 @@ from idbench.interfaces import (
     Observation,
     Skipped,
 )
+from idbench.observed_model import model_state
 from idbench.runspec import RunSpec
 from idbench.session import Session, estimator_arguments
 from idbench.truth import Truth
@@ -302,8 +303,8 @@ def _estimate(
         if not model.parameters.contains(mean):
             raise Diverged(f"estimate {mean} non-finite or outside bounds", step=k)
         means[k - 1], stds[k - 1] = mean, std
-        if est.state is not None:
-            state = est.state
+        if est.state is not None:  # the model's part (see observed_model)
+            state = model_state(est.state, shadow.size)
         else:
             shadow = metrics_model.step(mean, k, shadow)
             state = shadow

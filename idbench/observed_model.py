@@ -2,28 +2,26 @@
 
 The estimators call ``model.observe(state)`` after stepping to k; with an
 observation model other than plain markers, the harness hands them an
-:class:`ObservedModel` instead of the bare model. It forwards every member
-to the model and remembers, for each state it returned from ``step`` or
-``step_many``, the (theta, k) it was solved with, so that ``observe(state)``
-can answer with the prediction of step k's frame (a cloud's points differ
-from frame to frame; a force depends on theta). A state it did not produce
-(an estimator's own mean) is taken at the last stepped k (an error for an
-observation that needs theta). It has no ``sensitivity``: estimators then use
-finite differences (each an extra forward solve, counted).
+:class:`ObservedModel` instead of the bare model. Its state is the model's
+state with the parameters and the load step it was solved with appended,
+``[u (n,), theta (p,), k]``: ``step`` and ``step_many`` solve the model
+from ``u`` and append them, ``observe`` answers with the prediction of step
+k's frame for ``u`` at ``theta`` (a cloud's points differ from frame to
+frame; a force depends on theta even where u does not, as under displacement
+control). The appended entries are carried by the filters like any state
+entry and overwritten at every step. It has no ``sensitivity``: estimators
+that need one use finite differences (each an extra forward solve, counted).
+:func:`model_state` recovers ``u`` (the harness does, for the shape error).
 """
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from idbench.interfaces import FloatArray, ForwardModel
-
-MEMO = 65_536
-"""States remembered (a key of 16 bytes and theta each)."""
 
 
 class ObservedModel:
@@ -36,7 +34,7 @@ class ObservedModel:
     observation
         The :class:`~idbench.observe.ObservationModel`.
     frames
-        The run's frame of each step 1..K (None where a step has none).
+        The run's frame of each step 1..K.
     """
 
     def __init__(
@@ -45,8 +43,8 @@ class ObservedModel:
         self.model = model
         self.observation = observation
         self.frames = list(frames)
-        self._memo: OrderedDict[bytes, tuple[FloatArray, int]] = OrderedDict()
-        self._k = 0
+        self._n = int(np.asarray(model.reset()).size)
+        self._p = model.parameters.p
         self._size = next(
             (len(observation.values(f)) for f in self.frames if f is not None), 0
         )
@@ -66,55 +64,52 @@ class ObservedModel:
         """The model's load steps."""
         return self.model.n_steps
 
+    @property
+    def n_state(self) -> int:
+        """State size: the model's, plus p parameters and the step."""
+        return self._n + self._p + 1
+
     def reset(self) -> FloatArray:
-        """The model's unloaded state."""
-        self._k = 0
-        return self.model.reset()
+        """The model's unloaded state, with theta 0 and step 0 appended."""
+        return np.concatenate([self.model.reset(), np.zeros(self._p + 1)])
 
     def step(
         self, theta: FloatArray, k: int, state: FloatArray, *, substeps: int = 1
     ) -> FloatArray:
-        """The model's step, remembered for :meth:`observe`."""
-        new = self.model.step(theta, k, state, substeps=substeps)
-        self._remember(new, theta, k)
-        return new
+        """The model's step from ``state``'s u, with theta and k appended."""
+        u = np.asarray(state, dtype=float)[: self._n]
+        new = self.model.step(theta, k, u, substeps=substeps)
+        return np.concatenate([new, np.asarray(theta, dtype=float), [float(k)]])
 
     def step_many(self, thetas: FloatArray, k: int, states: FloatArray) -> FloatArray:
-        """The model's ``step_many`` (or r calls of ``step``), remembered."""
+        """The model's ``step_many`` (or r calls of ``step``), theta and k appended."""
+        u = np.asarray(states, dtype=float)[:, : self._n]
         many = getattr(self.model, "step_many", None)
         if many is None:
-            new = np.stack([self.model.step(t, k, s) for t, s in zip(thetas, states, strict=True)])
+            new = np.stack(
+                [self.model.step(t, k, s) for t, s in zip(thetas, u, strict=True)]
+            )
         else:
-            new = np.asarray(many(thetas, k, states))
-        for t, s in zip(thetas, new, strict=True):
-            self._remember(s, t, k)
-        return new
+            new = np.asarray(many(np.asarray(thetas), k, np.ascontiguousarray(u)))
+        ks = np.full((len(new), 1), float(k))
+        return np.concatenate([new, np.asarray(thetas, dtype=float), ks], axis=1)
 
     def observe(self, state: FloatArray) -> FloatArray:
-        """h(x): the prediction of the frame of the step ``state`` was solved at."""
-        theta, k = self._memo.get(_key(state), (None, self._k))
-        frame = self._frame(k)
-        if frame is None:  # the unloaded state (a filter asks for the size)
+        """h(x): the prediction of step k's frame for ``state`` = [u, theta, k]."""
+        state = np.asarray(state, dtype=float)
+        k = int(round(float(state[-1])))
+        if not 1 <= k <= len(self.frames):  # the unloaded state: only its size
             return np.zeros(self._size)
-        if theta is None:
-            theta = np.full(self.parameters.p, np.nan)
-        return np.asarray(
-            self.observation.predict(self.model, frame, theta, k, state), dtype=float
-        )
+        u = state[: self._n]
+        theta = state[self._n : self._n + self._p]
+        prediction = self.observation.predict(self.model, self.frames[k - 1], theta, k, u)
+        return np.asarray(prediction, dtype=float)
 
-    def _frame(self, k: int) -> Any:
-        return self.frames[k - 1] if 1 <= k <= len(self.frames) else None
-
-    def _remember(self, state: FloatArray, theta: FloatArray, k: int) -> None:
-        self._k = k
-        self._memo[_key(state)] = (np.array(theta, dtype=float), k)
-        if len(self._memo) > MEMO:
-            self._memo.popitem(last=False)
+    def grid(self, state: FloatArray) -> FloatArray:
+        """The model's shape-error points at ``state``'s u."""
+        return self.model.grid(np.asarray(state, dtype=float)[: self._n])
 
 
-def _key(state: FloatArray) -> bytes:
-    import hashlib
-
-    return hashlib.blake2b(
-        np.ascontiguousarray(state, dtype=float).tobytes(), digest_size=16
-    ).digest()
+def model_state(state: FloatArray, n: int) -> FloatArray:
+    """The model's own state (n,) of a state an estimator kept (maybe extended)."""
+    return np.asarray(state)[:n]
