@@ -48,7 +48,7 @@ MAX_PAIRS = 20_000_000
 """Triangle-pixel pairs a rendering may test (a resolution too fine refuses)."""
 
 CANDIDATES = 6
-"""Triangles (nearest centroids) tested exactly per point in :func:`point_to_surface`."""
+"""Triangles (nearest centroids) tested exactly per point (:func:`point_to_surface`)."""
 
 
 @dataclass(frozen=True)
@@ -166,7 +166,9 @@ class Cloud:
                     "observe cloud: the camera sees no part of the body (check "
                     "position, look_at, fov)"
                 )
-            keep = rng.permutation(depth.size)[: depth.size - round(self.holes * depth.size)]
+            keep = rng.permutation(depth.size)[
+                : depth.size - round(self.holes * depth.size)
+            ]
             if keep.size == 0:
                 keep = np.arange(depth.size)
             pick = rng.choice(keep, size=self.points, replace=keep.size < self.points)
@@ -184,7 +186,9 @@ class Cloud:
 
     def noise_std(self, frame: Any, noise: float) -> float:
         """The sigma along the ray the frame was measured with."""
-        return float(frame.data.get("sigma", noise if self.noise is None else self.noise))
+        return float(
+            frame.data.get("sigma", noise if self.noise is None else self.noise)
+        )
 
     def predict(
         self, model: ForwardModel, frame: Any, theta: FloatArray, k: int,

@@ -256,7 +256,8 @@ class Filter(_Conventions):
         """
         if np.ndim(observation.noise_std) == 0:
             return float(max(observation.noise_std, self.sigma_floor)) ** 2
-        return np.maximum(np.asarray(observation.noise_std, float), self.sigma_floor) ** 2
+        std = np.asarray(observation.noise_std, dtype=float)
+        return np.maximum(std, self.sigma_floor) ** 2
 
     def check_estimate(self, xi: FloatArray, k: int, *finite: FloatArray) -> None:
         """Raise :class:`~idbench.Diverged` at step k for a bad estimate.

@@ -224,7 +224,9 @@ def _reaction(
 ) -> FloatArray:
     reaction = getattr(model, "reaction", None)
     if reaction is None:
-        raise ConfigError(f"observe force: model {type(model).__name__} has no reaction")
+        raise ConfigError(
+            f"observe force: model {type(model).__name__} has no reaction"
+        )
     return np.asarray(reaction(theta, k, state), dtype=float).ravel()
 
 
@@ -305,7 +307,7 @@ def kinds(registry: Any = None) -> dict[str, type]:
 
 
 def block_names(name: str) -> list[str]:
-    """The blocks of an ``observe`` value: ``"cloud+force"`` -> ``["cloud", "force"]``."""
+    """The blocks of an ``observe`` value: ``"cloud+force"`` -> cloud, force."""
     parts = [p.strip() for p in str(name).split(COMBINE)]
     if not all(parts):
         raise ConfigError(f"observe {name!r}: an empty block; write e.g. cloud+force")
@@ -359,7 +361,7 @@ def build(
 
 
 def leaves(obs: Any) -> list[tuple[str, Any]]:
-    """(name, model) of each block of ``obs`` (itself, named ``""``, if not combined)."""
+    """(name, model) of each block of ``obs`` (itself, named ``""``, if single)."""
     return list(obs.blocks) if isinstance(obs, Combined) else [("", obs)]
 
 
@@ -376,18 +378,19 @@ def settings_items(
         return ()
     obs = build(name, tables, registry)
     out = []
-    for block, model in (
-        obs.blocks if isinstance(obs, Combined) else [(name, obs)]
-    ):
+    for block, model in obs.blocks if isinstance(obs, Combined) else [(name, obs)]:
         kind, _ = block_settings(block, tables, registry)
-        fields = dataclasses.asdict(model) if dataclasses.is_dataclass(model) else {}
+        dc = dataclasses.is_dataclass(model) and not isinstance(model, type)
+        fields = dataclasses.asdict(model) if dc else {}
         fields.pop("requires", None)
         items = tuple(sorted((k, _jsonable(v)) for k, v in fields.items()))
         out.append((block, (("kind", kind), *items)))
     return tuple(out)
 
 
-def from_items(name: str, items: tuple[tuple[str, Any], ...], registry: Any = None) -> Any:
+def from_items(
+    name: str, items: tuple[tuple[str, Any], ...], registry: Any = None
+) -> Any:
     """The observation model of a run, from :func:`settings_items` output."""
     tables = {block: dict(settings) for block, settings in items}
     return build(name, tables, registry)

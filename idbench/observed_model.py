@@ -97,12 +97,14 @@ class ObservedModel:
     def observe(self, state: FloatArray) -> FloatArray:
         """h(x): the prediction of step k's frame for ``state`` = [u, theta, k]."""
         state = np.asarray(state, dtype=float)
-        k = int(round(float(state[-1])))
+        k = round(float(state[-1]))
         if not 1 <= k <= len(self.frames):  # the unloaded state: only its size
             return np.zeros(self._size)
         u = state[: self._n]
         theta = state[self._n : self._n + self._p]
-        prediction = self.observation.predict(self.model, self.frames[k - 1], theta, k, u)
+        prediction = self.observation.predict(
+            self.model, self.frames[k - 1], theta, k, u
+        )
         return np.asarray(prediction, dtype=float)
 
     def grid(self, state: FloatArray) -> FloatArray:

@@ -561,7 +561,8 @@ def model_error(
             y = np.asarray(obs[k].values, dtype=float)
             sq += float(np.sum((y - np.asarray(model.observe(u), dtype=float)) ** 2))
             n += y.size
-            noise += float(np.sum(np.broadcast_to(np.asarray(obs[k].noise_std) ** 2, y.shape)))
+            var = np.asarray(obs[k].noise_std, dtype=float) ** 2
+            noise += float(np.sum(np.broadcast_to(var, y.shape)))
     return math.sqrt(max(0.0, (sq - noise) / n))
 
 

@@ -128,7 +128,8 @@ class RunSpec:
     def _observe_key(self) -> list[Any]:
         if not self.observed_otherwise():
             return []
-        return [self.observe, [[b, [list(i) for i in s]] for b, s in self.observe_settings]]
+        blocks = [[b, [list(i) for i in s]] for b, s in self.observe_settings]
+        return [self.observe, blocks]
 
     @property
     def sparsity(self) -> Sparsity:

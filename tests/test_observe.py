@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from toymodels import SensitiveLinearToy
 
 import idbench
 from idbench import observe
@@ -20,7 +21,6 @@ from idbench.depth_camera import Cloud, point_to_surface, render
 from idbench.interfaces import Observation
 from idbench.session import Session
 from idbench.sweep import compare, runs_of
-from toymodels import SensitiveLinearToy
 
 CUBE = np.array(
     [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
@@ -76,7 +76,9 @@ def test_the_z_buffer_is_not_a_normal_test():
 
 def clean_cube(origin: Any = (0.5, 0.5, 5.0)) -> dict[str, np.ndarray]:
     o = np.array(origin, dtype=float)
-    hits, depth, rays = render(CUBE, CUBE_TRIANGLES, o, np.zeros(3) + 0.5, (40, 30), 20.0)
+    hits, depth, rays = render(
+        CUBE, CUBE_TRIANGLES, o, np.zeros(3) + 0.5, (40, 30), 20.0
+    )
     return {"hits": hits, "depth": depth, "rays": rays, "origin": o}
 
 
@@ -118,7 +120,9 @@ def test_fixed_length_every_frame_of_a_bending_beam():
     model = beam()
     states = path(model, 5000.0)
     cloud = Cloud(points=123)
-    clean = [cloud.sense(model, np.array([5000.0]), k, s) for k, s in enumerate(states, 1)]
+    clean = [
+        cloud.sense(model, np.array([5000.0]), k, s) for k, s in enumerate(states, 1)
+    ]
     visible = [c["depth"].size for c in clean]
     frames = cloud.measure(clean, np.random.default_rng(1), 1e-4)
     assert {f["points"].shape for f in frames} == {(123, 3)}

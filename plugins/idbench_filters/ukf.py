@@ -29,7 +29,15 @@ from filterpy.kalman import (
     unscented_transform,
 )
 
-from idbench import Analysis, Filter, ForwardModel, Observation, Prior, Skipped, noise_matrix
+from idbench import (
+    Analysis,
+    Filter,
+    ForwardModel,
+    Observation,
+    Prior,
+    Skipped,
+    noise_matrix,
+)
 from idbench_filters._common import FloatArray, advance, advance_many, check_positive
 
 EIG_FLOOR = 1e-14  # relative eigenvalue floor of the sampled square root
