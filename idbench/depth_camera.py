@@ -18,12 +18,15 @@ instrument in front of the organ). A frame therefore has exactly ``points``
 points, without correspondence to the mesh.
 
 Residual (the model side, any state): each point's signed distance to the
-model's deformed surface: the exact closest point on the ``CANDIDATES``
-triangles whose centroids are nearest to it (a :class:`scipy.spatial.cKDTree`
-built on the deformed centroids at each call), signed by that triangle's
-normal. The approximation: the true closest triangle may lie outside the
-candidates where triangles are very uneven in size (the distance found is
-then an upper bound). Outliers are gated: :math:`r_i` is clipped to
+model's deformed surface, point-to-plane: the distance to the plane of the
+triangle whose centroid is nearest to it (a :class:`scipy.spatial.cKDTree`
+built on the deformed centroids at each call), signed by its outward normal.
+The approximation: exact where that triangle holds the closest point (or its
+neighbours are coplanar), second order in the offset along the surface
+otherwise (curvature x offset^2 / 2); it is smooth in the state, which the
+filters' sigma-point and finite-difference derivatives want. Setting
+``candidates`` > 1 takes instead the exact closest point among that many
+nearest-centroid triangles. Outliers are gated: :math:`r_i` is clipped to
 :math:`\pm g`, :math:`g = \max(\mathrm{gate}\,\sigma, \mathrm{gate\_min})`;
 a clipped point has the same residual for every sigma point or ensemble
 member, so it does not move a filter's estimate. The observation is y = 0
@@ -47,8 +50,8 @@ from idbench.interfaces import FloatArray, ForwardModel
 MAX_PAIRS = 20_000_000
 """Triangle-pixel pairs a rendering may test (a resolution too fine refuses)."""
 
-CANDIDATES = 6
-"""Triangles (nearest centroids) tested exactly per point (:func:`point_to_surface`)."""
+CANDIDATES = 1
+"""Default triangles per point in :func:`point_to_surface` (1: point-to-plane)."""
 
 
 @dataclass(frozen=True)
@@ -80,6 +83,10 @@ class Cloud:
         Fraction of each frame's points made outliers, in [0, 1).
     gate, gate_min
         Residuals are clipped to +- max(gate sigma, gate_min).
+    candidates
+        Triangles searched per point (:func:`point_to_surface`): 1 (default)
+        point-to-plane at the nearest-centroid triangle; more, the exact
+        closest point among that many (slower, kinked at edges).
     """
 
     points: int = 500
@@ -94,6 +101,7 @@ class Cloud:
     outliers: float = 0.0
     gate: float = 5.0
     gate_min: float = 1e-3
+    candidates: int = CANDIDATES
     requires: tuple[str, ...] = dataclasses.field(
         default=("surface",), init=False, repr=False
     )
@@ -125,6 +133,9 @@ class Cloud:
                 raise ValueError(f"{name} = {value!r}: need [x, y, z], numbers")
         if not np.any(self.direction):
             raise ValueError("direction = [0, 0, 0]: need a nonzero vector")
+        c = self.candidates
+        if isinstance(c, bool) or not isinstance(c, int) or c < 1:
+            raise ValueError(f"candidates = {c!r}: need a whole number >= 1")
         if not (_num(self.distance) and self.distance > 0):
             raise ValueError(f"distance = {self.distance!r}: need a number > 0")
         if self.noise is not None and not (_num(self.noise) and self.noise >= 0):
@@ -198,7 +209,10 @@ class Cloud:
         vertices, triangles = surface_of(model, state)
         sigma = self.noise_std(frame, 0.0)
         g = max(self.gate * sigma, self.gate_min)
-        return point_to_surface(frame.data["points"], vertices, triangles, gate=g)
+        return point_to_surface(
+            frame.data["points"], vertices, triangles, gate=g,
+            candidates=self.candidates,
+        )  # fmt: skip
 
     def identity(self) -> list[Any]:
         """Every setting but the noise sigma (it scales common draws)."""
@@ -364,16 +378,25 @@ def point_to_surface(
 ) -> FloatArray:
     """Signed distance (N,) of ``points`` to the surface, clipped to +- ``gate``.
 
-    The exact closest point on the ``candidates`` triangles whose centroids
-    are nearest (a :class:`scipy.spatial.cKDTree` on the deformed
-    centroids); the sign is that of (p - closest) . n of the closest
-    triangle's normal (positive outside).
+    ``candidates`` = 1 (default): point-to-plane, the signed distance to the
+    plane of the triangle whose centroid is nearest (a
+    :class:`scipy.spatial.cKDTree` on the deformed centroids): smooth in the
+    state, exact where that triangle holds the closest point or its
+    neighbours are coplanar, second order in the tangential offset otherwise.
+    More: the exact closest point on that many nearest-centroid triangles,
+    signed by the closest one's normal (positive outside).
     """
     p0 = vertices[triangles[:, 0]]
     p1 = vertices[triangles[:, 1]]
     p2 = vertices[triangles[:, 2]]
     k = min(int(candidates), len(triangles))
-    _, j = cKDTree((p0 + p1 + p2) / 3).query(points, k=k)
+    tree = cKDTree((p0 + p1 + p2) / 3, balanced_tree=False, compact_nodes=False)
+    if k == 1:
+        _, j1 = tree.query(points)
+        normal = np.cross(p1[j1] - p0[j1], p2[j1] - p0[j1])
+        normal /= np.linalg.norm(normal, axis=1)[:, None]
+        return np.clip(_dot(points - p0[j1], normal), -gate, gate)
+    _, j = tree.query(points, k=k)
     j = np.asarray(j).reshape(len(points), k)
     flat = j.ravel()
     rep = np.repeat(points, k, axis=0)

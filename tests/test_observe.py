@@ -148,7 +148,7 @@ def test_closest_point_distance_matches_brute_force():
 def test_cloud_residual_is_zero_on_the_truth_and_grows_with_a_wrong_E():
     model = beam()
     true, soft = path(model, 5000.0), path(model, 3500.0)
-    cloud = Cloud(points=400, noise=0.0)
+    cloud = Cloud(points=400, noise=0.0, candidates=6)
     k = model.n_steps
     clean = cloud.sense(model, np.array([5000.0]), k, true[-1])
     data = cloud.measure([clean], np.random.default_rng(0), 0.0)[0]
@@ -158,6 +158,18 @@ def test_cloud_residual_is_zero_on_the_truth_and_grows_with_a_wrong_E():
     assert np.abs(r_true).max() < 1e-12
     assert np.abs(r_soft).mean() > 1e-4
     assert np.all(cloud.values(frame) == 0) and len(r_true) == 400
+    # point-to-plane (the default): small on the truth, beside a wrong E
+    plane = Cloud(points=400, noise=0.0)
+    r_true = plane.predict(model, frame, np.array([5000.0]), k, true[-1])
+    r_soft = plane.predict(model, frame, np.array([3500.0]), k, soft[-1])
+    assert np.median(np.abs(r_true)) < 1e-12
+    assert np.abs(r_true).mean() < 0.2 * np.abs(r_soft).mean()
+
+
+def test_point_to_plane_is_exact_on_a_face_and_signed():
+    pts = np.array([[0.3, 0.4, 1.2], [0.6, 0.5, 0.9], [0.5, 0.5, -0.25]])
+    d = point_to_surface(pts, CUBE, CUBE_TRIANGLES)
+    np.testing.assert_allclose(d, [0.2, -0.1, 0.25], atol=1e-12)
 
 
 # --- the filters with a per-value noise ------------------------------------------
@@ -339,3 +351,19 @@ def test_a_model_without_surface_is_refused_for_a_cloud(driven):
     )  # fmt: skip
     with pytest.raises(ConfigError, match=r"needs the model's surface\(\)"):
         runs_of(config, driven)
+
+
+def test_toml_observe_axis_and_tables(tmp_path):
+    from idbench.config import build_config, load_toml
+
+    path = tmp_path / "c.toml"
+    path.write_text(
+        '[compare]\nobserve = ["markers", "cloud-few"]\n'
+        '[observe.cloud-few]\nkind = "cloud"\npoints = 20\n'
+    )
+    config = build_config(toml=load_toml(path), **tiny().__dict__ | {"observe": None})
+    assert config.observe == ("markers", "cloud-few")
+    runs = runs_of(config)
+    (few,) = [r for r in runs if r.observe == "cloud-few"]
+    assert dict(dict(few.observe_settings)["cloud-few"])["points"] == 20
+    assert Session().observations(few)[0].values.shape == (20,)
