@@ -27,6 +27,7 @@ from idbench.interfaces import (
     Skipped,
     SurfaceModel,
 )
+from idbench.lowrank import LowRankCovariance
 from idbench.plugins import (
     Command,
     PluginError,
@@ -74,6 +75,7 @@ __all__ = [
     "ForwardModel",
     "IdentityTransform",
     "LogTransform",
+    "LowRankCovariance",
     "ModelDefaults",
     "ModelFailure",
     "ModelSpec",

@@ -42,9 +42,6 @@ def base_row(spec: RunSpec) -> dict[str, Any]:
         "obs_points": spec.obs_points,
         "noise": spec.noise,
         "observe": spec.observe,
-        "observe_settings": json.dumps(
-            {b: dict(items) for b, items in spec.observe_settings}, sort_keys=True
-        ),
         "steps": s.steps,
         "prior_mean": s.prior[0],
         "prior_std": s.prior[1],

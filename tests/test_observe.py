@@ -367,3 +367,13 @@ def test_toml_observe_axis_and_tables(tmp_path):
     (few,) = [r for r in runs if r.observe == "cloud-few"]
     assert dict(dict(few.observe_settings)["cloud-few"])["points"] == 20
     assert Session().observations(few)[0].values.shape == (20,)
+
+
+def test_a_low_rank_innovation_covariance_gives_the_dense_nis():
+    from idbench.lowrank import LowRankCovariance
+    from idbench.metrics import nis
+
+    rng = np.random.default_rng(0)
+    low = LowRankCovariance(rng.uniform(0.5, 2.0, 40), rng.normal(size=(40, 3)))
+    v = rng.normal(size=40)
+    assert nis(v, low) == pytest.approx(nis(v, low.dense()), rel=1e-10)
