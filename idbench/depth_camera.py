@@ -6,8 +6,8 @@ pixels casts one ray through each pixel centre onto the deformed surface
 (triangle, pixel in its projected bounding box) pair is intersected
 (Moeller-Trumbore, both faces) and a z-buffer keeps the nearest hit per
 pixel, so what another part of the surface hides is never seen (occlusion,
-not a normal test). The clean reading is the hit point, its depth t and its
-unit ray of every covered pixel.
+not a normal test). The clean reading of a covered pixel is its hit depth t
+along its unit ray (the hit point is origin + t ray).
 
 Measuring (per run, through its seeded generator; common random numbers):
 ``holes`` drops that fraction of the covered pixels, ``points`` of the rest
@@ -154,14 +154,18 @@ class Cloud:
     def sense(
         self, model: ForwardModel, theta: FloatArray, k: int, state: FloatArray
     ) -> dict[str, FloatArray]:
-        """Render the deformed surface: ``hits`` (P, 3), ``depth`` (P,), ``rays``."""
+        """Render the deformed surface: ``depth`` (P,), ``rays`` (P, 3), ``origin``.
+
+        The P covered pixels' hit depth along their unit ray from the camera
+        at ``origin`` (3,); the hit points are ``origin + depth * rays``.
+        """
         vertices, triangles = surface_of(model, state)
         rest, _ = surface_of(model, model.reset())
         origin, look = self.pose(rest)
-        hits, depth, rays = render(
+        _, depth, rays = render(
             vertices, triangles, origin, look, self.resolution, self.fov
         )
-        return {"hits": hits, "depth": depth, "rays": rays, "origin": origin}
+        return {"depth": depth, "rays": rays, "origin": origin}
 
     def measure(
         self, clean: Sequence[Mapping[str, FloatArray]], rng: np.random.Generator,

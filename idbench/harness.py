@@ -248,7 +248,6 @@ def _run(
             ) from None
     truth = session.truth(spec)
     stream = session.observations(spec)
-    session.frames(spec) if spec.observed_otherwise() else None  # shared, not timed
     direct = session.direct(spec)
     if phase is not None:
         phase("estimator")

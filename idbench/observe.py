@@ -35,7 +35,7 @@ import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -79,6 +79,9 @@ class ObservationModel(Protocol):
 
     requires: tuple[str, ...]
     """Forward-model members it calls (checked before a sweep starts)."""
+
+    # optional: a class attribute ``needs_theta`` (default False): True when
+    # ``predict`` uses theta itself, not only the state (``force``).
 
     def sense(
         self, model: ForwardModel, theta: FloatArray, k: int, state: FloatArray
@@ -180,6 +183,8 @@ class Force:
     requires: tuple[str, ...] = dataclasses.field(
         default=("reaction",), init=False, repr=False
     )
+    needs_theta: ClassVar[bool] = True
+    """Its prediction depends on theta itself (not only through the state)."""
 
     def __post_init__(self) -> None:
         _positive("noise", self.noise)
@@ -241,6 +246,11 @@ class Combined:
     """
 
     blocks: tuple[tuple[str, Any], ...]
+
+    @property
+    def needs_theta(self) -> bool:
+        """Whether a block's prediction depends on theta itself."""
+        return any(getattr(b, "needs_theta", False) for _, b in self.blocks)
 
     @property
     def requires(self) -> tuple[str, ...]:
