@@ -92,7 +92,7 @@ class ObservedModel:
         return np.concatenate([new, self._carry(theta, k, new), [float(k)]])
 
     def step_many(self, thetas: FloatArray, k: int, states: FloatArray) -> FloatArray:
-        """The model's ``step_many`` (or r calls of ``step``), with what ``step`` adds."""
+        """The model's ``step_many`` (or r ``step`` calls), with what ``step`` adds."""
         u = np.asarray(states, dtype=float)[:, : self._n]
         many = getattr(self.model, "step_many", None)
         if many is None:
