@@ -165,6 +165,12 @@ class Cloud:
         _, depth, rays = render(
             vertices, triangles, origin, look, self.resolution, self.fov
         )
+        if depth.size == 0:
+            raise ValueError(
+                f"the camera at {np.round(origin, 6).tolist()} looking at "
+                f"{np.round(look, 6).tolist()} sees no part of the body at step {k} "
+                "(check position, look_at, direction, fov)"
+            )
         return {"depth": depth, "rays": rays, "origin": origin}
 
     def measure(

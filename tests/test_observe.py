@@ -257,6 +257,7 @@ def test_cloud_plus_force_concatenates_with_per_value_noise():
          ["holes", "[0, 1)"]),
         ({"observe": ("markers",), "observe_settings": {"clod": {"points": 3}}},
          ["[observe.clod]", "not used"]),
+
     ],
 )  # fmt: skip
 def test_bad_observation_settings_are_one_line(kw, words):
@@ -264,6 +265,21 @@ def test_bad_observation_settings_are_one_line(kw, words):
         runs_of(tiny(**kw))
     text = str(info.value)
     assert "\n" not in text and all(w in text for w in words), text
+
+
+def test_a_camera_that_sees_nothing_is_one_line_before_any_run(tmp_path):
+    config = tiny(
+        observe=("cloud",),
+        observe_settings={
+            "cloud": {"position": [0.0, 0.0, 10.0], "look_at": [0.0, 0.0, 20.0]}
+        },
+    )
+    with pytest.raises(ConfigError) as info:
+        compare(config, tmp_path)
+    text = str(info.value)
+    assert "\n" not in text
+    assert "observe 'cloud' on the truth" in text and "sees no part" in text
+    assert not (tmp_path / "runs.parquet").exists()
 
 
 def test_cli_compare_with_a_cloud(tmp_path, capsys):
@@ -379,3 +395,17 @@ def test_a_low_rank_innovation_covariance_gives_the_dense_nis():
     low = LowRankCovariance(rng.uniform(0.5, 2.0, 40), rng.normal(size=(40, 3)))
     v = rng.normal(size=40)
     assert nis(v, low) == pytest.approx(nis(v, low.dense()), rel=1e-10)
+
+
+def test_two_workers_give_the_serial_cloud_numbers(tmp_path):
+    config = tiny(
+        observe=("cloud", "cloud+force"), seeds=2,
+        observe_settings={"cloud": {"points": 40, "outliers": 0.1}},
+    )  # fmt: skip
+    serial, _ = compare(config, tmp_path / "serial")
+    pool, _ = compare(config, tmp_path / "pool", jobs=2)
+    cols = ["run_id", "E_final", "E_ref", "shape_error_final"]
+    a = serial[cols].sort_values("run_id").reset_index(drop=True)
+    b = pool[cols].sort_values("run_id").reset_index(drop=True)
+    np.testing.assert_array_equal(a.run_id, b.run_id)
+    np.testing.assert_allclose(a[cols[1:]], b[cols[1:]], rtol=1e-9)
