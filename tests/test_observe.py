@@ -409,3 +409,27 @@ def test_two_workers_give_the_serial_cloud_numbers(tmp_path):
     b = pool[cols].sort_values("run_id").reset_index(drop=True)
     np.testing.assert_array_equal(a.run_id, b.run_id)
     np.testing.assert_allclose(a[cols[1:]], b[cols[1:]], rtol=1e-9)
+
+
+def test_fe_surface_is_closed_and_outward_and_reaction_balances_the_load():
+    model = beam()
+    states = path(model, 5000.0)
+    V, T = model.surface(states[-1])
+    p0, p1, p2 = V[T[:, 0]], V[T[:, 1]], V[T[:, 2]]
+    volume = np.einsum("ij,ij->i", p0, np.cross(p1, p2)).sum() / 6
+    assert volume > 0  # outward normals enclose a positive volume
+    edges = np.sort(np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert np.all(counts == 2)  # closed: every edge in two triangles
+    load = model.external_force(model.n_steps).reshape(-1, 3).sum(axis=0)
+    reaction = model.reaction(np.array([5000.0]), model.n_steps, states[-1])
+    np.testing.assert_allclose(reaction, -load, atol=1e-9 * np.abs(load).max())
+
+
+def test_check_optional_members_catches_a_bad_surface():
+    from idbench.testing import check_optional_members
+
+    toy = SensitiveLinearToy(n_steps=3)
+    toy.surface = lambda state: (np.zeros((4, 3)), np.array([[0, 1, 7]]))  # type: ignore[attr-defined]
+    with pytest.raises(AssertionError, match="do not exist"):
+        check_optional_members(toy, toy.reset())
