@@ -8,7 +8,7 @@ from __future__ import annotations
 from typing import Any
 
 from idbench.config import ConfigError
-from idbench.filter import Analysis, Filter
+from idbench.filter import Analysis, Filter, noise_matrix
 from idbench.interfaces import (
     BatchModel,
     Cost,
@@ -22,9 +22,12 @@ from idbench.interfaces import (
     Observation,
     ParameterSpec,
     Prior,
+    ReactionModel,
     SensitiveModel,
     Skipped,
+    SurfaceModel,
 )
+from idbench.lowrank import LowRankCovariance
 from idbench.plugins import (
     Command,
     PluginError,
@@ -72,6 +75,7 @@ __all__ = [
     "ForwardModel",
     "IdentityTransform",
     "LogTransform",
+    "LowRankCovariance",
     "ModelDefaults",
     "ModelFailure",
     "ModelSpec",
@@ -81,13 +85,16 @@ __all__ = [
     "Prior",
     "Registry",
     "Scenario",
+    "ReactionModel",
     "SensitiveModel",
     "Skipped",
+    "SurfaceModel",
     "Sparsity",
     "__version__",
     "build_registry",
     "compare",
     "effective_path",
+    "noise_matrix",
     "get_plugin_manager",
     "hookimpl",
     "shape_error",

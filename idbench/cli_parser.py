@@ -284,6 +284,21 @@ def build_parser() -> argparse.ArgumentParser:
         f"models), comma list (default: {d('noise')})",
     )
     c.add_argument(
+        "--observe",
+        type=_names,
+        help="observation models, comma list (a sweep axis): markers, cloud, force, "
+        "a [observe.NAME] table's NAME, or blocks joined by + (cloud+force) "
+        f"(default: {d('observe')})",
+    )
+    c.add_argument(
+        "--observe-option",
+        dest="observe_options",
+        type=_assignments("observe-option"),
+        action="append",
+        help="a setting of an observation model, NAME.SETTING=VALUE (repeatable; "
+        "e.g. cloud.points=1000, cloud.outliers=0.05)",
+    )
+    c.add_argument(
         "--seeds",
         type=_number("seeds", int),
         help=f"number of noise seeds (default: {d('seeds')}; --quick: 1). Each"
@@ -528,3 +543,18 @@ def model_options(args: argparse.Namespace) -> dict[str, Any]:
             else:
                 given[target] = value
     return given
+
+
+def observe_options(args: argparse.Namespace) -> dict[str, dict[str, Any]] | None:
+    """``--observe-option NAME.SETTING=VALUE`` values as ``[observe.NAME]`` tables."""
+    out: dict[str, dict[str, Any]] = {}
+    for item in getattr(args, "observe_options", None) or ():
+        for key, value in item.items():
+            name, sep, setting = key.partition(".")
+            if not sep or not name or not setting:
+                raise UsageError(
+                    f"--observe-option {key}={value!r}: need NAME.SETTING=VALUE, "
+                    "e.g. cloud.points=1000"
+                )
+            out.setdefault(name, {})[setting] = value
+    return out or None

@@ -86,6 +86,13 @@ class CompareConfig:
     posterior_settings
         Its :class:`~idbench.posterior.PosteriorSettings` fields, e.g.
         ``{"points": 101, "max_solves": 20000}``.
+    observe
+        Observation-model sweep axis (:mod:`idbench.observe`): ``markers``
+        (default), ``cloud``, ``force``, a name of an ``[observe.NAME]`` table,
+        or blocks joined by ``+`` (``cloud+force``).
+    observe_settings
+        ``[observe.NAME]`` tables of settings, e.g. ``{"cloud": {"points": 500}}``;
+        a table with ``kind`` defines a variant of that kind.
     """
 
     estimators: tuple[str, ...] | None = None
@@ -107,6 +114,8 @@ class CompareConfig:
     quick: bool = False
     posterior: bool = False
     posterior_settings: dict[str, Any] = field(default_factory=dict)
+    observe: tuple[str, ...] = ("markers",)
+    observe_settings: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for name in ("estimators", "meshes", "scenarios"):
@@ -118,6 +127,7 @@ class CompareConfig:
             raise ConfigError(f"truth_mesh {self.truth_mesh!r}: need a mesh spec")
         for axis in ("obs_every", "obs_points", "noise"):
             _check_axis(axis, getattr(self, axis))
+        _check_names("observe", self.observe)
         for k in self.obs_every:
             _check_int("obs_every", k, 1)
         for m in self.obs_points:
@@ -170,7 +180,7 @@ class CompareConfig:
                 f"posterior_settings {self.posterior_settings!r}: need a table of "
                 "name = value"
             )
-        for what in ("model_settings", "estimator_settings"):
+        for what in ("model_settings", "estimator_settings", "observe_settings"):
             tables = getattr(self, what)
             if not isinstance(tables, dict):
                 raise ConfigError(
@@ -209,6 +219,7 @@ class CompareConfig:
             * len(self.obs_every)
             * len(self.obs_points)
             * len(self.noise)
+            * len(self.observe)
             * len(self.estimators or ())
             * self.seeds
         )
@@ -269,6 +280,7 @@ class CompareConfig:
         merged["estimator_settings"] = self.estimator_settings
         merged["true"] = self.true
         merged["posterior_settings"] = self.posterior_settings
+        merged["observe_settings"] = self.observe_settings
         return CompareConfig(**merged)
 
     def _proposed(self, registry: Any, model: str) -> ModelDefaults | None:
@@ -313,8 +325,11 @@ def max_runs() -> int:
 FIELDS = {f.name for f in dataclasses.fields(CompareConfig)} - {
     "model_settings",
     "estimator_settings",
+    "observe_settings",
 }
-LIST_FIELDS = {"estimators", "meshes", "scenarios", "obs_every", "obs_points", "noise"}
+LIST_FIELDS = {
+    "estimators", "meshes", "scenarios", "obs_every", "obs_points", "noise", "observe",
+}
 
 
 def _finite(x: Any) -> bool:
@@ -576,8 +591,9 @@ def normalise(
     out: dict[str, Any] = {}
     for key, value in raw.items():
         k = key.replace("-", "_")
-        if k in ("estimators", "model") and isinstance(value, dict):
-            target = "estimator_settings" if k == "estimators" else "model_settings"
+        if k in ("estimators", "model", "observe") and isinstance(value, dict):
+            target = {"estimators": "estimator_settings", "model": "model_settings",
+                      "observe": "observe_settings"}[k]  # fmt: skip
             for n, v in value.items():
                 if not isinstance(v, dict):
                     raise ConfigError(
@@ -644,7 +660,9 @@ def build_config(
     toml = dict(toml or {})
     given = {k: v for k, v in cli.items() if v is not None}
     fields = {**toml, **given}
-    for table in ("estimator_settings", "model_settings", "shorthand_settings", "true"):
+    tables = ("estimator_settings", "model_settings", "shorthand_settings", "true",
+              "observe_settings")  # fmt: skip
+    for table in tables:
         if table in toml and table in given:
             fields[table] = {**toml[table], **given[table]}
     short = fields.pop("shorthand_settings", {})

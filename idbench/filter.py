@@ -247,9 +247,17 @@ class Filter(_Conventions):
         """Prior mean (p,) and covariance (p, p) of xi, for the current run's model."""
         return self.transformation.prior_xi(prior, self.model.parameters.p)
 
-    def noise_var(self, observation: Observation) -> float:
-        """Observation noise variance R_ii = max(noise_std, sigma_floor)^2."""
-        return float(max(observation.noise_std, self.sigma_floor)) ** 2
+    def noise_var(self, observation: Observation) -> float | FloatArray:
+        """Observation noise variance R_ii = max(noise_std, sigma_floor)^2.
+
+        A float when the observation has one ``noise_std``; an array (m,)
+        when it has one per value (a combined observation, e.g. cloud+force):
+        R is then diagonal with these entries (:func:`noise_matrix`).
+        """
+        if np.ndim(observation.noise_std) == 0:
+            return float(max(observation.noise_std, self.sigma_floor)) ** 2
+        std = np.asarray(observation.noise_std, dtype=float)
+        return np.maximum(std, self.sigma_floor) ** 2
 
     def check_estimate(self, xi: FloatArray, k: int, *finite: FloatArray) -> None:
         """Raise :class:`~idbench.Diverged` at step k for a bad estimate.
@@ -269,3 +277,10 @@ class Filter(_Conventions):
                 f"estimate {theta} left the bounds [{spec.lower}, {spec.upper}]",
                 step=k,
             )
+
+
+def noise_matrix(var: float | FloatArray, m: int) -> FloatArray:
+    """R (m, m) from a variance: ``var * I`` for a float, ``diag(var)`` for (m,)."""
+    if np.ndim(var) == 0:
+        return var * np.eye(m)
+    return np.diag(np.broadcast_to(np.asarray(var, dtype=float), (m,)))

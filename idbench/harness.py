@@ -31,6 +31,7 @@ from idbench.interfaces import (
     Observation,
     Skipped,
 )
+from idbench.observed_model import model_state
 from idbench.runspec import RunSpec
 from idbench.session import Session, estimator_arguments
 from idbench.truth import Truth
@@ -321,7 +322,8 @@ def _run_on(
     with _deadline(spec.timeout):  # the estimator's own work, not shared inputs
         t_start = time.perf_counter()
         with _blame(who, "start()"):
-            estimator.start(model, session.prior(master, spec))
+            seen = session.estimator_model(spec, model)  # h(x) of the run's
+            estimator.start(seen, session.prior(master, spec))  # observation model
         est, means, stds = _estimate(
             spec, estimator, who, stream, truth, direct, traces,
             (model, metrics_model), t_start,
@@ -374,8 +376,8 @@ def _estimate(
         if not metrics_model.parameters.contains(mean):
             raise Diverged(f"estimate {mean} non-finite or outside bounds", step=k)
         means[k - 1], stds[k - 1] = mean, std
-        if est.state is not None:
-            state = est.state
+        if est.state is not None:  # the model's part (see observed_model)
+            state = model_state(est.state, shadow.size)
         else:
             shadow = metrics_model.step(mean, k, shadow)
             state = shadow

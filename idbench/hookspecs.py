@@ -62,3 +62,17 @@ def register_commands(register: Callable[[str, Any], None]) -> None:
     it and returns the exit status. Tools that only make sense for one model
     (the beam's ``calibrate``) live in its plugin this way.
     """
+
+
+@hookspec
+def register_observations(register: Callable[[str, type], None]) -> None:
+    """Register observation models (what a sensor makes of the body).
+
+    Call ``register(name, cls)`` once per observation model, where ``cls`` is
+    a frozen dataclass whose fields are its settings (all with defaults;
+    ``[observe.NAME]`` in TOML, ``--observe-option NAME.SETTING=VALUE``) and
+    whose instances implement :class:`idbench.observe.ObservationModel`
+    (``requires``, ``sense``, ``measure``, ``values``, ``noise_std``,
+    ``predict``, ``identity``). The core's own, ``markers``, ``cloud`` and
+    ``force``, cannot be replaced.
+    """

@@ -166,13 +166,22 @@ class Observation:
     values
         Marker displacements, shape (m,), flattened ``[p0x, p0y, p0z, p1x, ...]``.
     noise_std
-        Standard deviation of the additive Gaussian noise on each value.
+        Standard deviation of the additive Gaussian noise on each value: a
+        float (the same for all), or an array (m,) of one per value (a
+        combined observation, e.g. ``cloud+force``); filters build a diagonal
+        R from it (:meth:`idbench.Filter.noise_var`).
     step
         Load-step index ``k`` (1..K).
+
+    Notes
+    -----
+    With an observation model other than markers (:mod:`idbench.observe`)
+    ``values`` is that model's y (for ``cloud``: zeros, one per point, the
+    prediction being each point's distance to the model's surface).
     """
 
     values: FloatArray
-    noise_std: float
+    noise_std: float | FloatArray
     step: int
 
 
@@ -223,6 +232,9 @@ class ForwardModel(Protocol):
     body's bounding box) and ``volume`` (float): with them (and ``n_nodes``)
     a truth that is another body than a model mesh, or not finer, is refused
     (:mod:`idbench.validity`).
+    Also optional: ``step_many`` (:class:`BatchModel`), ``surface``
+    (:class:`SurfaceModel`, for the ``cloud`` observation) and ``reaction``
+    (:class:`ReactionModel`, for ``force``).
     :func:`idbench.testing.check_model` checks them.
 
     A model is built once per process and each run works with
@@ -279,6 +291,42 @@ class SensitiveModel(ForwardModel, Protocol):
         """Jacobian of :meth:`observe` w.r.t. theta at the converged ``state``.
 
         Returns shape (m, p).
+        """
+        ...
+
+
+@runtime_checkable
+class SurfaceModel(ForwardModel, Protocol):
+    """A forward model that can show its deformed boundary (for ``cloud``).
+
+    Optional: the ``cloud`` observation model (:mod:`idbench.depth_camera`)
+    renders the truth's surface and measures each point's distance to an
+    estimator's model surface through it.
+    """
+
+    def surface(self, state: FloatArray) -> tuple[FloatArray, NDArray[np.int64]]:
+        """The deformed boundary at ``state``: vertices (V, 3), triangles (T, 3).
+
+        Vertices are in model coordinates (reference position plus
+        displacement); each triangle's vertex order gives its normal
+        (right-hand rule), outward; the same orientation rule at every state.
+        """
+        ...
+
+
+@runtime_checkable
+class ReactionModel(ForwardModel, Protocol):
+    """A forward model that reports the reaction force of its manipulation.
+
+    Optional: the ``force`` observation model observes it.
+    """
+
+    def reaction(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
+        """The reaction force (c,) at the converged ``state`` of step ``k``.
+
+        The sum of the internal forces f_int(state; theta) at the constrained
+        or driven nodes (what a force sensor on the tool or the support
+        measures), per component; model force units (N for the built-ins).
         """
         ...
 

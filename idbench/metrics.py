@@ -13,6 +13,7 @@ import scipy.stats
 from numpy.typing import ArrayLike
 
 from idbench.interfaces import FloatArray
+from idbench.lowrank import LowRankCovariance
 
 SETTLING_TOLERANCE = 0.05
 """Relative distance to the reference inside which an estimate has settled."""
@@ -292,7 +293,8 @@ def nis(innovation: ArrayLike, covariance: ArrayLike) -> float:
     innovation
         nu, shape (m,).
     covariance
-        S, shape (m, m) (or (m,) for a diagonal S).
+        S, shape (m, m) (or (m,) for a diagonal S), or a
+        :class:`~idbench.lowrank.LowRankCovariance` (diagonal plus low rank).
 
     Returns
     -------
@@ -300,6 +302,16 @@ def nis(innovation: ArrayLike, covariance: ArrayLike) -> float:
         NIS; NaN if an input is not finite or S is singular.
     """
     v = np.atleast_1d(np.asarray(innovation, dtype=float))
+    if isinstance(covariance, LowRankCovariance):  # diagonal + low rank: Woodbury
+        if covariance.shape != (v.size, v.size):
+            raise ValueError(f"innovation {v.shape} and covariance differ")
+        parts = (v, covariance.diag, covariance.factor)
+        if not all(np.all(np.isfinite(a)) for a in parts):
+            return float("nan")
+        try:
+            return float(v @ covariance.solve(v))
+        except np.linalg.LinAlgError:
+            return float("nan")
     S = np.asarray(covariance, dtype=float)
     if S.ndim == 1:
         S = np.diag(S)

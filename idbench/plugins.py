@@ -141,8 +141,9 @@ class Registry:
 
     Attributes
     ----------
-    models, estimators, scenarios
-        Name -> :class:`Entry`.
+    models, estimators, scenarios, commands, observations
+        Name -> :class:`Entry` (observations: the plugins' observation
+        models; the core's own are :data:`idbench.observe.BUILTIN`).
     errors
         Plugin name -> message, for plugins that failed to load or register.
     versions
@@ -155,6 +156,7 @@ class Registry:
     estimators: dict[str, Entry] = field(default_factory=dict)
     scenarios: dict[str, Entry] = field(default_factory=dict)
     commands: dict[str, Entry] = field(default_factory=dict)
+    observations: dict[str, Entry] = field(default_factory=dict)
     errors: dict[str, str] = field(default_factory=dict)
     versions: dict[str, str] = field(default_factory=dict)
 
@@ -300,6 +302,21 @@ def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
 
         return register
 
+    def observation_cb(plugin: str) -> Callable[[str, type], None]:
+        def register(name: str, cls: type) -> None:
+            if not (isinstance(cls, type) and dataclasses.is_dataclass(cls)):
+                raise PluginError(
+                    f"plugin {plugin!r}: observation model {name!r} must be a "
+                    "dataclass type"
+                )
+            if name in ("markers", "cloud", "force"):
+                raise PluginError(
+                    f"plugin {plugin!r}: observation model {name!r} is idbench's own"
+                )
+            _add(reg.observations, "observation model", name, cls, plugin)
+
+        return register
+
     def scenario_cb(plugin: str) -> Callable[[Any], None]:
         def register(scenario: Any) -> None:
             if not isinstance(scenario, Scenario):
@@ -313,6 +330,7 @@ def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
         (pm.hook.register_models, model_cb),
         (pm.hook.register_estimators, estimator_cb),
         (pm.hook.register_commands, command_cb),
+        (pm.hook.register_observations, observation_cb),
     ]
     for hook, make_cb in hooks:
         for impl in hook.get_hookimpls():
@@ -350,7 +368,9 @@ def _withdraw(reg: Registry, plugin: str, message: str) -> None:
     """Record ``plugin`` as broken and remove all it registered."""
     log.warning("plugin %r disabled: %s", plugin, message)
     reg.errors[plugin] = message
-    for table in (reg.models, reg.estimators, reg.scenarios, reg.commands):
+    tables = (reg.models, reg.estimators, reg.scenarios, reg.commands,
+              reg.observations)  # fmt: skip
+    for table in tables:
         for key in [k for k, e in table.items() if e.plugin == plugin]:
             del table[key]
 

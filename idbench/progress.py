@@ -165,6 +165,8 @@ def describe_run(row: dict[str, Any]) -> str:
     come from plugins.
     """
     parts = [str(row.get(k, "")) for k in ("estimator", "mesh", "scenario")]
+    if row.get("observe", "markers") != "markers":
+        parts.append(f"observe={row['observe']}")
     for k in ("obs_every", "obs_points", "noise", "seed"):
         if k in row:
             parts.append(

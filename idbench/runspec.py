@@ -84,7 +84,10 @@ class RunSpec:
     a digest of each file's content, see :func:`idbench.sweep.plan`): it is
     part of the run id, so that a run on a mesh or body file whose content
     changed is another run, but of no other key (the noise draws and the
-    caches do not depend on it).
+    caches do not depend on it). ``observe`` names the run's observation
+    model (:mod:`idbench.observe`) and ``observe_settings`` holds its resolved
+    settings per block (empty for plain ``markers``, whose keys and run ids
+    are those of before observation models).
     """
 
     setup: Setup
@@ -99,6 +102,8 @@ class RunSpec:
     timeout: float | None = None
     posterior: Items | None = None
     inputs: str = ""
+    observe: str = "markers"
+    observe_settings: Items = ()
 
     @property
     def run_id(self) -> str:
@@ -111,7 +116,20 @@ class RunSpec:
         fields.pop("timeout")
         fields.pop("posterior")
         fields["setup"].pop("execution")
+        if not self.observed_otherwise():
+            fields.pop("observe")
+            fields.pop("observe_settings")
         return stable_hash(fields)
+
+    def observed_otherwise(self) -> bool:
+        """Whether the run observes anything but plain markers."""
+        return self.observe != "markers" or bool(self.observe_settings)
+
+    def _observe_key(self) -> list[Any]:
+        if not self.observed_otherwise():
+            return []
+        blocks = [[b, [list(i) for i in s]] for b, s in self.observe_settings]
+        return [self.observe, blocks]
 
     @property
     def sparsity(self) -> Sparsity:
@@ -124,6 +142,7 @@ class RunSpec:
         return [
             s.model, self.scenario, s.truth_mesh, s.steps, s._true_key(),
             *s.identity, self.obs_every, self.obs_points, self.noise, self.seed,
+            *self._observe_key(),
         ]  # fmt: skip
 
     def noise_key(self) -> list[Any]:
@@ -133,6 +152,9 @@ class RunSpec:
         mesh, noise level and observation spacing of a sweep (scaled by the
         noise sigma, selected by the spacing), so comparisons across them are
         paired. The markers stay in the key: they set the observation size.
+        Each block of another observation model seeds its own generator from
+        this key and its :meth:`~idbench.observe.ObservationModel.identity`
+        (see :meth:`idbench.session.Session.frames`).
         """
         s = self.setup
         return [
@@ -164,8 +186,15 @@ class RunSpec:
         return stable_hash([model, [list(item) for item in self.setup.true]])
 
 
-def expand(config: CompareConfig, setup: Setup) -> list[RunSpec]:
-    """The runs of a resolved comparison, in a stable order."""
+def expand(
+    config: CompareConfig, setup: Setup, observe: dict[str, Items] | None = None
+) -> list[RunSpec]:
+    """The runs of a resolved comparison, in a stable order.
+
+    ``observe`` maps each ``config.observe`` name to its resolved settings
+    (:func:`idbench.observe.settings_items`; default: none).
+    """
+    observe = observe or {}
     assert config.is_resolved(), "resolve the config first"
     runs = []
     posterior = (
@@ -173,7 +202,9 @@ def expand(config: CompareConfig, setup: Setup) -> list[RunSpec]:
     )
     for scenario in config.scenarios or ():
         for mesh in config.meshes or ():
-            for sp in config.sparsities():
+            for sp, obs in (
+                (sp, obs) for obs in config.observe for sp in config.sparsities()
+            ):
                 for estimator in config.estimators or ():
                     settings = config.estimator_settings.get(estimator, {})
                     for seed in range(config.seeds):
@@ -190,6 +221,8 @@ def expand(config: CompareConfig, setup: Setup) -> list[RunSpec]:
                                 noise=float(sp.noise),
                                 timeout=config.timeout,
                                 posterior=posterior,
+                                observe=obs,
+                                observe_settings=observe.get(obs, ()),
                             )
                         )
     return runs

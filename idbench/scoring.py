@@ -41,6 +41,7 @@ def base_row(spec: RunSpec) -> dict[str, Any]:
         "obs_every": spec.obs_every,
         "obs_points": spec.obs_points,
         "noise": spec.noise,
+        "observe": spec.observe,
         "steps": s.steps,
         "prior_mean": s.prior[0],
         "prior_std": s.prior[1],

@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import typing
 from typing import Any
 
 import numpy as np
 
+from idbench import observe
 from idbench.config import (
     ConfigError,
     build_settings,
@@ -30,6 +32,7 @@ from idbench.interfaces import (
     Prior,
 )
 from idbench.isolation import changes, fingerprint, private_copy
+from idbench.observed_model import ObservedModel
 from idbench.plugins import Registry, build_registry
 from idbench.posterior import Posterior, PosteriorSettings, reference_posterior
 from idbench.runspec import RunSpec
@@ -175,6 +178,8 @@ class Session:
         self._refs: dict[str, FloatArray] = {}
         self._direct: dict[str, FloatArray] = {}
         self._posteriors: dict[str, Posterior | None] = {}
+        self._sensed: dict[str, list[dict[str, FloatArray]]] = {}
+        self._frames: dict[str, list[observe.Frame]] = {}
         self._own: dict[Any, dict[str, Scenario]] = {}
 
     def scenario(self, spec: RunSpec, name: str) -> Scenario:
@@ -275,17 +280,30 @@ class Session:
     def observations(self, spec: RunSpec) -> list[Observation | None]:
         """The noisy, sparse observation stream of a run.
 
-        Standard normals are drawn once per :meth:`RunSpec.noise_key` (the
-        same for every estimator, mesh, noise level and spacing of a sweep),
-        scaled by the run's noise sigma; the spacing only selects steps.
+        Plain markers: standard normals are drawn once per
+        :meth:`RunSpec.noise_key` (the same for every estimator, mesh, noise
+        level and spacing of a sweep), scaled by the run's noise sigma; the
+        spacing only selects steps. Another observation model: its frames
+        (:meth:`frames`) made into observations of the observed steps.
         """
+        if spec.observed_otherwise():
+            obs = self.observation_model(spec)
+            stream: list[Observation | None] = []
+            for k, frame in enumerate(self.frames(spec), start=1):
+                if spec.sparsity.observed(k):
+                    values = np.asarray(obs.values(frame), dtype=float)
+                    std = obs.noise_std(frame, spec.noise)
+                    stream.append(Observation(values, _noise(std), k))
+                else:
+                    stream.append(None)
+            return stream
         truth = self.truth(spec)
         seq = np.random.SeedSequence(
             [spec.seed, int(stable_hash(spec.noise_key()), 16)]
         )
         rng = np.random.default_rng(seq)
         noise = rng.standard_normal(truth.observations.shape) * spec.noise
-        stream: list[Observation | None] = []
+        stream = []
         for k in range(1, spec.setup.steps + 1):
             if spec.sparsity.observed(k):
                 values = truth.observations[k - 1] + noise[k - 1]
@@ -293,6 +311,81 @@ class Session:
             else:
                 stream.append(None)
         return stream
+
+    def observation_model(self, spec: RunSpec) -> Any:
+        """The run's :class:`~idbench.observe.ObservationModel`."""
+        return observe.from_items(spec.observe, spec.observe_settings, self.registry)
+
+    def frames(self, spec: RunSpec) -> list[observe.Frame]:
+        """The run's frame of every step 1..K (simulated from the truth).
+
+        Each block senses the truth once per (truth, block settings but its
+        noise) (:meth:`sensed`), then measures with its own generator, seeded
+        by the run's :meth:`RunSpec.noise_key` and the block's identity
+        (common random numbers across estimators and meshes; the markers'
+        generator is today's).
+        """
+        key = stable_hash([spec.data_key(), list(spec.observe_settings)])
+        if key not in self._frames:
+            obs = self.observation_model(spec)
+            named = []
+            for name, block in observe.leaves(obs):
+                clean = self.sensed(spec, block)
+                ident = block.identity()
+                noise_key = spec.noise_key() + ([ident] if ident else [])
+                seq = np.random.SeedSequence(
+                    [spec.seed, int(stable_hash(noise_key), 16)]
+                )
+                data = block.measure(clean, np.random.default_rng(seq), spec.noise)
+                named.append((name, data))
+            frames = []
+            for k in range(1, spec.setup.steps + 1):
+                if len(named) == 1:
+                    data_k = dict(named[0][1][k - 1])
+                else:
+                    data_k = observe.Combined.merge([(n, d[k - 1]) for n, d in named])
+                frames.append(observe.Frame(k, data_k))
+            self._frames[key] = frames
+        return self._frames[key]
+
+    def sensed(self, spec: RunSpec, block: Any) -> list[dict[str, FloatArray]]:
+        """The noise-free readings (K,) of ``block`` on the run's truth (cached).
+
+        Markers read the probed truth; other blocks sense its states (read
+        again from the disk cache where this session adopted the truth
+        without them).
+        """
+        if isinstance(block, observe.Markers):
+            truth = self.truth(spec)
+            return [{"markers": row} for row in truth.observations]
+        key = self._sensed_key(spec, block)
+        if key not in self._sensed:
+            model = self.model(spec, spec.setup.truth_mesh, role="truth")
+            truth = self.truth(spec)
+            states = truth.states
+            if states.shape[0] != spec.setup.steps:
+                states = simulate_truth(model, self.theta_true(spec)).states
+            theta = self.theta_true(spec)
+            self._sensed[key] = [
+                block.sense(model, theta, k, states[k - 1])
+                for k in range(1, spec.setup.steps + 1)
+            ]
+        return self._sensed[key]
+
+    def _sensed_key(self, spec: RunSpec, block: Any) -> str:
+        return stable_hash([spec.truth_product_key(spec.scenario), block.identity()])
+
+    def estimator_model(self, spec: RunSpec, model: ForwardModel) -> ForwardModel:
+        """``model`` as the run's estimator sees it: h(x) of its observation model.
+
+        Plain markers: ``model`` itself (bitwise today's path).
+        """
+        if not spec.observed_otherwise():
+            return model
+        wrapped: Any = ObservedModel(
+            model, self.observation_model(spec), self.frames(spec)
+        )
+        return typing.cast(ForwardModel, wrapped)
 
     def prior(self, model: ForwardModel, spec: RunSpec) -> Prior:
         """The run's prior, the same for every parameter."""
@@ -321,6 +414,7 @@ class Session:
             for k, v in self._truths.items()
         }
         out.update({("reference", k): v for k, v in self._refs.items()})
+        out.update({("sensed", k): v for k, v in self._sensed.items()})
         out.update({("direct", k): v for k, v in self._direct.items()})
         return out
 
@@ -336,6 +430,10 @@ class Session:
             if scenario:
                 keys.add(("direct", spec.direct_key(scenario)))
                 keys.add(("truth", spec.truth_product_key(scenario)))
+        if spec.observed_otherwise():
+            for _, block in observe.leaves(self.observation_model(spec)):
+                if not isinstance(block, observe.Markers):
+                    keys.add(("sensed", self._sensed_key(spec, block)))
         return keys
 
     def adopt(self, shared: dict[tuple[str, str], Any]) -> None:
@@ -343,6 +441,8 @@ class Session:
         for (kind, key), value in shared.items():
             if kind == "truth":
                 self._truths.setdefault(key, value)
+            elif kind == "sensed":
+                self._sensed.setdefault(key, value)
             else:
                 table = self._refs if kind == "reference" else self._direct
                 table.setdefault(key, np.asarray(value, dtype=float))
@@ -356,7 +456,7 @@ class Session:
             try:
                 cls = self.registry.estimator(spec.setup.reference)
                 est = cls(**estimator_arguments(cls, {}, spec.seed))
-                est.start(model, self.prior(master, spec))
+                est.start(self.estimator_model(spec, model), self.prior(master, spec))
                 e = None
                 for k, obs in enumerate(self.observations(spec), start=1):
                     e = est.update(k, obs)
@@ -391,8 +491,9 @@ class Session:
             settings = PosteriorSettings(**dict(spec.posterior))
             try:
                 post: Posterior | None = reference_posterior(
-                    model, self.prior(model, spec), self.observations(spec), settings
-                )
+                    self.estimator_model(spec, model), self.prior(model, spec),
+                    self.observations(spec), settings,
+                )  # fmt: skip
             except ValueError as exc:
                 log.warning("reference posterior failed for %s: %s", spec.mesh, exc)
                 post = None
@@ -408,3 +509,9 @@ class Session:
             states = simulate_path(model, self.theta_true(spec))
             self._direct[key] = np.array([model.grid(s) for s in states])
         return self._direct[key]
+
+
+def _noise(std: Any) -> Any:
+    """A noise std as an Observation holds it: a float, or an array per value."""
+    arr = np.asarray(std, dtype=float)
+    return float(arr) if arr.ndim == 0 else arr

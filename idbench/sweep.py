@@ -41,6 +41,8 @@ from idbench.executors import (
 )
 from idbench.files import stable_hash
 from idbench.interfaces import ForwardModel, ModelFailure, ModelSpec
+from idbench.observing import resolve as resolve_observations
+from idbench.observing import sense
 from idbench.plugins import Registry, build_registry, used_plugins
 from idbench.posterior import PosteriorSettings, check_budget
 from idbench.results import ResultStore
@@ -155,6 +157,9 @@ def plan(config: CompareConfig, session: Session) -> Plan:
     for mesh in config.meshes:
         truth = models[config.truth_mesh]
         check_truth_mesh(truth, config.truth_mesh, models[mesh], mesh)
+    if config.observe != ("markers",) or config.observe_settings:
+        built = list(models.values())
+        runs = expand(config, setup, resolve_observations(config, reg, built))
     runs, inputs = model_inputs(runs, session, config, settings, reg)
     solves, work = 0, {}
     for spec in runs:
@@ -550,6 +555,8 @@ def prepare(runs: list[RunSpec], session: Session) -> None:
                     raise ConfigError(
                         f"the truth ({spec.setup.truth_mesh}, {name}): {exc}"
                     ) from None
+        if spec.observed_otherwise():
+            sense(spec, session)
 
 
 def dispatch_order(runs: list[RunSpec], work: dict[str, float]) -> list[RunSpec]:

@@ -113,8 +113,28 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
     ``probes(state)`` must map names to finite scalars (they become traces
     columns, so they must not shadow the core's); ``n_nodes`` must be a whole
     number >= 1; ``bounds`` a finite (2, d) box, ``volume`` a number > 0;
-    ``parameters.default``, if set, must lie inside the bounds.
+    ``parameters.default``, if set, must lie inside the bounds;
+    ``surface(state)`` must give finite vertices (V, 3) and triangles (T, 3)
+    indexing them; ``reaction(theta, k, state)`` a finite vector.
     """
+    surface = getattr(model, "surface", None)
+    if surface is not None:
+        vertices, triangles = surface(state)
+        vertices, triangles = np.asarray(vertices), np.asarray(triangles)
+        assert vertices.ndim == 2 and vertices.shape[1] == 3, "surface vertices (V, 3)"
+        assert np.all(np.isfinite(vertices)), "surface vertices must be finite"
+        assert triangles.ndim == 2 and triangles.shape[1] == 3, "triangles (T, 3)"
+        assert np.issubdtype(triangles.dtype, np.integer), "triangles are indices"
+        assert triangles.min() >= 0 and triangles.max() < len(vertices), (
+            "triangles index vertices that do not exist"
+        )
+    reaction = getattr(model, "reaction", None)
+    theta = np.asarray(model.parameters.default or model.parameters.upper, float)
+    if reaction is not None and model.parameters.contains(theta):
+        force = np.asarray(reaction(theta, 1, state), dtype=float)
+        assert force.ndim == 1 and np.all(np.isfinite(force)), (
+            "reaction(theta, k, state) must be a finite vector"
+        )
     probes = getattr(model, "probes", None)
     if probes is not None:
         named = probes(state)

@@ -23,6 +23,7 @@ CASES = [
     (["kernel.py", "--sizes", "100"], "tangent_data"),
     (["startup.py", "--repeat", "1"], "ms"),
     (["sweep.py", "--quick", "--repeat", "1"], "speedup / bound"),
+    (["observe.py", "--quick", "--repeat", "1"], "ms per sigma point"),
     pytest.param(
         ["organs.py", "--quick", "--repeat", "1", "--only", "liver"],
         "fact/step",

@@ -348,6 +348,7 @@ def test_hookspec_names() -> None:
         "register_estimators",
         "register_scenarios",
         "register_commands",
+        "register_observations",
     }
 
 

@@ -65,13 +65,18 @@ class LogPosterior:
             raise ValueError(
                 f"{len(observations)} observations for a model of {model.n_steps} steps"
             )
-        self.obs: dict[int, tuple[FloatArray, float]] = {}
+        self.obs: dict[int, tuple[FloatArray, float | FloatArray]] = {}
         for i, o in enumerate(observations, start=1):
             if o is None:
                 continue
             if o.step != i:
                 raise ValueError(f"observation for step {o.step} at position {i}")
-            r = max(float(o.noise_std), settings.sigma_floor) ** 2
+            std = np.asarray(o.noise_std, dtype=float)
+            r: float | FloatArray = (
+                max(float(std), settings.sigma_floor) ** 2
+                if std.ndim == 0
+                else np.maximum(std, settings.sigma_floor) ** 2
+            )
             self.obs[i] = (np.asarray(o.values, dtype=float), r)
         if not self.obs:
             raise ValueError("no observations: the posterior is the prior")
@@ -143,7 +148,10 @@ class LogPosterior:
                 y, r = self.obs[k]
                 for i in np.flatnonzero(alive):
                     h = np.asarray(model.observe(states[i]), dtype=float)
-                    ll[i] -= 0.5 * float(np.sum((y - h) ** 2)) / r
+                    if np.ndim(r) == 0:
+                        ll[i] -= 0.5 * float(np.sum((y - h) ** 2)) / r
+                    else:  # one variance per value
+                        ll[i] -= 0.5 * float(np.sum((y - h) ** 2 / r))
         self.failed += int(np.sum(~alive))
         ll[~alive] = -np.inf
         return ll
@@ -212,5 +220,6 @@ def model_error(
             y = np.asarray(obs[k].values, dtype=float)
             sq += float(np.sum((y - np.asarray(model.observe(u), dtype=float)) ** 2))
             n += y.size
-            noise += y.size * float(obs[k].noise_std) ** 2
+            var = np.asarray(obs[k].noise_std, dtype=float) ** 2
+            noise += float(np.sum(np.broadcast_to(var, y.shape)))
     return math.sqrt(max(0.0, (sq - noise) / n))

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from idbench import Analysis, Filter, ForwardModel, Observation, Prior
+from idbench import Analysis, Filter, ForwardModel, Observation, Prior, noise_matrix
 from idbench_filters._common import (
     FloatArray,
     advance_many,
@@ -154,7 +154,7 @@ class EnsembleFilter(Filter):
             y = np.asarray(observation.values, dtype=float)
             HX = np.stack([model.observe(x) for x in X[:, :nu]]).astype(float)
             r = self.noise_var(observation)
-            s = np.atleast_2d(np.cov(HX, rowvar=False)) + r * np.eye(y.size)
+            s = np.atleast_2d(np.cov(HX, rowvar=False)) + noise_matrix(r, y.size)
             self.innovation = (y - HX.mean(axis=0), s)
             X = self.analysis(X, HX, y, r)
             if self.inflation > 1:

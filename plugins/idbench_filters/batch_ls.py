@@ -131,7 +131,8 @@ class BatchLs(Filter):
         states = self._simulate(xi, n)
         theta, scale = self.to_theta(xi), self.dtheta_dxi(xi)
         rows = [
-            -np.asarray(model.sensitivity(theta, k, states[k - 1])) * scale / s  # type: ignore[attr-defined]
+            -np.asarray(model.sensitivity(theta, k, states[k - 1])) * scale  # type: ignore[attr-defined]
+            / np.reshape(s, (-1, 1))
             for k, _, s in self._obs
         ]
         return np.vstack(rows)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from idbench import noise_matrix
 from idbench_filters._common import FloatArray
 from idbench_filters._ensemble import EnsembleFilter
 
@@ -44,7 +45,7 @@ class Enkf(EnsembleFilter):
         n_members, m = HX.shape
         A = X - X.mean(axis=0)
         Y = HX - HX.mean(axis=0)
-        C = Y.T @ Y + (n_members - 1) * r * np.eye(m)
+        C = Y.T @ Y + (n_members - 1) * noise_matrix(r, m)
         d = self._rng.standard_normal((n_members, m)) * np.sqrt(r)
         d -= d.mean(axis=0)
         innov = y[None, :] + d - HX  # (N, m)

@@ -49,7 +49,11 @@ class Etkf(EnsembleFilter):
         A = X - xbar
         hbar = HX.mean(axis=0)
         Y = HX - hbar
-        d, V = np.linalg.eigh((n_members - 1) * np.eye(n_members) + Y @ Y.T / r)
-        w = ((y - hbar) @ Y.T / r) @ (V / d) @ V.T
+        if np.ndim(r) == 0:
+            d, V = np.linalg.eigh((n_members - 1) * np.eye(n_members) + Y @ Y.T / r)
+            w = ((y - hbar) @ Y.T / r) @ (V / d) @ V.T
+        else:  # one variance per value
+            d, V = np.linalg.eigh((n_members - 1) * np.eye(n_members) + (Y / r) @ Y.T)
+            w = (((y - hbar) / r) @ Y.T) @ (V / d) @ V.T
         T = np.sqrt(n_members - 1) * (V / np.sqrt(d)) @ V.T
         return xbar + (w[None, :] + T) @ A

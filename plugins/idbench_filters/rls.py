@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from idbench import Analysis, Filter, ForwardModel, Observation, Prior
+from idbench import Analysis, Filter, ForwardModel, Observation, Prior, noise_matrix
 from idbench_filters._common import advance, check_positive, observation_jacobian
 
 
@@ -72,7 +72,7 @@ class Rls(Filter):
             e = np.asarray(observation.values, dtype=float) - model.observe(u)
             R = self.noise_var(observation)
             Pm = P / self.forgetting
-            S = J @ Pm @ J.T + R * np.eye(J.shape[0])
+            S = J @ Pm @ J.T + noise_matrix(R, J.shape[0])
             K = np.linalg.solve(S, J @ Pm).T  # (p, m); S symmetric
             xi = xi + K @ e
             P = Pm - K @ S @ K.T

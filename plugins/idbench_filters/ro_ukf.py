@@ -40,7 +40,15 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from idbench import Analysis, Filter, ForwardModel, Observation, Prior
+from idbench import (
+    Analysis,
+    Filter,
+    ForwardModel,
+    LowRankCovariance,
+    Observation,
+    Prior,
+    noise_matrix,
+)
 from idbench_filters._common import (
     FloatArray,
     advance_many,
@@ -49,6 +57,11 @@ from idbench_filters._common import (
 )
 
 SIGMA_POINTS = ("simplex", "star")
+
+DENSE_INNOVATION = 512
+"""Observations of more values (a point cloud) report their innovation
+covariance as a :class:`idbench.LowRankCovariance` (R + alpha dz dz^T, the
+NIS by Woodbury) instead of forming the (m, m) matrix."""
 
 
 def sigma_directions(p: int, kind: str) -> FloatArray:
@@ -144,10 +157,20 @@ class RoUkf(Filter):
             G = alpha * I @ Z.T  # (p, m)
             var = self.noise_var(observation) + self.model_error**2
             dz = Z - zbar[:, None]
-            self.innovation = (zbar, alpha * dz @ dz.T + var * np.eye(y.size))
+            if y.size <= DENSE_INNOVATION:
+                S = alpha * dz @ dz.T + noise_matrix(var, y.size)
+                self.innovation = (zbar, S)
+            else:  # a point cloud: S = R + alpha dz dz^T, never formed
+                diag = np.broadcast_to(np.asarray(var, dtype=float), (y.size,))
+                low = LowRankCovariance(diag.copy(), np.sqrt(alpha) * dz)
+                self.innovation = (zbar, low)
             rinv = 1.0 / var
-            U = np.eye(I.shape[0]) + rinv * (G @ G.T)
-            x = x - L @ np.linalg.solve(U, rinv * (G @ zbar))
+            if np.ndim(rinv) == 0:
+                U = np.eye(I.shape[0]) + rinv * (G @ G.T)
+                x = x - L @ np.linalg.solve(U, rinv * (G @ zbar))
+            else:  # a diagonal R with one variance per value
+                U = np.eye(I.shape[0]) + (G * rinv) @ G.T
+                x = x - L @ np.linalg.solve(U, G @ (rinv * zbar))
             uinv = np.linalg.inv(U)
             uinv = 0.5 * (uinv + uinv.T)
         p_xi = L[nu:] @ uinv @ L[nu:].T

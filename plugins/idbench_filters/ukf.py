@@ -29,7 +29,15 @@ from filterpy.kalman import (
     unscented_transform,
 )
 
-from idbench import Analysis, Filter, ForwardModel, Observation, Prior, Skipped
+from idbench import (
+    Analysis,
+    Filter,
+    ForwardModel,
+    Observation,
+    Prior,
+    Skipped,
+    noise_matrix,
+)
 from idbench_filters._common import FloatArray, advance, advance_many, check_positive
 
 EIG_FLOOR = 1e-14  # relative eigenvalue floor of the sampled square root
@@ -208,6 +216,8 @@ class Ukf(Filter):
         if observation is not None:
             R = self.noise_var(observation)
             z = np.asarray(observation.values, dtype=float)
+            if np.ndim(R):
+                R = noise_matrix(R, z.size)
             ukf.update(z, R=R, UT=weighted_transform)
             ukf.P = 0.5 * (ukf.P + ukf.P.T)
         nu = self._nu

@@ -30,6 +30,7 @@ from idbench_fem.fem.newton import ASSEMBLY_BUFFERS, CHORD_RATIO, freeze
 from idbench_fem.fem.solver import resolve_backend
 from idbench_fem.fem.svk_assembly import Assembler
 from idbench_fem.models.beam_settings import BeamSettings, EndTraction
+from idbench_fem.models.observables import Observables
 
 log = logging.getLogger(__name__)
 
@@ -48,7 +49,7 @@ ATOL = 1e-12
 MAX_ITERATIONS = 25
 
 
-class SvkBeam(BatchedSteps):
+class SvkBeam(Observables, BatchedSteps):
     """P1 St Venant-Kirchhoff cantilever under an end traction, stepped by Newton.
 
     Parameters

@@ -63,6 +63,7 @@ from idbench_fem.fem.law_assembly import LawAssembler
 from idbench_fem.fem.newton import ASSEMBLY_BUFFERS, freeze
 from idbench_fem.fem.solver import resolve_backend
 from idbench_fem.fem.svk_assembly import Assembler
+from idbench_fem.models.observables import Observables
 from idbench_fem.models.solid_settings import DEFAULT_BODY, SolidSettings
 
 log = logging.getLogger(__name__)
@@ -82,7 +83,7 @@ _BOUNDS = (1e-3, 1e3)
 """Parameter bounds as multiples of the body's E."""
 
 
-class SolidModel(BatchedSteps):
+class SolidModel(Observables, BatchedSteps):
     """A body under one manipulation, on one mesh, stepped by Newton.
 
     Parameters
