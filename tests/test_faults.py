@@ -166,6 +166,8 @@ def install(tmp_path, monkeypatch):
 
     def add(name: str, source: str) -> None:
         module = f"idbench_test_{name.replace('-', '_')}"
+        sys.modules.pop(module, None)  # not another test's module of that name
+        added.append(module)
         (site / f"{module}.py").write_text(textwrap.dedent(source))
         info = site / f"{module}-0.1.dist-info"
         info.mkdir()
@@ -174,7 +176,10 @@ def install(tmp_path, monkeypatch):
         )
         (info / "entry_points.txt").write_text(f"[idbench]\n{name} = {module}\n")
 
-    return add
+    added: list[str] = []
+    yield add
+    for module in added:  # nor this one imported for the tests after
+        sys.modules.pop(module, None)
 
 
 # --- 1. threads: a Dask worker with two threads ------------------------------

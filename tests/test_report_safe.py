@@ -9,6 +9,7 @@ HTML, no ESC byte may reach stdout or stderr, and table rows stay one line.
 from __future__ import annotations
 
 import os
+import sys
 import textwrap
 
 import pandas as pd
@@ -59,7 +60,8 @@ def hostile(tmp_path, monkeypatch):
     paths = [str(site), os.environ.get("PYTHONPATH", "")]
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in paths if p))
     monkeypatch.delenv(AUTOLOAD_ENV, raising=False)
-    module = "idbench_test_hostile"
+    module = "idbench_test_hostile_names"  # not test_isolation's module of that name
+    sys.modules.pop(module, None)
     (site / f"{module}.py").write_text(textwrap.dedent(PLUGIN))
     info = site / f"{module}-0.1.dist-info"
     info.mkdir()
