@@ -35,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     (``--debug`` shows its traceback); a Dask scheduler lost mid-sweep in one
     line and status 3 (rerun to resume); Ctrl-C in status 130.
     """
-    from idbench.distributed import ClusterLost
+    from idbench.executors import ClusterLost
     from idbench.interfaces import ModelFailure
     from idbench.lock import FolderBusy
     from idbench.results import ResultsError
@@ -218,7 +218,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         shorthand_settings=options or None,
     )
     if args.scheduler and logging.getLogger().getEffectiveLevel() > logging.INFO:
-        from idbench.distributed import quiet_logging
+        from idbench.executors import quiet_logging
 
         quiet_logging()  # a lost scheduler is said once, below, not by Dask
     the_plan = plan(config, Session(reg))
@@ -391,9 +391,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     import meshio
     import numpy as np
 
-    from idbench.config import proposed_scenarios
     from idbench.interfaces import ModelSpec
-    from idbench.session import model_settings, true_values
+    from idbench.settings import (
+        model_settings,
+        proposed_scenarios,
+        true_values,
+    )
     from idbench.truth import simulate_path
 
     if args.out.is_dir() or args.out.suffix.lower() != ".xdmf":

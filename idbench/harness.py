@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from idbench import scoring
-from idbench.config import ConfigError, public_settings
+from idbench.config import ConfigError
 from idbench.interfaces import (
     Cost,
     Diverged,
@@ -32,7 +32,8 @@ from idbench.interfaces import (
     Skipped,
 )
 from idbench.runspec import RunSpec
-from idbench.session import Session, estimator_arguments
+from idbench.session import Session
+from idbench.settings import estimator_arguments, public_settings
 from idbench.truth import Truth
 from idbench.validity import run_warning
 

@@ -20,6 +20,10 @@ from idbench.scenario import Scenario
 FloatArray = NDArray[np.float64]
 
 
+class ConfigError(ValueError):
+    """A setting is invalid; the message names the value and what is allowed."""
+
+
 class ModelFailure(RuntimeError):
     """A forward solve did not converge (or produced an inverted element).
 

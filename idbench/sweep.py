@@ -24,18 +24,14 @@ from typing import Any
 
 import pandas as pd
 
-from idbench.config import (
-    CompareConfig,
-    ConfigError,
-    build_settings,
-    proposed_scenarios,
-    suggest,
-)
-from idbench.distributed import ClusterLost, connect, execute_on_dask
+from idbench.config import CompareConfig, ConfigError
 from idbench.executors import (
     THREAD_ENV,
+    ClusterLost,
     RunResult,
+    connect,
     execute_all,
+    execute_on_dask,
     start_method,
     started,
 )
@@ -45,12 +41,15 @@ from idbench.plugins import Registry, build_registry, used_plugins
 from idbench.posterior import PosteriorSettings, check_budget
 from idbench.results import ResultStore
 from idbench.runspec import RunSpec, Setup, expand
-from idbench.session import (
-    Session,
+from idbench.session import Session
+from idbench.settings import (
+    build_settings,
     execution_items,
     model_settings,
+    proposed_scenarios,
     settings_identity,
     settings_items,
+    suggest,
     true_values,
 )
 from idbench.validity import check_prior, check_truth_mesh
@@ -191,7 +190,7 @@ def model_inputs(
     scenario and on its transfer scenario.
 
     ``reg`` is the comparison's registry, with the scenarios the model's settings
-    propose (:func:`idbench.config.proposed_scenarios`).
+    propose (:func:`idbench.settings.proposed_scenarios`).
 
     Returns
     -------
