@@ -18,11 +18,11 @@ from idbench.cli_parser import (
     build_parser,
     model_options,
     raw_option,
-    registry,
-    reset_registry,
     shorthand_settings,
 )
 from idbench.config import ConfigError
+from idbench.plugins import cached_registry as registry
+from idbench.plugins import reset_registry_cache
 
 log = logging.getLogger("idbench")
 
@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     from idbench.results import ResultsError
 
     argv = sys.argv[1:] if argv is None else list(argv)
-    reset_registry()  # plugins may have changed since the last call (tests)
+    reset_registry_cache()  # plugins may have changed since the last call (tests)
     debug = "--debug" in argv
     argv = [a for a in argv if a != "--debug"]
     with contextlib.suppress(Exception):  # stderr may have no file descriptor
