@@ -391,6 +391,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     import meshio
     import numpy as np
 
+    from idbench.capabilities import cell_data_of, field_model, probes_of
     from idbench.interfaces import ModelSpec
     from idbench.settings import (
         model_settings,
@@ -423,22 +424,23 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         model = reg.model(model_name)(spec)
     except (ValueError, OSError) as exc:
         raise UsageError(f"--mesh {args.mesh!r}: {exc}") from None
-    if not (hasattr(model, "mesh") and hasattr(model, "displacement_field")):
+    field = field_model(model)
+    if field is None:
         raise UsageError(
             f"model {model_name!r} has no mesh() and displacement_field(): "
             "it cannot be written for ParaView"
         )
     true = true_values(model.parameters, args.true or {}, model_name)
     states = simulate_path(model, np.array([v for _, v in true]))
-    points, tets = model.mesh()
+    points, tets = field.mesh()
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    probes = getattr(model, "probes", None)
-    cells = getattr(model, "cell_data", None)
+    probes = probes_of(model)
+    cells = cell_data_of(model)
     cell_data = {n: [np.asarray(v)] for n, v in (cells() if cells else {}).items()}
     with meshio.xdmf.TimeSeriesWriter(args.out, data_format="XML") as writer:
         writer.write_points_cells(points, [("tetra", tets)])
         for k, state in enumerate(states, start=1):
-            u = model.displacement_field(state)
+            u = field.displacement_field(state)
             writer.write_data(
                 k / args.steps,
                 point_data={"displacement": u},

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from idbench import scoring
+from idbench.capabilities import n_nodes_of
 from idbench.config import ConfigError
 from idbench.interfaces import (
     Cost,
@@ -301,7 +302,8 @@ def _run_on(
     """:func:`_run`'s work with the lent ``models`` (master, copy)."""
     master, model = models
     metrics_model = session.model(spec, spec.mesh, role="metrics")
-    row["model_nodes"] = getattr(master, "n_nodes", np.nan)
+    nodes = n_nodes_of(master)
+    row["model_nodes"] = np.nan if nodes is None else nodes
     row["truth_nodes"] = session.truth(spec).nodes
     row.update(scoring.empty_parameter_columns(spec))
 

@@ -24,6 +24,7 @@ from typing import Any
 
 import pandas as pd
 
+from idbench.capabilities import n_nodes_of
 from idbench.config import CompareConfig, ConfigError
 from idbench.executors import (
     THREAD_ENV,
@@ -150,7 +151,7 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         role = "truth" if mesh == config.truth_mesh else "est"
         build = functools.partial(session.model, runs[0], mesh, role=role)
         models[mesh] = model = _build(reg, config, mesh, settings, build)
-        nodes[mesh] = int(getattr(model, "n_nodes", 0))
+        nodes[mesh] = int(n_nodes_of(model) or 0)
     for mesh in config.meshes:
         truth = models[config.truth_mesh]
         check_truth_mesh(truth, config.truth_mesh, models[mesh], mesh)
