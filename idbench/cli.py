@@ -19,11 +19,11 @@ from idbench.cli_parser import (
     model_options,
     observe_options,
     raw_option,
-    registry,
-    reset_registry,
     shorthand_settings,
 )
 from idbench.config import ConfigError
+from idbench.plugins import cached_registry as registry
+from idbench.plugins import reset_registry_cache
 
 log = logging.getLogger("idbench")
 
@@ -36,13 +36,13 @@ def main(argv: list[str] | None = None) -> int:
     (``--debug`` shows its traceback); a Dask scheduler lost mid-sweep in one
     line and status 3 (rerun to resume); Ctrl-C in status 130.
     """
-    from idbench.distributed import ClusterLost
+    from idbench.executors import ClusterLost
     from idbench.interfaces import ModelFailure
     from idbench.lock import FolderBusy
     from idbench.results import ResultsError
 
     argv = sys.argv[1:] if argv is None else list(argv)
-    reset_registry()  # plugins may have changed since the last call (tests)
+    reset_registry_cache()  # plugins may have changed since the last call (tests)
     debug = "--debug" in argv
     argv = [a for a in argv if a != "--debug"]
     with contextlib.suppress(Exception):  # stderr may have no file descriptor
@@ -221,7 +221,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         shorthand_settings=options or None,
     )
     if args.scheduler and logging.getLogger().getEffectiveLevel() > logging.INFO:
-        from idbench.distributed import quiet_logging
+        from idbench.executors import quiet_logging
 
         quiet_logging()  # a lost scheduler is said once, below, not by Dask
     the_plan = plan(config, Session(reg))
@@ -394,9 +394,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     import meshio
     import numpy as np
 
-    from idbench.config import proposed_scenarios
+    from idbench.capabilities import cell_data_of, field_model, probes_of
     from idbench.interfaces import ModelSpec
-    from idbench.session import model_settings, true_values
+    from idbench.settings import (
+        model_settings,
+        proposed_scenarios,
+        true_values,
+    )
     from idbench.truth import simulate_path
 
     if args.out.is_dir() or args.out.suffix.lower() != ".xdmf":
@@ -423,22 +427,23 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         model = reg.model(model_name)(spec)
     except (ValueError, OSError) as exc:
         raise UsageError(f"--mesh {args.mesh!r}: {exc}") from None
-    if not (hasattr(model, "mesh") and hasattr(model, "displacement_field")):
+    field = field_model(model)
+    if field is None:
         raise UsageError(
             f"model {model_name!r} has no mesh() and displacement_field(): "
             "it cannot be written for ParaView"
         )
     true = true_values(model.parameters, args.true or {}, model_name)
     states = simulate_path(model, np.array([v for _, v in true]))
-    points, tets = model.mesh()
+    points, tets = field.mesh()
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    probes = getattr(model, "probes", None)
-    cells = getattr(model, "cell_data", None)
+    probes = probes_of(model)
+    cells = cell_data_of(model)
     cell_data = {n: [np.asarray(v)] for n, v in (cells() if cells else {}).items()}
     with meshio.xdmf.TimeSeriesWriter(args.out, data_format="XML") as writer:
         writer.write_points_cells(points, [("tetra", tets)])
         for k, state in enumerate(states, start=1):
-            u = model.displacement_field(state)
+            u = field.displacement_field(state)
             writer.write_data(
                 k / args.steps,
                 point_data={"displacement": u},

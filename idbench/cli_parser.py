@@ -2,8 +2,9 @@
 
 :func:`build_parser` builds every subcommand's arguments, adding the models'
 shorthand options and the plugins' commands from the registry (built once per
-process, :func:`registry`); a plugin part that cannot be added is reported in
-``idbench plugins``, never fatal. :mod:`idbench.cli` runs the commands.
+process: :func:`idbench.plugins.cached_registry`); a plugin part that cannot be
+added is reported in ``idbench plugins``, never fatal. :mod:`idbench.cli` runs
+the commands.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from idbench.config import ConfigError
+from idbench.plugins import cached_registry as registry
 
 log = logging.getLogger("idbench")
 
@@ -81,23 +83,6 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         where = "" if self.prog == "idbench" else f"{self.prog}: "
         raise UsageError(f"{where}{message}")
-
-
-_REGISTRY: list[Any] = []
-
-
-def reset_registry() -> None:
-    """Forget the registry (plugins may have changed since it was built)."""
-    _REGISTRY.clear()
-
-
-def registry() -> Any:
-    """The plugin registry, built once per process (plugins are imported here)."""
-    if not _REGISTRY:
-        from idbench.plugins import build_registry
-
-        _REGISTRY.append(build_registry())
-    return _REGISTRY[0]
 
 
 def _config_default(name: str) -> str:

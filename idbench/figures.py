@@ -93,7 +93,7 @@ def _short(v: Any) -> str:
     return f"{v:g}" if isinstance(v, float | np.floating) else str(v)
 
 
-def _x(runs: pd.DataFrame) -> tuple[pd.Series, bool]:
+def _resolution_x(runs: pd.DataFrame) -> tuple[pd.Series, bool]:
     """The x of resolution figures: model nodes, or mesh order without them."""
     if "model_nodes" not in runs:
         nodes = pd.Series(np.nan, index=runs.index)
@@ -164,7 +164,7 @@ def parameters_vs_resolution(
     intervals.
     """
     fig, panels = _panels(len(names))
-    x_all, log = _x(ok)
+    x_all, log = _resolution_x(ok)
     series = _series_names(ok, axes)
     for ax, name in zip(panels, names, strict=True):
         ratio = f"{name}_true" in ok
@@ -218,7 +218,7 @@ def shape_error_vs_resolution(
     """
     scenarios = sorted(ok["scenario"].unique()) if "scenario" in ok else [None]
     fig, panels = _panels(len(scenarios))
-    x_all, log = _x(ok)
+    x_all, log = _resolution_x(ok)
     series = _series_names(ok, axes)
     df = ok.assign(_x=x_all, _s=[_label(r, axes) for _, r in ok.iterrows()])
     for ax, scen in zip(panels, scenarios, strict=True):
@@ -314,7 +314,7 @@ def uncertainty_vs_resolution(
     value p. Estimators without a std have no points.
     """
     fig, panels = _panels(len(names) + 1)
-    x_all, log = _x(ok)
+    x_all, log = _resolution_x(ok)
     series = _series_names(ok, axes)
     df = ok.assign(_x=x_all, _s=[_label(r, axes) for _, r in ok.iterrows()])
     for ax, name in zip(panels, names, strict=False):

@@ -21,7 +21,8 @@ from typing import Any
 import numpy as np
 
 from idbench import scoring
-from idbench.config import ConfigError, public_settings
+from idbench.capabilities import n_nodes_of
+from idbench.config import ConfigError
 from idbench.interfaces import (
     Cost,
     Diverged,
@@ -33,7 +34,8 @@ from idbench.interfaces import (
 )
 from idbench.observed_model import model_state
 from idbench.runspec import RunSpec
-from idbench.session import Session, estimator_arguments
+from idbench.session import Session
+from idbench.settings import estimator_arguments, public_settings
 from idbench.truth import Truth
 from idbench.validity import run_warning
 
@@ -301,7 +303,8 @@ def _run_on(
     """:func:`_run`'s work with the lent ``models`` (master, copy)."""
     master, model = models
     metrics_model = session.model(spec, spec.mesh, role="metrics")
-    row["model_nodes"] = getattr(master, "n_nodes", np.nan)
+    nodes = n_nodes_of(master)
+    row["model_nodes"] = np.nan if nodes is None else nodes
     row["truth_nodes"] = session.truth(spec).nodes
     row.update(scoring.empty_parameter_columns(spec))
 

@@ -30,7 +30,7 @@ def register_models(register: Callable[..., None]) -> None:
     object may define ``proposed_defaults()`` (a ModelDefaults or None,
     replacing ``defaults`` for those settings) and ``proposed_scenarios()``
     (Scenarios that exist for those settings only; see
-    :func:`idbench.config.proposed_scenarios`).
+    :func:`idbench.settings.proposed_scenarios`).
     """
 
 

@@ -20,6 +20,10 @@ from idbench.scenario import Scenario
 FloatArray = NDArray[np.float64]
 
 
+class ConfigError(ValueError):
+    """A setting is invalid; the message names the value and what is allowed."""
+
+
 class ModelFailure(RuntimeError):
     """A forward solve did not converge (or produced an inverted element).
 
@@ -224,17 +228,18 @@ class ForwardModel(Protocol):
     (a flat float array, e.g. the free displacements), so several sigma points
     can advance from the same step.
 
-    Optional members the core uses when present: ``n_nodes`` (int, the mesh
-    size reported in the tables), ``probes(state) -> dict[str, float]`` (named
-    scalar outputs, recorded per step for the truth in the traces table, e.g.
-    a tip displacement), ``sensitivity`` (see :class:`SensitiveModel`),
-    ``bounds`` (array (2, d), the lower and upper corner of the undeformed
-    body's bounding box) and ``volume`` (float): with them (and ``n_nodes``)
-    a truth that is another body than a model mesh, or not finer, is refused
-    (:mod:`idbench.validity`).
-    Also optional: ``step_many`` (:class:`BatchModel`), ``surface``
+    Optional members the core uses when present, each declared as a protocol
+    below: ``n_nodes`` (:class:`NodeCountModel`), ``probes``
+    (:class:`ProbedModel`), ``sensitivity`` (:class:`SensitiveModel`),
+    ``step_many`` (:class:`BatchModel`), ``bounds`` and ``volume``
+    (:class:`BoundingBoxModel`, :class:`VolumeModel`): with them (and
+    ``n_nodes``) a truth that is another body than a model mesh, or not
+    finer, is refused (:mod:`idbench.validity`); ``mesh`` and
+    ``displacement_field`` (:class:`FieldModel`) and ``cell_data``
+    (:class:`CellDataModel`) for ``idbench simulate``; ``surface``
     (:class:`SurfaceModel`, for the ``cloud`` observation) and ``reaction``
-    (:class:`ReactionModel`, for ``force``).
+    (:class:`ReactionModel`, for ``force``). The core looks them up
+    in one place, :mod:`idbench.capabilities`;
     :func:`idbench.testing.check_model` checks them.
 
     A model is built once per process and each run works with
@@ -351,6 +356,70 @@ class BatchModel(ForwardModel, Protocol):
         (each meets the same convergence test; not necessarily bitwise).
         Raises :class:`ModelFailure` if any pair fails.
         """
+        ...
+
+
+@runtime_checkable
+class NodeCountModel(ForwardModel, Protocol):
+    """A forward model that says its mesh size (the tables' ``model_nodes``)."""
+
+    @property
+    def n_nodes(self) -> int:
+        """Nodes of the mesh, a whole number >= 1."""
+        ...
+
+
+@runtime_checkable
+class ProbedModel(ForwardModel, Protocol):
+    """A forward model with named scalar outputs (e.g. a tip displacement).
+
+    They are recorded per step for the truth in the traces table.
+    """
+
+    def probes(self, state: FloatArray) -> dict[str, float]:
+        """Named finite scalars at ``state`` (names must not shadow a column)."""
+        ...
+
+
+@runtime_checkable
+class BoundingBoxModel(ForwardModel, Protocol):
+    """A forward model that says the bounding box of its undeformed body."""
+
+    @property
+    def bounds(self) -> FloatArray:
+        """Array (2, d): the lower and the upper corner."""
+        ...
+
+
+@runtime_checkable
+class VolumeModel(ForwardModel, Protocol):
+    """A forward model that says the volume of its undeformed body."""
+
+    @property
+    def volume(self) -> float:
+        """The volume, a finite number > 0."""
+        ...
+
+
+@runtime_checkable
+class FieldModel(ForwardModel, Protocol):
+    """A forward model that can show its displacement field (``idbench simulate``)."""
+
+    def mesh(self) -> tuple[FloatArray, NDArray[np.int64]]:
+        """Points (N, 3) and tetrahedra (T, 4) of the undeformed mesh."""
+        ...
+
+    def displacement_field(self, state: FloatArray) -> FloatArray:
+        """Displacements of every node at ``state``, shape (N, 3)."""
+        ...
+
+
+@runtime_checkable
+class CellDataModel(ForwardModel, Protocol):
+    """A forward model with data per cell of :meth:`FieldModel.mesh` (region tags)."""
+
+    def cell_data(self) -> dict[str, FloatArray]:
+        """Arrays (T,) by name, written with every step of ``idbench simulate``."""
         ...
 
 

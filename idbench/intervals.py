@@ -152,10 +152,11 @@ def seeds_needed(s: float, half_width: float, level: float = LEVEL) -> int:
 
 def half_text(lo: float, hi: float) -> str:
     """A half-width or bound for people: 2 significant digits, whole if >= 100."""
-    return _two(max(hi - lo, 0.0) / 2.0)
+    return _two_digits(max(hi - lo, 0.0) / 2.0)
 
 
-def _two(x: float) -> str:
+def _two_digits(x: float) -> str:
+    """``x`` to two significant digits (whole numbers from 100; ``-`` if not finite)."""
     if not np.isfinite(x):
         return "-"
     if abs(x) >= 100:

@@ -347,6 +347,25 @@ def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
     return reg
 
 
+_CACHED: list[Registry] = []
+
+
+def cached_registry() -> Registry:
+    """The registry of the installed plugins, built once per process.
+
+    The command line's (plugins are imported on first use); call
+    :func:`reset_registry_cache` when the plugins may have changed.
+    """
+    if not _CACHED:
+        _CACHED.append(build_registry())
+    return _CACHED[0]
+
+
+def reset_registry_cache() -> None:
+    """Forget the registry :func:`cached_registry` built."""
+    _CACHED.clear()
+
+
 def used_plugins(reg: Registry, *names: tuple[str, list[str]]) -> dict[str, str]:
     """Plugin -> version of the plugins that registered the given names.
 

@@ -48,7 +48,7 @@ class Setup:
         Estimator whose fit gives the reference value.
     execution
         The model's execution settings (see
-        :func:`idbench.session.execution_names`), as sorted items: passed to the
+        :func:`idbench.settings.execution_names`), as sorted items: passed to the
         model, left out of every key and of the run id.
     """
 

@@ -15,20 +15,12 @@ from typing import Any
 import numpy as np
 
 from idbench import observe
-from idbench.config import (
-    ConfigError,
-    build_settings,
-    proposed_scenarios,
-    public_settings,
-    typed_values,
-)
 from idbench.files import stable_hash
 from idbench.interfaces import (
     FloatArray,
     ForwardModel,
     ModelSpec,
     Observation,
-    ParameterSpec,
     Prior,
 )
 from idbench.isolation import changes, fingerprint, private_copy
@@ -37,134 +29,12 @@ from idbench.plugins import Registry, build_registry
 from idbench.posterior import Posterior, PosteriorSettings, reference_posterior
 from idbench.runspec import RunSpec
 from idbench.scenario import Scenario
+from idbench.settings import estimator_arguments, model_settings, proposed_scenarios
 from idbench.truth import Truth, simulate_path, simulate_truth
 
 log = logging.getLogger(__name__)
 
 _NO_STATES = np.empty((0, 0))
-
-
-def model_settings(registry: Registry, model: str, given: dict[str, Any]) -> Any:
-    """The settings object of ``model`` with ``given`` values (None: no settings).
-
-    Raises
-    ------
-    ConfigError
-        Naming an unknown setting (and the allowed ones) or a bad value.
-    """
-    entry = registry.models[model]
-    cls = entry.settings
-    if cls is None:
-        if given:
-            raise ConfigError(f"model {model!r} has no settings; got {sorted(given)}")
-        return None
-    what = f"model {model!r}"
-    return build_settings(cls, _typed(cls, given, what), what)
-
-
-def _typed(cls: type, given: dict[str, Any], what: str) -> dict[str, Any]:
-    """``given`` checked against the field types, whole numbers as floats.
-
-    So that ``nu=0`` and ``nu=0.0`` are one setting (one run id, one noise
-    seed), and ``nu=abc`` is one line (:func:`idbench.config.typed_values`).
-    """
-    return typed_values(cls, given, what)
-
-
-def estimator_arguments(cls: type, settings: Any, seed: int) -> dict[str, Any]:
-    """Keyword arguments for an estimator class: its settings, plus the run's seed.
-
-    An estimator with a ``seed`` setting (its own random draws) gets the run's
-    seed unless the user set one, so seeds differ between the runs of a sweep
-    and repeat with them. The seed is not added to the settings themselves:
-    the run id (and resuming) stays as it was.
-    """
-    kwargs = dict(settings)
-    try:
-        seeded = "seed" in public_settings(cls)
-    except TypeError:  # not a dataclass: no settings we can see
-        seeded = False
-    if seeded and "seed" not in kwargs:
-        kwargs["seed"] = int(seed)
-    return kwargs
-
-
-def settings_items(settings: Any) -> tuple[tuple[str, Any], ...]:
-    """Sorted (name, value) items of a settings object (empty for None).
-
-    Its execution settings (:func:`execution_names`) are left out.
-    """
-    if settings is None:
-        return ()
-    skip = set(execution_names(settings))
-    return tuple(sorted(i for i in dataclasses.asdict(settings).items()
-                        if i[0] not in skip))  # fmt: skip
-
-
-def execution_names(settings: Any) -> tuple[str, ...]:
-    """The settings that change where or how fast work runs, not its results.
-
-    A settings dataclass names them in a class attribute ``EXECUTION`` (a
-    tuple of field names; e.g. helper processes). They reach the model but
-    are left out of run ids, model keys, result rows and the check that an
-    output folder holds the same comparison, so changing them resumes a
-    comparison instead of starting another. A settings class that defines
-    ``identity()`` must leave them out of it, and the model out of its
-    ``describe()`` (both key data and caches).
-    """
-    return tuple(getattr(settings, "EXECUTION", ()))
-
-
-def execution_items(settings: Any) -> tuple[tuple[str, Any], ...]:
-    """Sorted (name, value) items of the execution settings (empty for None)."""
-    if settings is None:
-        return ()
-    names = execution_names(settings)
-    return tuple(sorted((n, getattr(settings, n)) for n in names))
-
-
-def settings_identity(settings: Any) -> tuple[Any, ...]:
-    """What of ``settings`` identifies the data: its ``identity()`` or all of it."""
-    identity = getattr(settings, "identity", None)
-    if callable(identity):
-        return tuple(identity())
-    return tuple([list(item) for item in settings_items(settings)])
-
-
-def true_values(
-    parameters: ParameterSpec, given: dict[str, float], model: str
-) -> tuple[tuple[str, float], ...]:
-    """The true value of every parameter: ``given``, else the model's default.
-
-    Raises
-    ------
-    ConfigError
-        For a name the model does not have, a value missing without a default,
-        or values outside the parameter bounds.
-    """
-    names = parameters.names
-    for name in given:
-        if name not in names:
-            raise ConfigError(
-                f"true value for {name!r}: model {model!r} has no such parameter; "
-                f"its parameters: {', '.join(names)}"
-            )
-    defaults = parameters.default or (None,) * len(names)
-    values = []
-    for name, default in zip(names, defaults, strict=True):
-        value = given.get(name, default)
-        if value is None:
-            raise ConfigError(
-                f"no true value for parameter {name!r} of model {model!r}: "
-                f"give one with --true {name}=VALUE"
-            )
-        values.append((name, float(value)))
-    if not parameters.contains(np.array([v for _, v in values])):
-        raise ConfigError(
-            f"true values {dict(values)} lie outside the parameter bounds "
-            f"{parameters.lower}..{parameters.upper}"
-        )
-    return tuple(values)
 
 
 class Session:

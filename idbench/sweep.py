@@ -24,18 +24,15 @@ from typing import Any
 
 import pandas as pd
 
-from idbench.config import (
-    CompareConfig,
-    ConfigError,
-    build_settings,
-    proposed_scenarios,
-    suggest,
-)
-from idbench.distributed import ClusterLost, connect, execute_on_dask
+from idbench.capabilities import n_nodes_of
+from idbench.config import CompareConfig, ConfigError
 from idbench.executors import (
     THREAD_ENV,
+    ClusterLost,
     RunResult,
+    connect,
     execute_all,
+    execute_on_dask,
     start_method,
     started,
 )
@@ -47,12 +44,15 @@ from idbench.plugins import Registry, build_registry, used_plugins
 from idbench.posterior import PosteriorSettings, check_budget
 from idbench.results import ResultStore
 from idbench.runspec import RunSpec, Setup, expand
-from idbench.session import (
-    Session,
+from idbench.session import Session
+from idbench.settings import (
+    build_settings,
     execution_items,
     model_settings,
+    proposed_scenarios,
     settings_identity,
     settings_items,
+    suggest,
     true_values,
 )
 from idbench.validity import check_prior, check_truth_mesh
@@ -153,7 +153,7 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         role = "truth" if mesh == config.truth_mesh else "est"
         build = functools.partial(session.model, runs[0], mesh, role=role)
         models[mesh] = model = _build(reg, config, mesh, settings, build)
-        nodes[mesh] = int(getattr(model, "n_nodes", 0))
+        nodes[mesh] = int(n_nodes_of(model) or 0)
     for mesh in config.meshes:
         truth = models[config.truth_mesh]
         check_truth_mesh(truth, config.truth_mesh, models[mesh], mesh)
@@ -196,7 +196,7 @@ def model_inputs(
     scenario and on its transfer scenario.
 
     ``reg`` is the comparison's registry, with the scenarios the model's settings
-    propose (:func:`idbench.config.proposed_scenarios`).
+    propose (:func:`idbench.settings.proposed_scenarios`).
 
     Returns
     -------

@@ -13,6 +13,19 @@ from typing import Any
 
 import numpy as np
 
+from idbench.capabilities import (
+    OPTIONAL,
+    bounds_of,
+    cell_data_of,
+    field_model,
+    given,
+    member,
+    n_nodes_of,
+    present,
+    probes_of,
+    sensitivity_of,
+    volume_of,
+)
 from idbench.interfaces import (
     BatchModel,
     Cost,
@@ -86,7 +99,7 @@ def check_model(
     desc = model.describe()
     assert isinstance(desc, dict), "describe() must return a dict"
     check_optional_members(model, first[-1])
-    sens = getattr(model, "sensitivity", None)
+    sens = sensitivity_of(model)
     if sens is None:
         return
     k = steps
@@ -108,16 +121,28 @@ def check_model(
 
 
 def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
-    """Check the optional members a model has: probes, n_nodes, default truths.
+    """Check the optional members a model has (:data:`idbench.capabilities.OPTIONAL`).
 
+    Each one it has must make it an instance of the protocol that declares it
+    (a method callable, ``mesh`` with ``displacement_field``);
     ``probes(state)`` must map names to finite scalars (they become traces
     columns, so they must not shadow the core's); ``n_nodes`` must be a whole
     number >= 1; ``bounds`` a finite (2, d) box, ``volume`` a number > 0;
+    ``cell_data()`` arrays of one value per tetrahedron of ``mesh()``;
     ``parameters.default``, if set, must lie inside the bounds;
     ``surface(state)`` must give finite vertices (V, 3) and triangles (T, 3)
     indexing them; ``reaction(theta, k, state)`` a finite vector.
     """
-    surface = getattr(model, "surface", None)
+    usable = present(model)
+    for name in given(model):
+        assert name in usable, f"{name} must be a method (it is not callable)"
+        protocol = OPTIONAL[name]
+        lacks = [n for n, p in OPTIONAL.items() if p is protocol and n not in usable]
+        assert isinstance(model, protocol) and not lacks, (
+            f"model has {name} but is no idbench.{protocol.__name__}: it lacks "
+            f"{', '.join(lacks) or 'a ForwardModel member'}"
+        )
+    surface = member(model, "surface")
     if surface is not None:
         vertices, triangles = surface(state)
         vertices, triangles = np.asarray(vertices), np.asarray(triangles)
@@ -128,14 +153,14 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
         assert triangles.min() >= 0 and triangles.max() < len(vertices), (
             "triangles index vertices that do not exist"
         )
-    reaction = getattr(model, "reaction", None)
+    reaction = member(model, "reaction")
     theta = np.asarray(model.parameters.default or model.parameters.upper, float)
     if reaction is not None and model.parameters.contains(theta):
         force = np.asarray(reaction(theta, 1, state), dtype=float)
         assert force.ndim == 1 and np.all(np.isfinite(force)), (
             "reaction(theta, k, state) must be a finite vector"
         )
-    probes = getattr(model, "probes", None)
+    probes = probes_of(model)
     if probes is not None:
         named = probes(state)
         assert isinstance(named, dict), "probes() must return a dict"
@@ -148,23 +173,34 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
             assert np.ndim(value) == 0 and np.isfinite(value), (
                 f"probe {name!r} must be a finite scalar, got {value!r}"
             )
-    n_nodes = getattr(model, "n_nodes", None)
+    n_nodes = n_nodes_of(model)
     if n_nodes is not None:
         assert isinstance(n_nodes, int | np.integer) and n_nodes >= 1, (
             f"n_nodes must be a whole number >= 1, got {n_nodes!r}"
         )
-    bounds = getattr(model, "bounds", None)
+    bounds = bounds_of(model)
     if bounds is not None:
         box = np.asarray(bounds, dtype=float)
         assert box.ndim == 2 and len(box) == 2 and np.isfinite(box).all(), (
             f"bounds must be a finite (2, d) array (lower, upper corner), got {box!r}"
         )
         assert np.all(box[0] <= box[1]), "bounds: the lower corner is above the upper"
-    volume = getattr(model, "volume", None)
+    volume = volume_of(model)
     if volume is not None:
         assert np.ndim(volume) == 0 and np.isfinite(volume) and volume > 0, (
             f"volume must be a finite number > 0, got {volume!r}"
         )
+    field, cells = field_model(model), cell_data_of(model)
+    if field is not None:
+        points, tets = (np.asarray(a) for a in field.mesh())
+        assert points.ndim == 2 and points.shape[1] == 3, "mesh() points must be (N, 3)"
+        assert tets.ndim == 2 and tets.shape[1] == 4, "mesh() cells must be (T, 4)"
+        u = np.asarray(field.displacement_field(state))
+        assert u.shape == points.shape, "displacement_field() must be (N, 3)"
+        for name, values in (cells() if cells is not None else {}).items():
+            assert np.shape(values) == (len(tets),), (
+                f"cell_data() {name!r} must have one value per tetrahedron"
+            )
     default = model.parameters.default
     if default is not None:
         assert model.parameters.contains(np.asarray(default, dtype=float)), (

@@ -15,11 +15,11 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import platformdirs
 
+from idbench.capabilities import n_nodes_of, probes_of
 from idbench.files import atomic_write, digest, stable_hash
 from idbench.interfaces import FloatArray, ForwardModel, ModelFailure
 
@@ -100,17 +100,19 @@ def simulate_path(
 
 def probe(model: ForwardModel, states: FloatArray) -> Truth:
     """Observations, shape-error points and probes of each state."""
-    probes: Any = getattr(model, "probes", None)
+    probes = probes_of(model)
     named: dict[str, list[float]] = {}
-    for s in states if callable(probes) else ():
-        for name, value in probes(s).items():
-            named.setdefault(name, []).append(float(value))
+    if probes is not None:
+        for s in states:
+            for name, value in probes(s).items():
+                named.setdefault(name, []).append(float(value))
+    nodes = n_nodes_of(model)
     return Truth(
         states=states,
         observations=np.array([model.observe(s) for s in states]),
         grid=np.array([model.grid(s) for s in states]),
         probes={name: np.array(values) for name, values in named.items()},
-        nodes=float(getattr(model, "n_nodes", float("nan"))),
+        nodes=float("nan") if nodes is None else float(nodes),
     )
 
 

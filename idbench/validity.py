@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from idbench.capabilities import bounds_of, n_nodes_of, volume_of
 from idbench.config import ConfigError
 from idbench.interfaces import FloatArray, Observation, ParameterSpec
 from idbench.truth import Truth
@@ -74,7 +75,7 @@ def check_truth_mesh(truth: Any, truth_mesh: str, model: Any, mesh: str) -> None
     if mesh == truth_mesh:
         return
     pair = f"truth mesh {truth_mesh!r} and model mesh {mesh!r}"
-    n_truth, n_model = getattr(truth, "n_nodes", None), getattr(model, "n_nodes", None)
+    n_truth, n_model = n_nodes_of(truth), n_nodes_of(model)
     if n_truth is not None and n_model is not None and n_truth <= n_model:
         raise ConfigError(
             f"truth mesh {truth_mesh!r} ({n_truth} nodes) is not finer than model "
@@ -92,7 +93,7 @@ def check_truth_mesh(truth: Any, truth_mesh: str, model: Any, mesh: str) -> None
                 f"{off[axis]:.0%} of the truth's extent along axis {axis} (truth "
                 f"{_box(box_t)}, model {_box(box_m)}; allowed {BOX_TOLERANCE:.0%})"
             )
-    v_t, v_m = getattr(truth, "volume", None), getattr(model, "volume", None)
+    v_t, v_m = volume_of(truth), volume_of(model)
     if v_t is not None and v_m is not None and float(v_t) > 0:
         rel = abs(float(v_m) / float(v_t) - 1.0)
         if rel > VOLUME_TOLERANCE:
@@ -104,7 +105,7 @@ def check_truth_mesh(truth: Any, truth_mesh: str, model: Any, mesh: str) -> None
 
 
 def _bounds(model: Any) -> FloatArray | None:
-    value = getattr(model, "bounds", None)
+    value = bounds_of(model)
     if value is None:
         return None
     box = np.asarray(value, dtype=float)

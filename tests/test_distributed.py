@@ -19,7 +19,7 @@ import pandas as pd
 import pytest
 
 from idbench.config import CompareConfig, ConfigError
-from idbench.distributed import ClusterLost
+from idbench.executors import ClusterLost
 from idbench.sweep import compare
 
 distributed = pytest.importorskip("distributed")
@@ -158,7 +158,7 @@ def closed_port() -> str:
 def test_failed_connection_leaves_the_folder_usable(cache, tmp_path, monkeypatch):
     """Nothing stored: no manifest, so other settings may use the folder; runs
     stored before: kept, with their manifest."""
-    monkeypatch.setattr("idbench.distributed.CONNECT_TIMEOUT_S", 1, raising=False)
+    monkeypatch.setattr("idbench.executors.dask.CONNECT_TIMEOUT_S", 1)
     out = tmp_path / "out"
     with pytest.raises(ConfigError, match="cannot connect"):
         compare(tiny(), out, scheduler=closed_port())

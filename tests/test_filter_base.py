@@ -22,8 +22,8 @@ import pytest
 from toymodels import SensitiveLinearToy
 
 import idbench
-from idbench.config import public_settings
-from idbench.session import Session, estimator_arguments
+from idbench.session import Session
+from idbench.settings import estimator_arguments, public_settings
 from idbench.sweep import compare, runs_of
 
 README = Path(__file__).resolve().parent.parent / "README.md"

@@ -547,3 +547,17 @@ def test_idbench_skfem_is_a_deprecated_alias_not_a_second_plugin() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=120
     )
     assert proc.returncode == 0, proc.stderr
+
+
+def test_the_registry_cache_lives_in_plugins_and_the_cli_uses_it() -> None:
+    """One registry a process until reset; the command line reads that one."""
+    from idbench import cli, cli_parser, plugins
+
+    plugins.reset_registry_cache()
+    first = plugins.cached_registry()
+    assert plugins.cached_registry() is first
+    assert cli_parser.registry is plugins.cached_registry
+    assert cli.registry is plugins.cached_registry
+    plugins.reset_registry_cache()
+    again = plugins.cached_registry()
+    assert again is not first and set(again.models) == set(first.models)

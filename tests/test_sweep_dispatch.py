@@ -387,8 +387,8 @@ def test_a_worker_adopts_what_it_is_sent_and_returns_only_what_it_added(
         r for r in runs if own_reference(r) and r.reference_key() == rls.reference_key()
     )
     session = Session(registry)
-    monkeypatch.setattr(executors, "worker_session", lambda: session)
-    monkeypatch.setattr(executors, "_die_with_parent", lambda parent: None)
+    monkeypatch.setattr(executors.worker, "worker_session", lambda: session)
+    monkeypatch.setattr(executors.worker, "_die_with_parent", lambda parent: None)
     ours, theirs = mp.Pipe()
     sentinel = np.array([1234.5])
     ours.send((rls, {("reference", rls.reference_key()): sentinel}))
@@ -404,7 +404,7 @@ def test_a_worker_adopts_what_it_is_sent_and_returns_only_what_it_added(
     reader.start()
     handler = signal.getsignal(signal.SIGINT)
     try:
-        executors._worker_main(theirs, os.getpid())  # returns on None
+        executors.worker._worker_main(theirs, os.getpid())  # returns on None
     finally:
         signal.signal(signal.SIGINT, handler)
         reader.join(30)
@@ -428,7 +428,7 @@ def test_a_worker_adopts_what_it_is_sent_and_returns_only_what_it_added(
 
 def test_a_worker_is_sent_only_what_it_lacks(runs):
     sent: list[Any] = []
-    w = executors._Worker.__new__(executors._Worker)
+    w = executors.Worker.__new__(executors.Worker)
     w.conn = SimpleNamespace(send=sent.append)
     w.spec, w.deadline, w.has = None, None, set()
     known: dict[Any, Any] = {("reference", "a"): np.ones(1)}
@@ -442,7 +442,7 @@ def test_a_worker_is_sent_only_what_it_lacks(runs):
     assert w.has == {("reference", "a"), ("direct", "b")}
 
     # what it reports back it holds: the pool does not send it again
-    pool = executors._Pool.__new__(executors._Pool)
+    pool = executors.Pool.__new__(executors.Pool)
     pool.timeout, pool.attempts = None, {}
     result = ({"run_id": runs[2].run_id}, [])
     done = ("done", result, {("reference", "c"): np.ones(1)})
@@ -519,20 +519,20 @@ def spawned(monkeypatch) -> None:
 def test_forked_workers_are_not_started_ahead(monkeypatch):
     monkeypatch.setenv(executors.START_METHOD_ENV, "fork")
     with executors.started(2):
-        assert executors._spares() == []  # forked later, from the planned parent
+        assert executors.started_ahead() == []  # forked later, from the planned parent
 
 
 def test_the_next_pool_takes_the_started_workers(spawned, cache_env, registry, runs):
     chosen = [r for r in runs if r.estimator == "rls" and r.mesh == "4x1x1"]
-    assert executors._spares() == []
+    assert executors.started_ahead() == []
     with executors.started(2):
-        spare = list(executors._spares())
+        spare = list(executors.started_ahead())
         assert len(spare) == 2 and all(w.proc.is_alive() for w in spare)
         rows = [row for row, _ in execute_all(chosen, Session(registry), jobs=2)]
         assert [row["status"] for row in rows] == ["ok", "ok"]
-        assert executors._spares() == []  # taken, not left for the end of the block
+        assert executors.started_ahead() == []  # taken, not left for the block end
         assert not any(w.proc.is_alive() for w in spare)  # and closed with the pool
-    assert executors._spares() == []
+    assert executors.started_ahead() == []
 
 
 def test_a_pool_takes_only_the_workers_it_needs_and_stops_the_rest(
@@ -540,35 +540,35 @@ def test_a_pool_takes_only_the_workers_it_needs_and_stops_the_rest(
 ):
     one = [next(r for r in runs if r.estimator == "rls" and r.mesh == "4x1x1")]
     with executors.started(2):
-        first, second = executors._spares()
+        first, second = executors.started_ahead()
         rows = [row for row, _ in execute_all(one, Session(registry), jobs=2)]
         assert [row["status"] for row in rows] == ["ok"]
         # the one it did not need was stopped when the pool was built
-        assert executors._spares() == []
+        assert executors.started_ahead() == []
         assert not first.proc.is_alive() and not second.proc.is_alive()
-    assert executors._spares() == []
+    assert executors.started_ahead() == []
 
 
 def test_a_dead_started_worker_is_replaced(spawned, cache_env, registry, runs):
     one = [next(r for r in runs if r.estimator == "rls" and r.mesh == "4x1x1")]
     with executors.started(1):
-        (dead,) = executors._spares()
+        (dead,) = executors.started_ahead()
         dead.proc.kill()
         dead.proc.join(5)
         rows = [row for row, _ in execute_all(one, Session(registry), jobs=1,
                                               timeout=60.0)]  # fmt: skip
         assert [row["status"] for row in rows] == ["ok"]
-        assert executors._spares() == []
+        assert executors.started_ahead() == []
 
 
 def test_workers_no_pool_took_are_stopped_at_the_end_of_the_block(spawned):
     with executors.started(2):
-        spare = list(executors._spares())
+        spare = list(executors.started_ahead())
         assert len(spare) == 2 and all(w.proc.is_alive() for w in spare)
-    assert executors._spares() == []
+    assert executors.started_ahead() == []
     assert not any(w.proc.is_alive() for w in spare)
     with executors.started(0):
-        assert executors._spares() == []
+        assert executors.started_ahead() == []
 
 
 def test_a_sweep_that_fails_planning_leaves_no_process(cache_env, tmp_path):
@@ -576,7 +576,7 @@ def test_a_sweep_that_fails_planning_leaves_no_process(cache_env, tmp_path):
     config = small(estimators=("rls", "no-such-filter"))
     with pytest.raises(ConfigError, match="no-such-filter"):
         compare(config, tmp_path / "out", jobs=2)
-    assert executors._spares() == []
+    assert executors.started_ahead() == []
     for child in set(mp.active_children()) - before:
         child.join(1)
     assert set(mp.active_children()) <= before
@@ -685,19 +685,19 @@ def test_a_free_worker_skips_runs_whose_inputs_another_is_computing(runs, regist
     busy = [SimpleNamespace(spec=busy_spec)]
     queue = [same[0], other[0]]
     products = session.products
-    assert executors._next(queue, busy, prepared, products) == 1  # type: ignore[arg-type]
+    assert executors.next_run_index(queue, busy, prepared, products) == 1  # type: ignore[arg-type]
     # once what it computes is known, the order stands
     known = {**prepared, **{key: None for key in products(busy_spec)}}
-    assert executors._next(queue, busy, known, products) == 0  # type: ignore[arg-type]
+    assert executors.next_run_index(queue, busy, known, products) == 0  # type: ignore[arg-type]
     # nothing free of conflicts within the look-ahead: the first
-    assert executors._next([same[0]], busy, prepared, products) == 0  # type: ignore[arg-type]
+    assert executors.next_run_index([same[0]], busy, prepared, products) == 0  # type: ignore[arg-type]
 
 
 def test_started_workers_are_per_thread(spawned, cache_env, registry, runs):
     # a pool in another thread does not take this thread's spares
     one = [next(r for r in runs if r.estimator == "rls" and r.mesh == "4x1x1")]
     with executors.started(1):
-        (mine,) = executors._spares()
+        (mine,) = executors.started_ahead()
         rows: list[Any] = []
 
         def other() -> None:
@@ -707,7 +707,7 @@ def test_started_workers_are_per_thread(spawned, cache_env, registry, runs):
         thread.start()
         thread.join(120)
         assert [row["status"] for row in rows] == ["ok"]
-        assert executors._spares() == [mine] and mine.proc.is_alive()
+        assert executors.started_ahead() == [mine] and mine.proc.is_alive()
     assert not mine.proc.is_alive()
 
 

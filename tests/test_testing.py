@@ -123,3 +123,83 @@ def test_execution_must_name_fields():
     check_model_settings(Good)
     with pytest.raises(AssertionError, match="threads"):
         check_model_settings(Bad)
+
+
+def test_optional_members_are_declared_and_looked_up_in_one_place():
+    """Every optional member has its protocol; only capabilities.py looks them up."""
+    import ast
+    from pathlib import Path
+
+    from idbench import capabilities
+
+    for name, protocol in capabilities.OPTIONAL.items():
+        assert getattr(idbench, protocol.__name__) is protocol  # public API
+        assert name in dir(protocol), f"{protocol.__name__} does not declare {name}"
+    core = Path(idbench.__file__).parent
+    found = []
+    for path in core.rglob("*.py"):
+        if path.name == "capabilities.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (
+                isinstance(node, ast.Call)
+                and isinstance(node.func, ast.Name)
+                and node.func.id in ("getattr", "hasattr")
+                and len(node.args) >= 2
+                and isinstance(node.args[1], ast.Constant)
+                and node.args[1].value in capabilities.OPTIONAL
+            ):
+                found.append(f"{path.relative_to(core)}:{node.lineno}")
+    assert not found, f"optional model members looked up by name: {found}"
+
+
+def test_capabilities_give_each_member_or_none():
+    from idbench import capabilities as cap
+
+    model = SensitiveLinearToy(p=1)
+    assert cap.probes_of(model) is None and cap.n_nodes_of(model) is None
+    assert cap.sensitivity_of(model) is not None and cap.step_many_of(model) is None
+    assert cap.field_model(model) is None and set(cap.present(model)) == {"sensitivity"}
+    model.probes = lambda s: {"end": 1.0}
+    model.n_nodes, model.volume = 7, 2.0
+    assert cap.probes_of(model) is model.probes and cap.n_nodes_of(model) == 7
+    assert cap.volume_of(model) == 2.0 and cap.bounds_of(model) is None
+    model.mesh = lambda: (np.zeros((4, 3)), np.array([[0, 1, 2, 3]]))
+    assert cap.field_model(model) is None  # no displacement_field yet
+    model.displacement_field = lambda state: np.zeros((4, 3))
+    assert cap.field_model(model) is model
+    model.cell_data = "not a method"
+    assert cap.cell_data_of(model) is None and "cell_data" in cap.given(model)
+    with pytest.raises(KeyError, match="no optional model member"):
+        cap.member(model, "tip")
+
+
+def test_check_optional_members_checks_each_declared_member():
+    from idbench.testing import check_optional_members
+
+    model = LinearToy(p=1)
+    state = model.step(np.array([2.0]), 1, model.reset())
+    model.probes = {"end": 1.0}  # a value, not a method
+    with pytest.raises(AssertionError, match="probes must be a method"):
+        check_optional_members(model, state)
+    del model.probes
+    model.mesh = lambda: (np.zeros((4, 3)), np.array([[0, 1, 2, 3]]))
+    with pytest.raises(AssertionError, match=r"FieldModel: it lacks displacement_f"):
+        check_optional_members(model, state)
+    model.displacement_field = lambda state: np.zeros((4, 3))
+    check_optional_members(model, state)
+    model.cell_data = lambda: {"region": np.zeros(3)}
+    with pytest.raises(AssertionError, match="one value per tetrahedron"):
+        check_optional_members(model, state)
+
+
+def test_the_beam_has_its_members_declared(registry):
+    from idbench import capabilities
+
+    spec = idbench.ModelSpec(mesh="4x1x1", scenario=registry.scenario("bend-y"),
+                             n_steps=2)  # fmt: skip
+    model = registry.model("svk-beam")(spec)
+    has = set(capabilities.present(model))
+    assert {"n_nodes", "probes", "sensitivity", "mesh", "displacement_field"} <= has
+    for name in has:
+        assert isinstance(model, capabilities.OPTIONAL[name]), name

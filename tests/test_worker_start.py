@@ -1,7 +1,7 @@
 """How worker processes start: forked from the planned parent, or spawned.
 
 :func:`idbench.executors.start_method` and what a forked worker leaves to
-its parent (:func:`idbench.executors._forked`); the progress bar that lets the
+its parent (:func:`idbench.executors.worker._forked`); the progress bar that lets the
 command line fork (no refresh thread with ``--jobs`` > 1); a comparison that
 gives the same numbers whichever way its workers start.
 """
@@ -63,7 +63,7 @@ def test_auto_forks_only_a_single_threaded_linux_process(
 @pytest.mark.skipif(not LINUX, reason="forks on Linux only")
 def test_auto_forks_when_this_process_runs_one_thread(monkeypatch):
     monkeypatch.delenv(executors.START_METHOD_ENV, raising=False)
-    monkeypatch.setattr(executors.threading, "active_count", lambda: 1)
+    monkeypatch.setattr(executors.start.threading, "active_count", lambda: 1)
     assert executors.start_method() == "fork"
 
 
@@ -73,11 +73,11 @@ from idbench import executors
 from idbench.config import CompareConfig
 from idbench.sweep import compare
 started = []
-new = executors._Worker.__init__
+new = executors.Worker.__init__
 def record(self, session=None):
     started.append("fork" if session is not None else "spawn")
     new(self, session)
-executors._Worker.__init__ = record
+executors.Worker.__init__ = record
 if __name__ == "__main__":
     given = json.loads(sys.argv[1]).items()
     config = {k: tuple(v) if isinstance(v, list) else v for k, v in given}
@@ -117,7 +117,7 @@ def test_a_registry_built_by_hand_runs_in_this_process_whatever_jobs_says(
     def no_worker(*args: Any) -> None:
         raise AssertionError("a worker process was started")
 
-    monkeypatch.setattr(executors._Worker, "__init__", no_worker)
+    monkeypatch.setattr(executors.Worker, "__init__", no_worker)
     runs, _ = compare(
         CompareConfig(**TINY), tmp_path, jobs=2, registry=build_registry()
     )
@@ -126,11 +126,11 @@ def test_a_registry_built_by_hand_runs_in_this_process_whatever_jobs_says(
 
 def test_a_worker_started_while_another_thread_runs_is_spawned(monkeypatch):
     monkeypatch.delenv(executors.START_METHOD_ENV, raising=False)
-    monkeypatch.setattr(executors.threading, "active_count", lambda: 1)
-    pool = executors._Pool(1, None, Session(build_registry()))
+    monkeypatch.setattr(executors.start.threading, "active_count", lambda: 1)
+    pool = executors.Pool(1, None, Session(build_registry()))
     try:
         assert pool.workers[0].proc._start_method == ("fork" if LINUX else "spawn")  # type: ignore[attr-defined]
-        monkeypatch.setattr(executors.threading, "active_count", lambda: 2)
+        monkeypatch.setattr(executors.start.threading, "active_count", lambda: 2)
         pool._replace(pool.workers[0])  # as after a worker died mid-sweep
         assert pool.workers[0].proc._start_method == "spawn"  # type: ignore[attr-defined]
     finally:
@@ -138,24 +138,24 @@ def test_a_worker_started_while_another_thread_runs_is_spawned(monkeypatch):
 
 
 def test_a_pool_that_fails_to_start_a_worker_leaves_none_running(monkeypatch):
-    made: list[executors._Worker] = []
-    new = executors._Pool._new
+    made: list[executors.Worker] = []
+    new = executors.Pool._new
 
-    def second_fails(self: executors._Pool) -> executors._Worker:
+    def second_fails(self: executors.Pool) -> executors.Worker:
         if made:
             raise OSError("cannot fork: out of memory")
         made.append(new(self))
         return made[-1]
 
-    monkeypatch.setattr(executors._Pool, "_new", second_fails)
+    monkeypatch.setattr(executors.Pool, "_new", second_fails)
     with pytest.raises(OSError, match="cannot fork"):
-        executors._Pool(2, None, Session(build_registry()))
+        executors.Pool(2, None, Session(build_registry()))
     assert len(made) == 1 and not made[0].proc.is_alive()
 
 
 def test_fork_is_refused_where_the_platform_cannot(monkeypatch):
     monkeypatch.setenv(executors.START_METHOD_ENV, "fork")
-    monkeypatch.setattr(executors.mp, "get_all_start_methods", lambda: ["spawn"])
+    monkeypatch.setattr(executors.start.mp, "get_all_start_methods", lambda: ["spawn"])
     with pytest.raises(ConfigError, match="fork: this platform cannot fork"):
         executors.start_method()
 
@@ -164,7 +164,7 @@ def _report_forked_state(session: Session, out: Any) -> None:
     """In a forked child: take over ``session`` and report what it then has."""
     from threadpoolctl import threadpool_info
 
-    executors._forked(session)
+    executors.worker._forked(session)
     loggers = [logging.getLogger(), logging.getLogger("idbench")]
     out.send(
         {
@@ -228,9 +228,11 @@ def test_a_forked_worker_holds_the_parents_products_and_a_spawned_none(
     session = Session(build_registry())
     session._refs["some-data"] = [1.0]  # as remember_reference stores
     sent: list[Any] = []
-    monkeypatch.setattr(executors, "_send", lambda conn, message: sent.append(message))
+    monkeypatch.setattr(
+        executors.worker, "_send", lambda conn, message: sent.append(message)
+    )
     for forked in (True, False) if LINUX else (False,):
-        worker = executors._Worker(session if forked else None)
+        worker = executors.Worker(session if forked else None)
         try:
             worker.give("a run", session.shared())  # type: ignore[arg-type]
             _, new = sent.pop()
@@ -243,7 +245,7 @@ def test_a_forked_worker_holds_the_parents_products_and_a_spawned_none(
 
 
 def test_the_pool_ticks_while_workers_run(monkeypatch):
-    monkeypatch.setattr(executors, "TICK_S", 0.01)
+    monkeypatch.setattr(executors.pool, "TICK_S", 0.01)
     session = Session(build_registry())
     runs = plan(CompareConfig(**TINY), session).runs
     ticks: list[float] = []
@@ -273,7 +275,7 @@ def test_a_tick_that_raises_is_dropped_and_the_sweep_goes_on(monkeypatch, caplog
 
 
 def test_the_pool_wakes_up_within_most_seconds_when_no_worker_has_news():
-    pool = executors._Pool(1, None, Session(build_registry()))
+    pool = executors.Pool(1, None, Session(build_registry()))
     (worker,) = pool.workers
     worker.spec = "busy, silent"  # type: ignore[assignment]
     try:
@@ -335,13 +337,13 @@ SMALL = {
 @pytest.mark.skipif(not LINUX, reason="forks on Linux only")
 def test_forked_and_spawned_workers_give_the_same_numbers(monkeypatch, tmp_path: Path):
     tables, started = {}, []
-    new = executors._Worker.__init__
+    new = executors.Worker.__init__
 
     def record(self: Any, session: Session | None = None) -> None:
         started.append("fork" if session is not None else "spawn")
         new(self, session)
 
-    monkeypatch.setattr(executors._Worker, "__init__", record)
+    monkeypatch.setattr(executors.Worker, "__init__", record)
     for method in ("fork", "spawn"):
         monkeypatch.setenv(executors.START_METHOD_ENV, method)
         runs, _ = compare(CompareConfig(**SMALL), tmp_path / method, jobs=2)

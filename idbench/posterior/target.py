@@ -15,6 +15,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from idbench.capabilities import step_many_of
 from idbench.interfaces import (
     FloatArray,
     ForwardModel,
@@ -167,7 +168,7 @@ def advance_batch(
     """
     new = np.array(states, dtype=float)
     ok = np.zeros(states.shape[0], dtype=bool)
-    step_many = getattr(model, "step_many", None)
+    step_many = step_many_of(model)
     if step_many is not None and states.shape[0] > 0:
         try:
             batch = np.asarray(step_many(thetas, k, states), dtype=float)

@@ -24,7 +24,7 @@ from collections.abc import Generator
 from typing import Any
 
 from idbench.config import ConfigError
-from idbench.executors import RunResult, run_in_worker, worker_lost
+from idbench.executors.worker import RunResult, run_in_worker, worker_lost
 from idbench.runspec import RunSpec
 
 log = logging.getLogger(__name__)
