@@ -45,6 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from idbench.capabilities import member
 from idbench.interfaces import FloatArray, ForwardModel
 
 MAX_PAIRS = 20_000_000
@@ -246,7 +247,7 @@ class Cloud:
 
 def surface_of(model: ForwardModel, state: FloatArray) -> tuple[FloatArray, Any]:
     """``model.surface(state)`` checked: vertices (V, 3) and triangles (T, 3)."""
-    surface = getattr(model, "surface", None)
+    surface = member(model, "surface")
     if surface is None:
         raise ValueError(
             f"observe cloud: model {type(model).__name__} has no surface(state)"

@@ -39,6 +39,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
+from idbench.capabilities import member
 from idbench.config import ConfigError, build_settings
 from idbench.depth_camera import Cloud
 from idbench.interfaces import FloatArray, ForwardModel
@@ -227,7 +228,7 @@ class Force:
 def _reaction(
     model: ForwardModel, theta: FloatArray, k: int, state: FloatArray
 ) -> FloatArray:
-    reaction = getattr(model, "reaction", None)
+    reaction = member(model, "reaction")
     if reaction is None:
         raise ConfigError(
             f"observe force: model {type(model).__name__} has no reaction"

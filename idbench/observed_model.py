@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from idbench import observe
+from idbench.capabilities import member
 from idbench.interfaces import FloatArray, ForwardModel
 
 
@@ -94,7 +95,7 @@ class ObservedModel:
     def step_many(self, thetas: FloatArray, k: int, states: FloatArray) -> FloatArray:
         """The model's ``step_many`` (or r ``step`` calls), with what ``step`` adds."""
         u = np.asarray(states, dtype=float)[:, : self._n]
-        many = getattr(self.model, "step_many", None)
+        many = member(self.model, "step_many")
         if many is None:
             new = np.stack(
                 [self.model.step(t, k, s) for t, s in zip(thetas, u, strict=True)]
