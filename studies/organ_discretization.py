@@ -169,11 +169,8 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
 
 if __name__ == "__main__":
-    parser = _cli.parser(__doc__, "results/organ")
-    parser.add_argument("--truth", help=f"truth mesh node count (default {TRUTH})")
-    args = parser.parse_args()
-    table = compute(args.quick, args.out, args.truth)
-    print(table.to_string(index=False))
-    args.out.mkdir(parents=True, exist_ok=True)
-    table.to_csv(args.out / "organ_discretization.csv", index=False)
-    plot(table, args.out / "organ_discretization.png")
+    truth = {"help": f"truth mesh node count (default {TRUTH})"}
+    _cli.main(
+        __doc__, "results/organ", compute, plot, "organ_discretization",
+        csv=True, options={"truth": truth},
+    )  # fmt: skip

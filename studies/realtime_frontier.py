@@ -27,9 +27,8 @@ from pathlib import Path
 import _cli
 import pandas as pd
 
-from idbench.config import CompareConfig
+from idbench import compare
 from idbench.report import frontier, frontier_figure
-from idbench.sweep import compare
 
 # Parameters (full size: about 90, 240, 525, 1100, 2000 nodes)
 MESHES = ("9x2x2", "14x3x3", "20x4x4", "30x5x5", "40x6x6")
@@ -67,17 +66,17 @@ COLUMNS = [
 
 def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     """The frontier table: one row per (model nodes, estimator) that ran."""
-    settings = {
-        "meshes": MESHES,
-        "truth_mesh": TRUTH,
-        "estimators": ESTIMATORS,
-        "scenarios": (SCENARIO,),
-        "seeds": SEEDS,
-        "estimator_settings": SETTINGS,
-    }
-    if quick:
-        settings.update(QUICK)
-    runs, traces = compare(CompareConfig(**settings), out, jobs=1)
+    config = _cli.config(
+        quick,
+        QUICK,
+        meshes=MESHES,
+        truth_mesh=TRUTH,
+        estimators=ESTIMATORS,
+        scenarios=(SCENARIO,),
+        seeds=SEEDS,
+        estimator_settings=SETTINGS,
+    )
+    runs, traces = compare(config, out, jobs=1)
     table = frontier(runs, traces)
     return table[[c for c in COLUMNS if c in table.columns]]
 
@@ -89,11 +88,14 @@ def plot(table: pd.DataFrame, path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
-if __name__ == "__main__":
-    parser = _cli.parser(__doc__, "results/frontier")
-    args = parser.parse_args()
-    table = compute(args.quick, args.out)
+def show(table: pd.DataFrame) -> None:
+    """Print the table, numbers to 4 significant digits."""
     fmt = "{:.4g}".format
     with pd.option_context("display.width", 200, "display.float_format", fmt):
-        print(table.to_string(index=False))
-    plot(table, args.out / "realtime_frontier.png")
+        _cli.show(table)
+
+
+if __name__ == "__main__":
+    _cli.main(
+        __doc__, "results/frontier", compute, plot, "realtime_frontier", printed=show
+    )

@@ -21,7 +21,6 @@ import numpy as np
 import pandas as pd
 
 from idbench import metrics
-from idbench.config import CompareConfig
 from idbench.runspec import RunSpec
 from idbench.session import Session
 from idbench.sweep import compare
@@ -65,16 +64,15 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     a mean over seeds with ``*_sd``; ``E_source`` and ``E_target`` the mean
     identified moduli; ``transfer_vs_fit`` the ratio of the first two errors.
     """
-    settings = {
-        "scenarios": SOURCES,
-        "meshes": MESHES,
-        "truth_mesh": TRUTH,
-        "estimators": (ESTIMATOR,),
-        "seeds": SEEDS,
-    }
-    if quick:
-        settings.update(QUICK)
-    config = CompareConfig(**settings)
+    config = _cli.config(
+        quick,
+        QUICK,
+        scenarios=SOURCES,
+        meshes=MESHES,
+        truth_mesh=TRUTH,
+        estimators=(ESTIMATOR,),
+        seeds=SEEDS,
+    )
     runs, _ = compare(config, out)
     specs = {s.run_id: s for s in expand(config)}
     ok = runs[runs["status"] == "ok"].set_index(["scenario", "mesh", "seed"])
@@ -155,8 +153,4 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
 
 if __name__ == "__main__":
-    parser = _cli.parser(__doc__, "results/transfer")
-    args = parser.parse_args()
-    table = compute(args.quick, args.out)
-    print(table.to_string(index=False))
-    plot(table, args.out / "transfer_error.png")
+    _cli.main(__doc__, "results/transfer", compute, plot, "transfer_error")
