@@ -25,10 +25,9 @@ import _cli
 import numpy as np
 import pandas as pd
 
-from idbench.config import CompareConfig
-from idbench.effective import effective_path
+from idbench import CompareConfig, compare, effective_path
 from idbench.session import Session
-from idbench.sweep import compare, plan
+from idbench.sweep import plan
 
 # Parameters (full size: the study's 510-node model, truth about 11,700 nodes)
 MESH = "20x4x4"

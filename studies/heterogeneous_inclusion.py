@@ -45,10 +45,7 @@ import _cli
 import numpy as np
 import pandas as pd
 
-from idbench import ModelSpec
-from idbench.config import CompareConfig
-from idbench.plugins import build_registry
-from idbench.sweep import compare
+from idbench import CompareConfig, ModelSpec, build_registry, compare
 
 # Parameters (full size)
 INCLUSION = (0.08, 0.12, 0.0075, 0.0225, 0.0075, 0.0225)

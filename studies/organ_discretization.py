@@ -33,9 +33,7 @@ from pathlib import Path
 import _cli
 import pandas as pd
 
-from idbench import Scenario, build_registry
-from idbench.config import CompareConfig
-from idbench.sweep import compare
+from idbench import CompareConfig, Scenario, build_registry, compare
 
 # Parameters (full size: liver meshes of about 200 to 2,000 nodes, truth 16,000)
 LAWS = ("neo-hookean", "svk")

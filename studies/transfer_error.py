@@ -20,12 +20,10 @@ import _cli
 import numpy as np
 import pandas as pd
 
-from idbench import metrics
+from idbench import compare, metrics, simulate_path
 from idbench.runspec import RunSpec
 from idbench.session import Session
-from idbench.sweep import compare
 from idbench.sweep import runs_of as expand
-from idbench.truth import simulate_path
 
 # Parameters (full size: the paper's 239- and 510-node models, truth 11,700)
 SOURCES = ("bend-y", "bend-z", "mixed-30", "mixed-60", "stretch-x")

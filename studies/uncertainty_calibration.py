@@ -28,11 +28,10 @@ import _cli
 import numpy as np
 import pandas as pd
 
-from idbench import metrics
-from idbench.config import CompareConfig
+from idbench import CompareConfig, compare, metrics
 from idbench.posterior import model_error
 from idbench.session import Session
-from idbench.sweep import compare, runs_of
+from idbench.sweep import runs_of
 
 # Parameters (full size)
 MESHES = ("9x2x2", "14x3x3", "20x4x4")  # 90, 240, 525 nodes
