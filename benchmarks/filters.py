@@ -22,37 +22,25 @@ Prints, on the bend-y path (K = 20, noise 1e-4, an observation every step):
 
 All figures are best of ``--repeat`` runs interleaved in the same process, so
 their ratios hold on a loaded machine; absolute times do not. Run
-``python benchmarks/filters.py`` (``--quick`` for small meshes). Set
-OMP_NUM_THREADS / MKL_NUM_THREADS / OPENBLAS_NUM_THREADS = 1 for one-core
-figures (on a shared 2-core machine the threaded eigh of the full UKF's
-covariance is several times slower than the single-threaded one).
+``python benchmarks/filters.py`` (``--quick`` for small meshes). BLAS runs one
+thread (one-core figures: on a shared 2-core machine the threaded eigh of the
+full UKF's covariance is several times slower than the single-threaded one).
 """
 
 from __future__ import annotations
 
-import argparse
 import importlib.util
 import time
 
 import numpy as np
+from _timing import one_blas_thread, parser, ratio
 
 import idbench
 from idbench import ModelSpec, Observation, Prior
+from idbench.testing import WithoutStepMany
 from idbench_filters import RoUkf, Ukf
 
 E_TRUE = 5000.0
-
-
-class Looped:
-    """The model without ``step_many``: estimators loop over ``step``."""
-
-    def __init__(self, model):
-        self._model = model
-
-    def __getattr__(self, name):
-        if name == "step_many":
-            raise AttributeError(name)
-        return getattr(self._model, name)
 
 
 def build(mesh: str, scenario: str, n_steps: int, p: int = 1, processes: int = 1):
@@ -114,7 +102,7 @@ def ro_ukf_rows(label, make, args, theta=None, prior=None):
     model = make(1)
     p = model.parameters.p
     obs, t_solve = truth_path(model, args.noise, theta=theta)
-    variants = {"batched": model, "looped": Looped(model)}
+    variants = {"batched": model, "looped": WithoutStepMany(model)}
     if p > 1 and args.processes > 1:
         # sigma points shared with helper processes (one run first starts them)
         two = make(args.processes)
@@ -138,8 +126,7 @@ def ro_ukf_rows(label, make, args, theta=None, prior=None):
             f" (second half {late / t_solve:4.2f})  {1 / wall:6.1f} Hz"
             f"  {fac:5.1f} factorizations a step  E = {e.mean[0]:.2f}"
         )
-    speed = best["looped"][0] / best["batched"][0]
-    print(f"  step_many speed-up {speed:.2f}x")
+    print(f"  step_many speed-up {ratio(best['looped'][0], best['batched'][0])}")
     for m in variants.values():
         getattr(m, "close", lambda: None)()
 
@@ -162,50 +149,51 @@ def ukf_rows(mesh, args):
     obs, _ = truth_path(model, args.noise)
     ukf = Ukf(max_solves=10**6)
     wall_b, _, eb, _ = time_filter(ukf, model, obs, args.ukf_steps)
-    wall_l, _, el, _ = time_filter(ukf, Looped(model), obs, args.ukf_steps)
+    wall_l, _, el, _ = time_filter(ukf, WithoutStepMany(model), obs, args.ukf_steps)
     diff = abs(eb.mean[0] / el.mean[0] - 1)
     print(
         f"Full UKF on {mesh!r} ({model.n_nodes} nodes, {2 * model.n_state + 3} "
         f"sigma points), first {args.ukf_steps} steps: batched {wall_b:.3f} s a "
-        f"step, looped {wall_l:.3f} s a step, speed-up {wall_l / wall_b:.1f}x "
+        f"step, looped {wall_l:.3f} s a step, speed-up {ratio(wall_l, wall_b, 1)} "
         f"(E differs by {diff:.1e})"
     )
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--meshes", nargs="*", default=["20x4x4", "30x5x5"])
-    parser.add_argument("--ukf-meshes", nargs="*", default=["9x2x2", "14x3x3"])
-    parser.add_argument("--scenario", default="bend-y")
-    parser.add_argument("--steps", type=int, default=20)
-    parser.add_argument("--ukf-steps", type=int, default=2)
-    parser.add_argument("--regions", type=int, default=4)
-    parser.add_argument(
+    ap = parser(__doc__)
+    ap.add_argument("--meshes", nargs="*", default=["20x4x4", "30x5x5"])
+    ap.add_argument("--ukf-meshes", nargs="*", default=["9x2x2", "14x3x3"])
+    ap.add_argument("--scenario", default="bend-y")
+    ap.add_argument("--steps", type=int, default=20)
+    ap.add_argument("--ukf-steps", type=int, default=2)
+    ap.add_argument("--regions", type=int, default=4)
+    ap.add_argument(
         "--processes", type=int, default=2, help="for p > 1 also with this many"
     )
-    parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--noise", type=float, default=1e-4)
-    parser.add_argument("--organ-mesh", default="1000", help="organ mesh spec")
-    parser.add_argument("--no-organs", action="store_true", help="skip the organs")
-    parser.add_argument("--quick", action="store_true", help="small meshes")
-    args = parser.parse_args()
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--noise", type=float, default=1e-4)
+    ap.add_argument("--organ-mesh", default="1000", help="organ mesh spec")
+    ap.add_argument("--no-organs", action="store_true", help="skip the organs")
+    ap.add_argument("--quick", action="store_true", help="small meshes")
+    args = ap.parse_args()
     if args.quick:
         args.meshes, args.ukf_meshes, args.steps = ["10x2x2"], ["6x1x1"], 10
         args.organ_mesh = "200"
-    for i, mesh in enumerate(args.meshes):
-        for p in (1, args.regions) if i == 0 and args.regions > 1 else (1,):
+    with one_blas_thread():
+        for i, mesh in enumerate(args.meshes):
+            for p in (1, args.regions) if i == 0 and args.regions > 1 else (1,):
 
-            def make(processes, mesh=mesh, p=p):
-                return build(mesh, args.scenario, args.steps, p, processes)
+                def make(processes, mesh=mesh, p=p):
+                    return build(mesh, args.scenario, args.steps, p, processes)
 
-            ro_ukf_rows(repr(mesh), make, args)
-    if not args.no_organs:
-        if importlib.util.find_spec("gmsh") is None:
-            print("organs skipped: their meshes need gmsh (pip install gmsh)")
-        else:
-            organ_rows(args)
-    for mesh in args.ukf_meshes:
-        ukf_rows(mesh, args)
+                ro_ukf_rows(repr(mesh), make, args)
+        if not args.no_organs:
+            if importlib.util.find_spec("gmsh") is None:
+                print("organs skipped: their meshes need gmsh (pip install gmsh)")
+            else:
+                organ_rows(args)
+        for mesh in args.ukf_meshes:
+            ukf_rows(mesh, args)
 
 
 if __name__ == "__main__":

@@ -21,13 +21,11 @@ Run ``python benchmarks/forward.py`` (about 250, 1,000, 4,000, 11,000 nodes) or
 
 from __future__ import annotations
 
-import argparse
-import os
-import time
-
 import felupe as fem
 import numpy as np
 import pypardiso
+from _felupe import felupe_path
+from _timing import best_of, model_path, node_counts, one_blas_thread, ratio
 
 from idbench_fem.bodies import box as meshes
 from idbench_fem.models.beam import SvkBeam
@@ -72,28 +70,11 @@ def svk_material(E, nu):
     return fem.Material(stress, elasticity)
 
 
-def best_of(f, repeat):
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = f()
-        times.append(time.perf_counter() - t)
-    return min(times), out
-
-
 def ours(beam):
     model = SvkBeam(
         beam, SCENARIO, n_steps=N_STEPS, nu=NU, options={"solver": "pardiso"}
     )
-    theta = np.array([E])
-
-    def run():
-        u = model.reset()
-        for k in range(1, N_STEPS + 1):
-            u = model.step(theta, k, u)
-        return u
-
-    run()  # symbolic analysis, caches
+    run = model_path(model, np.array([E]))
     c0, f0 = model.cost(), model.factorizations
     t, u = best_of(run, 3)
     its = (model.cost() - c0).newton_its // 3
@@ -124,42 +105,13 @@ def ours(beam):
 
 
 def felupe_solve(beam, tols):
-    m = fem.Mesh(beam.points, beam.tets, "tetra")
-    region = fem.RegionTetra(m)
-    field = fem.FieldContainer([fem.Field(region, dim=3)])
-    solid = fem.SolidBody(svk_material(E, NU), field)
-    bounds = {"clamped": fem.dof.Boundary(field[0], fx=beam.lower[0])}
-    dof0, dof1 = fem.dof.partition(field, bounds)
     w = beam.nodal_traction_weights()
-    loaded = np.flatnonzero(w)
-    load = fem.PointLoad(field, loaded)
-    its = [0]
 
-    def run():
-        field.link(fem.FieldContainer([fem.Field(region, dim=3)]))
-        x = field
-        its[0] = 0
-        for k in range(1, N_STEPS + 1):
-            t = EndTraction.of(SCENARIO).traction(k, N_STEPS)
-            load.values = w[loaded, None] * t[None, :]
-            tol = tols[k - 1]
+    def nodal_loads(k):
+        return w[:, None] * EndTraction.of(SCENARIO).traction(k, N_STEPS)[None, :]
 
-            def check(dx, x, f, xtol, ftol, dof1=None, dof0=None, items=None, tol=tol):
-                fnorm = float(np.linalg.norm(f[dof1]))
-                return float(np.linalg.norm(dx)), fnorm, fnorm <= tol
-
-            res = fem.newtonraphson(
-                x, items=[solid, load], dof1=dof1, dof0=dof0, solver=pypardiso.spsolve,
-                check=check, verbose=0, maxiter=25,
-            )  # fmt: skip
-            if not res.success:
-                raise RuntimeError(f"FElupe did not converge at step {k}")
-            x = res.x
-            its[0] += res.iterations
-        return x
-
-    run()
-    t, x = best_of(run, 2)
+    path = felupe_path(beam, svk_material(E, NU), nodal_loads, tols)
+    t, x, its, solid, dof1 = path.time, path.field, path.its, path.solid, path.dof1
     u = x[0].values.copy()
     # separate timings at the converged state
     t_asm, _ = best_of(lambda: (solid.assemble.vector(x), solid.assemble.matrix(x)), 3)
@@ -173,17 +125,12 @@ def felupe_solve(beam, tols):
         pypardiso.spsolve(flip[0], b)  # FElupe's path: analysis + factor + solve
 
     t_fs, _ = best_of(factor_solve, 3)
-    return {"time": t, "its": its[0], "u": u, "asm": t_asm, "fac_sol": t_fs}
+    return {"time": t, "its": its, "u": u, "asm": t_asm, "fac_sol": t_fs}
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="only 250 and 1,000 nodes")
-    ap.add_argument("--sizes", type=int, nargs="*", help="node-count targets")
-    args = ap.parse_args()
-    sizes = args.sizes or (QUICK if args.quick else SIZES)
-    threads = os.environ.get("OMP_NUM_THREADS", "default")
-    print(f"bend-y, {N_STEPS} load steps, E={E}, nu={NU}, PARDISO; threads: {threads}")
+    sizes = node_counts(__doc__, SIZES, QUICK)
+    print(f"bend-y, {N_STEPS} load steps, E={E}, nu={NU}, PARDISO, 1 BLAS thread")
     head = (
         f"{'nodes':>6} {'dofs':>6} | {'ours s':>7} {'its':>3} {'asm ms':>7} "
         f"{'fac ms':>7} {'sol ms':>6} | {'FElupe s':>8} {'its':>3} {'asm ms':>7} "
@@ -192,21 +139,22 @@ def main():
     print(head)
     print("-" * len(head))
     last = None
-    for n in sizes:
-        beam = meshes.parse(str(n))
-        a = ours(beam)
-        b = felupe_solve(beam, a["tol"])
-        diff = np.abs(a["u"] - b["u"]).max() / np.abs(b["u"]).max()
-        print(
-            f"{len(beam.points):>6} {a['model'].n_state:>6} | {a['time']:>7.3f} "
-            f"{a['its']:>3} {1e3 * a['asm']:>7.1f} {1e3 * a['fac']:>7.1f} "
-            f"{1e3 * a['sol']:>6.1f} | {b['time']:>8.3f} {b['its']:>3} "
-            f"{1e3 * b['asm']:>7.1f} {1e3 * b['fac_sol']:>7.1f} | "
-            f"{b['time'] / a['time']:>7.1f}x {diff:>14.1e}"
-        )
-        if diff > 1e-4:
-            print(f"  WARNING: results differ beyond 4 digits ({diff:.1e})")
-        last = a
+    with one_blas_thread():
+        for n in sizes:
+            beam = meshes.parse(str(n))
+            a = ours(beam)
+            b = felupe_solve(beam, a["tol"])
+            diff = np.abs(a["u"] - b["u"]).max() / np.abs(b["u"]).max()
+            print(
+                f"{len(beam.points):>6} {a['model'].n_state:>6} | {a['time']:>7.3f} "
+                f"{a['its']:>3} {1e3 * a['asm']:>7.1f} {1e3 * a['fac']:>7.1f} "
+                f"{1e3 * a['sol']:>6.1f} | {b['time']:>8.3f} {b['its']:>3} "
+                f"{1e3 * b['asm']:>7.1f} {1e3 * b['fac_sol']:>7.1f} | "
+                f"{ratio(b['time'], a['time'], 1):>8} {diff:>14.1e}"
+            )
+            if diff > 1e-4:
+                print(f"  WARNING: results differ beyond 4 digits ({diff:.1e})")
+            last = a
     if last is not None:
         ideal = last["factors"] * last["fac"] + last["its"] * last["sol"]
         print(

@@ -20,16 +20,15 @@ Run ``python benchmarks/solid.py`` (about 250, 1,000 and 4,000 nodes) or
 
 from __future__ import annotations
 
-import argparse
 import os
 import tempfile
-import time
 from pathlib import Path
 
 import felupe as fem
 import meshio
 import numpy as np
-import pypardiso
+from _felupe import felupe_path
+from _timing import model_path, node_counts, one_blas_thread, race, ratio
 
 import idbench
 from idbench_fem.bodies import box as meshes
@@ -81,38 +80,9 @@ grid = [8, 3, 3]
     return path
 
 
-def best_of(f, repeat):
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = f()
-        times.append(time.perf_counter() - t)
-    return min(times), out
-
-
-def path_runner(model):
-    theta = np.array([E])
-
-    def run():
-        u = model.reset()
-        for k in range(1, N_STEPS + 1):
-            u = model.step(theta, k, u)
-        return u
-
-    run()  # symbolic analysis, caches
-    return run
-
-
-def race(models, repeat=7):
-    """Best wall time of each model's path, runs interleaved (fair under load)."""
-    runners = [path_runner(m) for m in models]
-    best = [np.inf] * len(models)
-    out = [None] * len(models)
-    for _ in range(repeat):
-        for i, run in enumerate(runners):
-            t = time.perf_counter()
-            out[i] = run()
-            best[i] = min(best[i], time.perf_counter() - t)
+def paths(models, repeat=7):
+    """Best wall time of each model's path (interleaved) and its displacements."""
+    best, out = race([model_path(m, np.array([E])) for m in models], repeat)
     fields = [m.displacement_field(u) for m, u in zip(models, out, strict=True)]
     return best, fields
 
@@ -139,53 +109,49 @@ def numpy_kernels(body):
 
 
 def felupe_neo_hooke(beam, model):
-    m = fem.Mesh(beam.points, beam.tets, "tetra")
-    region = fem.RegionTetra(m)
-    field = fem.FieldContainer([fem.Field(region, dim=3)])
     lmbda = E * NU / ((1 + NU) * (1 - 2 * NU))
     mu = E / (2 * (1 + NU))
-    body = fem.SolidBody(fem.NeoHookeCompressible(mu=mu, lmbda=lmbda), field)
-    bounds = {"fixed": fem.dof.Boundary(field[0], fx=beam.lower[0])}
-    dof0, dof1 = fem.dof.partition(field, bounds)
     f_end = model.displacement_field(model.external_force(N_STEPS))  # (N, 3)
-    loaded = np.flatnonzero(np.abs(f_end).sum(axis=1))
-    load = fem.PointLoad(field, loaded)
-    its = [0]
+    tols = [
+        model.rtol * np.linalg.norm(model.external_force(k))
+        for k in range(1, N_STEPS + 1)
+    ]
+    material = fem.NeoHookeCompressible(mu=mu, lmbda=lmbda)
+    path = felupe_path(beam, material, lambda k: (k / N_STEPS) * f_end, tols)
+    return path.time, path.field[0].values.copy(), path.its
 
-    def run():
-        field.link(fem.FieldContainer([fem.Field(region, dim=3)]))
-        x = field
-        its[0] = 0
-        for k in range(1, N_STEPS + 1):
-            load.values = (k / N_STEPS) * f_end[loaded]
-            tol = model.rtol * np.linalg.norm(model.external_force(k))
 
-            def check(dx, x, f, xtol, ftol, dof1=None, dof0=None, items=None, tol=tol):
-                fnorm = float(np.linalg.norm(f[dof1]))
-                return float(np.linalg.norm(dx)), fnorm, fnorm <= tol
-
-            res = fem.newtonraphson(
-                x, items=[body, load], dof1=dof1, dof0=dof0, check=check,
-                solver=pypardiso.spsolve, verbose=0, maxiter=25,
-            )  # fmt: skip
-            if not res.success:
-                raise RuntimeError(f"FElupe did not converge at step {k}")
-            x = res.x
-            its[0] += res.iterations
-        return x
-
-    run()
-    t, x = best_of(run, 2)
-    return t, x[0].values.copy(), its[0]
+def row(n):
+    """Time and compare the models at about ``n`` nodes; print one row."""
+    beam = meshes.parse(str(n))
+    with tempfile.TemporaryDirectory() as tmp:
+        svk_body = beam_body(beam, Path(tmp), "svk")
+        nh_body = beam_body(beam, Path(tmp), "neo-hookean")
+        ref = SvkBeam(beam, SCENARIO, N_STEPS, NU, options={"solver": "pardiso"})
+        models = [ref, solid(svk_body), solid(svk_body, kernel="general")]
+        (t_beam, t_solid, t_gen), (u_beam, u_solid, u_gen) = paths(models)
+        scale = np.abs(u_beam).max()
+        d_svk = max(np.abs(u_solid - u_beam).max(), np.abs(u_gen - u_beam).max())
+        nh, nh_np = solid(nh_body), numpy_kernels(nh_body)
+        c0 = nh.cost()
+        (t_nh, t_np), (u_nh, _) = paths([nh, nh_np], repeat=3)
+        its_nh = (nh.cost() - c0).newton_its // 4  # warm-up + 3 runs
+        t_fe, u_fe, its_fe = felupe_neo_hooke(beam, nh)
+        d_nh = np.abs(u_nh - u_fe).max() / np.abs(u_fe).max()
+    print(
+        f"{len(beam.points):>6} | {t_beam:>10.3f} {t_solid:>8.3f} "
+        f"{ratio(t_solid, t_beam):>6} {t_gen:>9.3f} {d_svk / scale:>11.1e} | "
+        f"{t_nh:>7.3f} {t_fe:>8.3f} {its_nh:>3}/{its_fe:<3} {d_nh:>11.1e} | "
+        f"{ratio(t_fe, t_nh):>6} {t_np:>8.3f} {ratio(t_fe, t_np):>7}"
+    )
+    if d_nh > 1e-6:
+        print(f"  WARNING: neo-Hookean differs from FElupe by {d_nh:.1e}")
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="only 250 and 1,000 nodes")
-    ap.add_argument("--sizes", type=int, nargs="*", help="node-count targets")
-    args = ap.parse_args()
-    sizes = args.sizes or (QUICK if args.quick else SIZES)
-    print(f"bend-y as a body, {N_STEPS} load steps, E={E}, nu={NU}, PARDISO")
+    sizes = node_counts(__doc__, SIZES, QUICK)
+    print(f"bend-y as a body, {N_STEPS} load steps, E={E}, nu={NU}, PARDISO, ", end="")
+    print("1 BLAS thread")
     head = (
         f"{'nodes':>6} | {'svk-beam s':>10} {'solid s':>8} {'ratio':>6} "
         f"{'general s':>9} {'max|du|/|u|':>11} | {'NH s':>7} {'FElupe s':>8} "
@@ -193,30 +159,9 @@ def main():
     )
     print(head)
     print("-" * len(head))
-    for n in sizes:
-        beam = meshes.parse(str(n))
-        with tempfile.TemporaryDirectory() as tmp:
-            svk_body = beam_body(beam, Path(tmp), "svk")
-            nh_body = beam_body(beam, Path(tmp), "neo-hookean")
-            ref = SvkBeam(beam, SCENARIO, N_STEPS, NU, options={"solver": "pardiso"})
-            models = [ref, solid(svk_body), solid(svk_body, kernel="general")]
-            (t_beam, t_solid, t_gen), (u_beam, u_solid, u_gen) = race(models)
-            scale = np.abs(u_beam).max()
-            d_svk = max(np.abs(u_solid - u_beam).max(), np.abs(u_gen - u_beam).max())
-            nh, nh_np = solid(nh_body), numpy_kernels(nh_body)
-            c0 = nh.cost()
-            (t_nh, t_np), (u_nh, _) = race([nh, nh_np], repeat=3)
-            its_nh = (nh.cost() - c0).newton_its // 4  # warm-up + 3 runs
-            t_fe, u_fe, its_fe = felupe_neo_hooke(beam, nh)
-            d_nh = np.abs(u_nh - u_fe).max() / np.abs(u_fe).max()
-        print(
-            f"{len(beam.points):>6} | {t_beam:>10.3f} {t_solid:>8.3f} "
-            f"{t_solid / t_beam:>6.2f} {t_gen:>9.3f} {d_svk / scale:>11.1e} | "
-            f"{t_nh:>7.3f} {t_fe:>8.3f} {its_nh:>3}/{its_fe:<3} {d_nh:>11.1e} | "
-            f"{t_fe / t_nh:>6.2f} {t_np:>8.3f} {t_fe / t_np:>7.2f}"
-        )
-        if d_nh > 1e-6:
-            print(f"  WARNING: neo-Hookean differs from FElupe by {d_nh:.1e}")
+    with one_blas_thread():
+        for n in sizes:
+            row(n)
 
 
 if __name__ == "__main__":

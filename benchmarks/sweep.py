@@ -33,20 +33,17 @@ a free worker skips a run whose inputs another worker is computing.
 from __future__ import annotations
 
 import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
 
-for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from _timing import one_blas_thread, parser, ratio
 
-import argparse  # noqa: E402
-import statistics  # noqa: E402
-import subprocess  # noqa: E402
-import sys  # noqa: E402
-import tempfile  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-from idbench.config import CompareConfig  # noqa: E402
-from idbench.session import Session  # noqa: E402
-from idbench.sweep import plan, prepare  # noqa: E402
+from idbench.config import CompareConfig
+from idbench.session import Session
+from idbench.sweep import plan, prepare
 
 SMALL = {
     "truth_mesh": "40x5x5",
@@ -123,17 +120,17 @@ def side_by_side(config: dict[str, object], root: Path, n: int) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--jobs", type=int, default=2)
-    parser.add_argument("--repeat", type=int, default=2)
-    which = parser.add_mutually_exclusive_group()
+    ap = parser(__doc__)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--repeat", type=int, default=2)
+    which = ap.add_mutually_exclusive_group()
     which.add_argument(
         "--default", action="store_true", help="the default compare (all defaults)"
     )
     which.add_argument("--quick", action="store_true", help="a 4-run check")
-    args = parser.parse_args()
+    args = ap.parse_args()
     config: dict[str, object] = {} if args.default else TINY if args.quick else SMALL
-    with tempfile.TemporaryDirectory(prefix="idbench-bench-") as tmp:
+    with one_blas_thread(), tempfile.TemporaryDirectory(prefix="idbench-") as tmp:
         root = Path(tmp)
         if not (args.default and os.environ.get("IDBENCH_CACHE_DIR")):
             os.environ["IDBENCH_CACHE_DIR"] = str(root / "cache")
@@ -146,19 +143,22 @@ def main() -> None:
             serial.append(timed(config, root / f"serial{i}", 1))
             parallel.append(timed(config, root / f"parallel{i}", args.jobs))
             apart.append(side_by_side(config, root / f"try{i}", args.jobs))
-            pair = serial[-1] / parallel[-1], args.jobs * serial[-1] / apart[-1]
+            pair = (
+                ratio(serial[-1], parallel[-1]),
+                ratio(args.jobs * serial[-1], apart[-1]),
+            )
             print(f"  try {i + 1}: serial {serial[-1]:.2f} s, jobs={args.jobs} "
-                  f"{parallel[-1]:.2f} s ({pair[0]:.2f}x); {args.jobs} serial side "
-                  f"by side {apart[-1]:.2f} s each (bound {pair[1]:.2f}x)")  # fmt: skip
+                  f"{parallel[-1]:.2f} s ({pair[0]}); {args.jobs} serial side "
+                  f"by side {apart[-1]:.2f} s each (bound {pair[1]})")  # fmt: skip
     speedup = min(serial) / min(parallel)
     bound = args.jobs * min(serial) / min(apart)
+    median = ratio(
+        statistics.median(s / p for s, p in zip(serial, parallel, strict=True)), 1
+    )
     print(f"serial:   {min(serial):.2f} s (best of {args.repeat})")
     print(f"jobs={args.jobs}:   {min(parallel):.2f} s")
-    pairs = [s / p for s, p in zip(serial, parallel, strict=True)]
-    print(
-        f"speedup:  {speedup:.2f}x (each try's: median {statistics.median(pairs):.2f}x)"
-    )
-    print(f"bound:    {bound:.2f}x ({args.jobs} serial compares side by side take "
+    print(f"speedup:  {ratio(speedup, 1)} (each try's: median {median})")
+    print(f"bound:    {ratio(bound, 1)} ({args.jobs} serial compares side by side take "
           f"{min(apart):.2f} s each: what {args.jobs} cores make of "
           f"{args.jobs} x the work)")  # fmt: skip
     print(f"speedup / bound: {speedup / bound:.2f}")

@@ -140,31 +140,19 @@ def _split_top_level(text: str) -> list[str]:
     return [p for p in [*parts, cur] if p.strip()]
 
 
-def _floats(name: str) -> Any:
-    def parse(text: str) -> tuple[float, ...]:
+def _numbers(name: str, kind: type = float) -> Any:
+    """Parser of ``--name`` as comma-separated ``kind`` values (at least one)."""
+    what = "whole number" if kind is int else "number"
+
+    def parse(text: str) -> tuple[Any, ...]:
         try:
-            values = tuple(float(v) for v in text.split(",") if v.strip())
+            values = tuple(kind(v) for v in text.split(",") if v.strip())
         except ValueError:
             raise UsageError(
-                f"--{name} {text!r}: need comma-separated numbers"
+                f"--{name} {text!r}: need comma-separated {what}s"
             ) from None
         if not values:
-            raise UsageError(f"--{name} {text!r}: need at least one number")
-        return values
-
-    return parse
-
-
-def _ints(name: str) -> Any:
-    def parse(text: str) -> tuple[int, ...]:
-        try:
-            values = tuple(int(v) for v in text.split(",") if v.strip())
-        except ValueError:
-            raise UsageError(
-                f"--{name} {text!r}: need comma-separated whole numbers"
-            ) from None
-        if not values:
-            raise UsageError(f"--{name} {text!r}: need at least one whole number")
+            raise UsageError(f"--{name} {text!r}: need at least one {what}")
         return values
 
     return parse
@@ -254,17 +242,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     c.add_argument(
         "--obs-every",
-        type=_ints("obs-every"),
+        type=_numbers("obs-every", int),
         help=f"observe every k-th step, comma list (default: {d('obs_every')})",
     )
     c.add_argument(
         "--obs-points",
-        type=_ints("obs-points"),
+        type=_numbers("obs-points", int),
         help=f"marker counts M, comma list (default: {d('obs_points')})",
     )
     c.add_argument(
         "--noise",
-        type=_floats("noise"),
+        type=_numbers("noise"),
         help="noise sigma(s) in the model's length unit (metres for the built-in "
         f"models), comma list (default: {d('noise')})",
     )
@@ -301,7 +289,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_shorthands(c)
     c.add_argument(
         "--prior",
-        type=_floats("prior"),
+        type=_numbers("prior"),
         help=f"prior MEAN,STD of each parameter (default: {d('prior')})",
     )
     c.add_argument(

@@ -173,14 +173,7 @@ def parameters_vs_resolution(
         metric = f"{name}_ratio" if ratio else f"{name}_final"
         for i, s in enumerate(series):
             d = df[df["_s"] == s]
-            g = _with_intervals(d["_y"], d["_x"], metric)
-            if g.empty:
-                continue
-            xs = _offset(g.index.to_numpy(dtype=float), i, len(series), log)
-            ax.errorbar(
-                xs, g["mean"], yerr=_yerr(g), lw=1.2, ms=6,
-                capsize=3, label=s, **style(i),
-            )  # fmt: skip
+            _interval_series(ax, d["_y"], d["_x"], metric, log, series, i)
         if ratio:
             ax.axhline(1.0, color="0.4", ls="--", lw=1, label="true value")
         _study(study, "stiffness_vs_resolution", ax)
@@ -194,6 +187,30 @@ def parameters_vs_resolution(
         _resolution_axis(ax, ok, x_all, log)
     _legend(fig, panels)
     return fig
+
+
+def _interval_series(
+    ax: Any,
+    y: pd.Series,
+    x: pd.Series,
+    metric: str,
+    log: bool,
+    series: list[str],
+    i: int,
+) -> None:
+    """Series ``series[i]``: the means of ``y`` per x, with their 95% intervals.
+
+    Each series is offset a little along x (:func:`_offset`) so that the bars
+    of the series do not overlap; nothing is drawn for an empty series.
+    """
+    g = _with_intervals(y, x, metric)
+    if g.empty:
+        return
+    xs = _offset(g.index.to_numpy(dtype=float), i, len(series), log)
+    ax.errorbar(
+        xs, g["mean"], yerr=_yerr(g), lw=1.2, ms=6, capsize=3, label=series[i],
+        **style(i),
+    )  # fmt: skip
 
 
 def _resolution_axis(ax: Any, ok: pd.DataFrame, x: pd.Series, log: bool) -> None:
@@ -232,14 +249,7 @@ def shape_error_vs_resolution(
         for i, s in enumerate(series):
             e = d[d["_s"] == s]
             mm = 1000 * e["shape_error_mean_final"]
-            g = _with_intervals(mm, e["_x"], "shape_error_mm")
-            if g.empty:
-                continue
-            xs = _offset(g.index.to_numpy(dtype=float), i, len(series), log)
-            ax.errorbar(
-                xs, g["mean"], yerr=_yerr(g), lw=1.2, ms=6,
-                capsize=3, label=s, **style(i),
-            )  # fmt: skip
+            _interval_series(ax, mm, e["_x"], "shape_error_mm", log, series, i)
         _study(study, "shape_error", ax)
         ax.set(
             xlabel="model nodes" if log else "model mesh",

@@ -22,11 +22,10 @@ from idbench.sanitize import markdown_cell, printable
 from idbench.summary import (
     ROW_KEYS,
     SEED_COLUMNS,
-    _aligned,
-    _blocks,
     format_cell,
     headers,
     sweep_axes,
+    text_blocks,
     with_metrics,
 )
 
@@ -121,9 +120,7 @@ def paired_differences(
             f" (its {' or '.join(BY[by])} were swept): pairing needs one run each"
         )
     others = df[df[by].astype(str) != versus]
-    both = others.merge(
-        ref[["_pair", *metrics]], on="_pair", suffixes=("", "__versus")
-    )
+    both = others.merge(ref[["_pair", *metrics]], on="_pair", suffixes=("", "__versus"))
     skip = {by, *BY[by], *(set(SEED_COLUMNS) - {"model_nodes"}), "seed"}
     keys = [k for k in ROW_KEYS if k in both and k not in skip]
     keys += [a for a in sweep_axes(runs) if a in both and a not in skip]
@@ -195,16 +192,7 @@ def paired_text(p: Paired, width: int | None = None) -> str:
     names = _names(p)
     n_keys = sum(1 for c in cols if c not in p.metrics)
     lines = title(p)
-    if width is None:
-        return "\n".join([*lines, *_aligned(cols, rows, numeric, names)])
-    for block in _blocks(cols, rows, names, n_keys, width):
-        lines += _aligned(
-            [cols[j] for j in block],
-            [[r[j] for j in block] for r in rows],
-            [numeric[j] for j in block],
-            names,
-        )
-        lines.append("")
+    lines += text_blocks(cols, rows, numeric, names, n_keys, width)
     return "\n".join(lines).rstrip()
 
 

@@ -430,14 +430,7 @@ def summary_text(
     keys = {*ROW_KEYS, *sweep_axes(runs)}
     n_keys = sum(1 for c in cols if c in keys)
     lines = [TITLE]
-    for block in _blocks(cols, rows, names, n_keys, width):
-        lines += _aligned(
-            [cols[j] for j in block],
-            [[r[j] for j in block] for r in rows],
-            [numeric[j] for j in block],
-            names,
-        )
-        lines.append("")
+    lines += text_blocks(cols, rows, numeric, names, n_keys, width)
     lines += textwrap.wrap(legend(summary), width=max(width, 40))
     for j, note in enumerate(notes, start=1):
         lines += textwrap.wrap(
@@ -489,6 +482,49 @@ def _aligned(
 
     rule = "  ".join("-" * w for w in widths)
     return [line(head), rule, *(line(r) for r in rows)]
+
+
+def text_blocks(
+    cols: list[str],
+    rows: list[list[str]],
+    numeric: list[bool],
+    names: dict[str, str],
+    n_keys: int,
+    width: int | None,
+) -> list[str]:
+    """An aligned text table split in blocks of columns that fit ``width``.
+
+    Parameters
+    ----------
+    cols, rows
+        Column names and the rows' cells (strings).
+    numeric
+        Per column: right-aligned (numbers) or not.
+    names
+        Header to print per column name (the name itself if absent).
+    n_keys
+        The first ``n_keys`` columns identify a row: each block repeats them.
+    width
+        Characters a line may take; None: one block, however wide.
+
+    Returns
+    -------
+    list of str
+        The lines, each block followed by an empty line (not so the one block
+        of ``width=None``).
+    """
+    if width is None:
+        return _aligned(cols, rows, numeric, names)
+    lines: list[str] = []
+    for block in _blocks(cols, rows, names, n_keys, width):
+        lines += _aligned(
+            [cols[j] for j in block],
+            [[r[j] for j in block] for r in rows],
+            [numeric[j] for j in block],
+            names,
+        )
+        lines.append("")
+    return lines
 
 
 def _blocks(

@@ -312,3 +312,25 @@ def check_batch_model(
         )
         err = np.abs(one - ref).max() / scale
         assert err <= rtol, f"step_many of single rows differs by {err:.2e}"
+
+
+class WithoutStepMany:
+    """A model seen without its ``step_many``: estimators loop over ``step``.
+
+    Every other member is the wrapped model's. Run an estimator on a
+    :class:`BatchModel` and on ``WithoutStepMany(model)`` to check (or time)
+    that batching changes nothing but the speed.
+
+    Parameters
+    ----------
+    model
+        The forward model to wrap.
+    """
+
+    def __init__(self, model: ForwardModel) -> None:
+        self._model = model
+
+    def __getattr__(self, name: str) -> Any:
+        if name in ("step_many", "_model"):  # "_model": not yet set (a copy)
+            raise AttributeError(name)
+        return getattr(self._model, name)

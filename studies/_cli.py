@@ -1,10 +1,17 @@
-"""The command line every study script shares: ``--quick``, ``--out``, progress."""
+"""What the study scripts share: the command line (``--quick``, ``--out``,
+progress), the study's comparison with its quick overrides, the main block."""
 
 from __future__ import annotations
 
 import argparse
 import logging
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from idbench import CompareConfig
 
 
 def parser(doc: str, out: str) -> argparse.ArgumentParser:
@@ -22,3 +29,57 @@ def parser(doc: str, out: str) -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="small meshes, seconds")
     p.add_argument("--out", type=Path, default=Path(out), help=f"default {out}")
     return p
+
+
+def config(quick: bool, small: dict[str, Any], **settings: Any) -> CompareConfig:
+    """The study's comparison: ``settings``, with ``small``'s on top if ``quick``."""
+    return CompareConfig(**{**settings, **(small if quick else {})})
+
+
+def show(table: pd.DataFrame) -> None:
+    """Print the study's table, all rows, no index."""
+    print(table.to_string(index=False))
+
+
+def main(
+    doc: str,
+    out: str,
+    compute: Callable[..., pd.DataFrame],
+    plot: Callable[[pd.DataFrame, Path], None],
+    name: str,
+    *,
+    printed: Callable[[pd.DataFrame], None] = show,
+    csv: bool = False,
+    options: dict[str, dict[str, Any]] | None = None,
+) -> None:
+    """Run a study from its command line: compute, print, save, plot.
+
+    Parameters
+    ----------
+    doc, out
+        As for :func:`parser`.
+    compute
+        The study's ``compute(quick, out, **options)``.
+    plot
+        The study's ``plot(table, path)``; the figure is ``<out>/<name>.png``.
+    name
+        The study's file name (without ``.py``).
+    printed
+        Prints the table (default :func:`show`).
+    csv
+        Also write the table to ``<out>/<name>.csv``.
+    options
+        Further arguments of the study: ``{name: add_argument keywords}``
+        (``--name`` on the command line), passed to ``compute`` by name.
+    """
+    p = parser(doc, out)
+    for option, keywords in (options or {}).items():
+        p.add_argument(f"--{option}", **keywords)
+    args = p.parse_args()
+    extra = {option: getattr(args, option) for option in options or {}}
+    table = compute(args.quick, args.out, **extra)
+    printed(table)
+    if csv:
+        args.out.mkdir(parents=True, exist_ok=True)
+        table.to_csv(args.out / f"{name}.csv", index=False)
+    plot(table, args.out / f"{name}.png")

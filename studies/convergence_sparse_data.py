@@ -38,8 +38,7 @@ import _cli
 import numpy as np
 import pandas as pd
 
-from idbench.config import CompareConfig
-from idbench.sweep import compare
+from idbench import CompareConfig, compare
 
 # Parameters (full size: truth about 11,700 nodes, model 240 nodes, UKF 90 nodes)
 TRUTH = "80x11x11"

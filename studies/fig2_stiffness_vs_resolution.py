@@ -14,8 +14,7 @@ from pathlib import Path
 import _cli
 import pandas as pd
 
-from idbench.config import CompareConfig
-from idbench.sweep import compare
+from idbench import compare
 
 # Parameters (full size: the study's resolutions, truth about 11,000 nodes)
 MESHES = ("9x2x2", "14x3x3", "20x4x4", "30x5x5", "40x6x6", "60x8x8")
@@ -34,16 +33,16 @@ QUICK = {
 
 def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     """Identified E per (model nodes, estimator), mean and std over seeds."""
-    settings = {
-        "meshes": MESHES,
-        "truth_mesh": TRUTH,
-        "estimators": ESTIMATORS,
-        "scenarios": (SCENARIO,),
-        "seeds": SEEDS,
-    }
-    if quick:
-        settings.update(QUICK)
-    runs, _ = compare(CompareConfig(**settings), out)
+    config = _cli.config(
+        quick,
+        QUICK,
+        meshes=MESHES,
+        truth_mesh=TRUTH,
+        estimators=ESTIMATORS,
+        scenarios=(SCENARIO,),
+        seeds=SEEDS,
+    )
+    runs, _ = compare(config, out)
     ok = runs[runs["status"] == "ok"]
     table = (
         ok.groupby(["model_nodes", "estimator"])
@@ -83,8 +82,4 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
 
 if __name__ == "__main__":
-    parser = _cli.parser(__doc__, "results/fig2")
-    args = parser.parse_args()
-    table = compute(args.quick, args.out)
-    print(table.to_string(index=False))
-    plot(table, args.out / "fig2_stiffness_vs_resolution.png")
+    _cli.main(__doc__, "results/fig2", compute, plot, "fig2_stiffness_vs_resolution")

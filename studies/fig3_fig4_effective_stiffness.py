@@ -25,10 +25,9 @@ import _cli
 import numpy as np
 import pandas as pd
 
-from idbench.config import CompareConfig
-from idbench.effective import effective_path
+from idbench import CompareConfig, compare, effective_path
 from idbench.session import Session
-from idbench.sweep import compare, plan
+from idbench.sweep import plan
 
 # Parameters (full size: the study's 510-node model, truth about 11,700 nodes)
 MESH = "20x4x4"
@@ -55,17 +54,16 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     E_ref (batch least squares over the whole path), E_true, and the ratios
     ``eff_ratio = E_eff / E_true`` and ``ukf_ratio = E_ukf / E_true``.
     """
-    settings = {
-        "meshes": (MESH,),
-        "truth_mesh": TRUTH,
-        "estimators": ("ro-ukf",),
-        "scenarios": SCENARIOS,
-        "seeds": SEEDS,
-        "obs_every": (OBS_EVERY,),
-    }
-    if quick:
-        settings.update(QUICK)
-    config = CompareConfig(**settings)  # type: ignore[arg-type]
+    config = _cli.config(
+        quick,
+        QUICK,
+        meshes=(MESH,),
+        truth_mesh=TRUTH,
+        estimators=("ro-ukf",),
+        scenarios=SCENARIOS,
+        seeds=SEEDS,
+        obs_every=(OBS_EVERY,),
+    )
     runs, traces = compare(config, out)
     ok = runs[runs["status"] == "ok"]
     traces = traces.merge(ok[["run_id", "scenario", "E_ref"]], on="run_id")
@@ -157,14 +155,16 @@ def plot(table: pd.DataFrame, path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
-if __name__ == "__main__":
-    parser = _cli.parser(__doc__, "results/fig3_fig4")
-    args = parser.parse_args()
-    table = compute(args.quick, args.out)
+def show(table: pd.DataFrame) -> None:
+    """Print the table (4 decimals) and each scenario's range of the ratios."""
     with pd.option_context("display.width", 160, "display.max_rows", 200):
-        print(table.round(4).to_string(index=False))
+        _cli.show(table.round(4))
     summary = table.groupby("scenario")[["eff_ratio", "ukf_ratio"]].agg(
         ["first", "last", "min", "max"]
     )
     print(summary.round(3).to_string())
-    plot(table, args.out / "fig3_fig4_effective_stiffness.png")
+
+
+if __name__ == "__main__":
+    name = "fig3_fig4_effective_stiffness"
+    _cli.main(__doc__, "results/fig3_fig4", compute, plot, name, printed=show)

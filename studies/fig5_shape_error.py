@@ -19,8 +19,7 @@ from pathlib import Path
 import _cli
 import pandas as pd
 
-from idbench.config import CompareConfig
-from idbench.sweep import compare
+from idbench import compare
 
 # Parameters (full size: about 90 to 2,000 model nodes, truth about 11,700)
 MESHES = ("9x2x2", "14x3x3", "20x4x4", "30x5x5", "40x6x6")
@@ -45,16 +44,16 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     is the paper's sum over the grid (m), ``shape_error_mean`` the mean per
     grid point (m), ``vs_direct`` the ratio to the direct error on that mesh.
     """
-    settings = {
-        "meshes": MESHES,
-        "truth_mesh": TRUTH,
-        "estimators": ESTIMATORS,
-        "scenarios": (SCENARIO,),
-        "seeds": SEEDS,
-    }
-    if quick:
-        settings.update(QUICK)
-    runs, _ = compare(CompareConfig(**settings), out)
+    config = _cli.config(
+        quick,
+        QUICK,
+        meshes=MESHES,
+        truth_mesh=TRUTH,
+        estimators=ESTIMATORS,
+        scenarios=(SCENARIO,),
+        seeds=SEEDS,
+    )
+    runs, _ = compare(config, out)
     ok = runs[runs["status"] == "ok"]
     assimilated = (
         ok.groupby(["model_nodes", "mesh", "estimator"])
@@ -130,8 +129,4 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
 
 if __name__ == "__main__":
-    parser = _cli.parser(__doc__, "results/fig5")
-    args = parser.parse_args()
-    table = compute(args.quick, args.out)
-    print(table.to_string(index=False))
-    plot(table, args.out / "fig5_shape_error.png")
+    _cli.main(__doc__, "results/fig5", compute, plot, "fig5_shape_error")

@@ -45,10 +45,7 @@ import _cli
 import numpy as np
 import pandas as pd
 
-from idbench import ModelSpec
-from idbench.config import CompareConfig
-from idbench.plugins import build_registry
-from idbench.sweep import compare
+from idbench import CompareConfig, ModelSpec, build_registry, compare
 
 # Parameters (full size)
 INCLUSION = (0.08, 0.12, 0.0075, 0.0225, 0.0075, 0.0225)
@@ -329,12 +326,15 @@ def plot(table: pd.DataFrame, path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
+def show(table: pd.DataFrame) -> None:
+    """Print the table, numbers to 4 significant digits."""
+    with pd.option_context("display.width", 200):
+        print(table.to_string(index=False, float_format="{:.4g}".format))
+
+
 if __name__ == "__main__":
-    parser = _cli.parser(__doc__, "results/inclusion")
-    parser.add_argument("--jobs", type=int, default=1, help="worker processes")
-    args = parser.parse_args()
-    table = compute(args.quick, args.out, args.jobs)
-    pd.set_option("display.width", 200)
-    print(table.to_string(index=False, float_format="{:.4g}".format))
-    table.to_csv(args.out / "heterogeneous_inclusion.csv", index=False)
-    plot(table, args.out / "heterogeneous_inclusion.png")
+    jobs = {"type": int, "default": 1, "help": "worker processes"}
+    _cli.main(
+        __doc__, "results/inclusion", compute, plot, "heterogeneous_inclusion",
+        printed=show, csv=True, options={"jobs": jobs},
+    )  # fmt: skip

@@ -33,9 +33,7 @@ from pathlib import Path
 import _cli
 import pandas as pd
 
-from idbench import Scenario, build_registry
-from idbench.config import CompareConfig
-from idbench.sweep import compare
+from idbench import CompareConfig, Scenario, build_registry, compare
 
 # Parameters (full size: liver meshes of about 200 to 2,000 nodes, truth 16,000)
 LAWS = ("neo-hookean", "svk")
@@ -169,11 +167,8 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
 
 if __name__ == "__main__":
-    parser = _cli.parser(__doc__, "results/organ")
-    parser.add_argument("--truth", help=f"truth mesh node count (default {TRUTH})")
-    args = parser.parse_args()
-    table = compute(args.quick, args.out, args.truth)
-    print(table.to_string(index=False))
-    args.out.mkdir(parents=True, exist_ok=True)
-    table.to_csv(args.out / "organ_discretization.csv", index=False)
-    plot(table, args.out / "organ_discretization.png")
+    truth = {"help": f"truth mesh node count (default {TRUTH})"}
+    _cli.main(
+        __doc__, "results/organ", compute, plot, "organ_discretization",
+        csv=True, options={"truth": truth},
+    )  # fmt: skip

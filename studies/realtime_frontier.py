@@ -34,9 +34,8 @@ from pathlib import Path
 import _cli
 import pandas as pd
 
-from idbench.config import CompareConfig
+from idbench import compare
 from idbench.report import frontier, frontier_figure
-from idbench.sweep import compare
 
 # Parameters (full size: about 90, 240, 525, 1100, 2000 nodes)
 MESHES = ("9x2x2", "14x3x3", "20x4x4", "30x5x5", "40x6x6")
@@ -87,17 +86,17 @@ COLUMNS = [
 
 def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     """The frontier table: one row per (model nodes, estimator) that ran."""
-    settings = {
-        "meshes": MESHES,
-        "truth_mesh": TRUTH,
-        "estimators": ESTIMATORS,
-        "scenarios": (SCENARIO,),
-        "seeds": SEEDS,
-        "estimator_settings": SETTINGS,
-    }
-    if quick:
-        settings.update(QUICK)
-    runs, traces = compare(CompareConfig(**settings), out, jobs=1)
+    config = _cli.config(
+        quick,
+        QUICK,
+        meshes=MESHES,
+        truth_mesh=TRUTH,
+        estimators=ESTIMATORS,
+        scenarios=(SCENARIO,),
+        seeds=SEEDS,
+        estimator_settings=SETTINGS,
+    )
+    runs, traces = compare(config, out, jobs=1)
     table = frontier(runs, traces)
     return table[[c for c in COLUMNS if c in table.columns]]
 
@@ -145,6 +144,13 @@ def plot(table: pd.DataFrame, path: Path, scenario: str = SCENARIO) -> None:
     fig.savefig(path, dpi=110)
 
 
+def show(table: pd.DataFrame) -> None:
+    """Print the table, numbers to 4 significant digits."""
+    fmt = "{:.4g}".format
+    with pd.option_context("display.width", 200, "display.float_format", fmt):
+        _cli.show(table)
+
+
 if __name__ == "__main__":
     parser = _cli.parser(__doc__, "results/frontier")
     parser.add_argument("--organ", choices=sorted(ORGANS), help="a shipped organ")
@@ -155,7 +161,5 @@ if __name__ == "__main__":
         scenario = f"{args.organ} {ORGANS[args.organ]}"
     else:
         out, table, scenario = args.out, compute(args.quick, args.out), SCENARIO
-    fmt = "{:.4g}".format
-    with pd.option_context("display.width", 200, "display.float_format", fmt):
-        print(table.to_string(index=False))
+    show(table)
     plot(table, out / "realtime_frontier.png", scenario)

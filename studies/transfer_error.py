@@ -20,13 +20,10 @@ import _cli
 import numpy as np
 import pandas as pd
 
-from idbench import metrics
-from idbench.config import CompareConfig
+from idbench import compare, metrics, simulate_path
 from idbench.runspec import RunSpec
 from idbench.session import Session
-from idbench.sweep import compare
 from idbench.sweep import runs_of as expand
-from idbench.truth import simulate_path
 
 # Parameters (full size: the paper's 239- and 510-node models, truth 11,700)
 SOURCES = ("bend-y", "bend-z", "mixed-30", "mixed-60", "stretch-x")
@@ -65,16 +62,15 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     a mean over seeds with ``*_sd``; ``E_source`` and ``E_target`` the mean
     identified moduli; ``transfer_vs_fit`` the ratio of the first two errors.
     """
-    settings = {
-        "scenarios": SOURCES,
-        "meshes": MESHES,
-        "truth_mesh": TRUTH,
-        "estimators": (ESTIMATOR,),
-        "seeds": SEEDS,
-    }
-    if quick:
-        settings.update(QUICK)
-    config = CompareConfig(**settings)
+    config = _cli.config(
+        quick,
+        QUICK,
+        scenarios=SOURCES,
+        meshes=MESHES,
+        truth_mesh=TRUTH,
+        estimators=(ESTIMATOR,),
+        seeds=SEEDS,
+    )
     runs, _ = compare(config, out)
     specs = {s.run_id: s for s in expand(config)}
     ok = runs[runs["status"] == "ok"].set_index(["scenario", "mesh", "seed"])
@@ -155,8 +151,4 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
 
 if __name__ == "__main__":
-    parser = _cli.parser(__doc__, "results/transfer")
-    args = parser.parse_args()
-    table = compute(args.quick, args.out)
-    print(table.to_string(index=False))
-    plot(table, args.out / "transfer_error.png")
+    _cli.main(__doc__, "results/transfer", compute, plot, "transfer_error")

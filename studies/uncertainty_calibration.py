@@ -28,11 +28,10 @@ import _cli
 import numpy as np
 import pandas as pd
 
-from idbench import metrics
-from idbench.config import CompareConfig
+from idbench import CompareConfig, compare, metrics
 from idbench.posterior import model_error
 from idbench.session import Session
-from idbench.sweep import compare, runs_of
+from idbench.sweep import runs_of
 
 # Parameters (full size)
 MESHES = ("9x2x2", "14x3x3", "20x4x4")  # 90, 240, 525 nodes
@@ -158,8 +157,8 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
         ok["post_ratio"] = ok["E_post_mean"] / ok["E_true"]
         ok["std_over_post"] = ok["E_std_final"] / ok["E_post_std"]
         ok["w1_over_post"] = ok["w1_posterior"] / ok["E_post_std"]
-        ok["post_converged"] = ok["posterior_converged"].astype(float).where(
-            ok["E_post_mean"].notna()
+        ok["post_converged"] = (
+            ok["posterior_converged"].astype(float).where(ok["E_post_mean"].notna())
         )
     cols = {
         "model_nodes": "first", "model_error": "mean", "E_ratio": "mean",
@@ -239,12 +238,14 @@ def plot(table: pd.DataFrame, path: Path) -> None:
     fig.savefig(path, dpi=110, bbox_inches="tight")
 
 
-if __name__ == "__main__":
-    parser = _cli.parser(__doc__, "results/uncertainty")
-    args = parser.parse_args()
-    table = compute(args.quick, args.out)
-    args.out.mkdir(parents=True, exist_ok=True)
-    table.to_csv(args.out / "uncertainty_calibration.csv", index=False)
+def show(table: pd.DataFrame) -> None:
+    """Print the table, all columns."""
     with pd.option_context("display.width", 250, "display.max_columns", 40):
-        print(table.to_string(index=False))
-    plot(table, args.out / "uncertainty_calibration.png")
+        _cli.show(table)
+
+
+if __name__ == "__main__":
+    _cli.main(
+        __doc__, "results/uncertainty", compute, plot, "uncertainty_calibration",
+        printed=show, csv=True,
+    )  # fmt: skip

@@ -1,15 +1,19 @@
 """Shared fixtures: an isolated truth cache and worker start for every test,
-a study loader."""
+a study loader, a plugin installer, a recorder of the runs executed."""
 
 from __future__ import annotations
 
 import importlib.util
+import os
 import sys
+import textwrap
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import ModuleType
 
 import pytest
+
+from idbench.plugins import AUTOLOAD_ENV
 
 STUDIES = Path(__file__).resolve().parent.parent / "studies"
 
@@ -60,3 +64,52 @@ def study(monkeypatch) -> Callable[[str], ModuleType]:
         return module
 
     return load
+
+
+@pytest.fixture
+def install(tmp_path, monkeypatch) -> Iterator[Callable[[str, str], None]]:
+    """Install a plugin module under an entry point, here and in child processes.
+
+    ``install(name, source)`` writes module ``idbench_test_<name>`` with the
+    (dedented) ``source`` and its distribution metadata into a folder on
+    ``sys.path`` and ``PYTHONPATH``, as pip would; plugin autoloading is on.
+    """
+    site = tmp_path / "site"
+    site.mkdir()
+    monkeypatch.syspath_prepend(str(site))
+    paths = [str(site), os.environ.get("PYTHONPATH", "")]
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in paths if p))
+    monkeypatch.delenv(AUTOLOAD_ENV, raising=False)
+
+    def add(name: str, source: str) -> None:
+        module = f"idbench_test_{name.replace('-', '_')}"
+        sys.modules.pop(module, None)  # not another test's module of that name
+        added.append(module)
+        (site / f"{module}.py").write_text(textwrap.dedent(source))
+        info = site / f"{module}-0.1.dist-info"
+        info.mkdir()
+        (info / "METADATA").write_text(
+            f"Metadata-Version: 2.1\nName: {module}\nVersion: 0.1\n"
+        )
+        (info / "entry_points.txt").write_text(f"[idbench]\n{name} = {module}\n")
+
+    added: list[str] = []
+    yield add
+    for module in added:  # nor this one imported for the tests after
+        sys.modules.pop(module, None)
+
+
+@pytest.fixture
+def counted(monkeypatch) -> list[str]:
+    """The run ids :func:`idbench.executors.execute` runs (serial sweeps)."""
+    import idbench.executors
+
+    executed: list[str] = []
+    real = idbench.executors.execute
+
+    def wrapper(spec, session, phase=None):
+        executed.append(spec.run_id)
+        return real(spec, session, phase)
+
+    monkeypatch.setattr(idbench.executors, "execute", wrapper)
+    return executed

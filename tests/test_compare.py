@@ -197,22 +197,6 @@ class Stop:
             raise KeyboardInterrupt
 
 
-@pytest.fixture
-def counted(monkeypatch):
-    """Record the run ids :func:`idbench.executors.execute` is called with."""
-    import idbench.executors
-
-    executed: list[str] = []
-    real = idbench.executors.execute
-
-    def wrapper(spec, session, phase=None):
-        executed.append(spec.run_id)
-        return real(spec, session, phase)
-
-    monkeypatch.setattr(idbench.executors, "execute", wrapper)
-    return executed
-
-
 def test_interrupted_sweep_resumes(tmp_path, counted):
     cfg = tiny(meshes=(COARSE, FINE))  # 2 meshes x 2 estimators = 4 runs
     ids = [r.run_id for r in expand(cfg)]

@@ -13,6 +13,7 @@ import re
 import signal
 import socket
 import time
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -174,10 +175,9 @@ def test_failed_connection_leaves_the_folder_usable(cache, tmp_path, monkeypatch
     assert len(list((out / "parts").glob("*.runs.parquet"))) == len(runs) - 1
 
 
-@pytest.fixture
-def threads_cluster(cache):
-    """A cluster in this process (worker threads), which a test may close."""
-    cl = distributed.LocalCluster(
+def in_process_cluster() -> Any:
+    """A one-worker, one-thread Dask cluster in this process, over TCP."""
+    return distributed.LocalCluster(
         n_workers=1,
         threads_per_worker=1,
         processes=False,
@@ -185,6 +185,12 @@ def threads_cluster(cache):
         host="127.0.0.1",
         dashboard_address=None,
     )
+
+
+@pytest.fixture
+def threads_cluster(cache):
+    """A cluster in this process (worker threads), which a test may close."""
+    cl = in_process_cluster()
     try:
         yield cl
     finally:
@@ -236,14 +242,7 @@ def test_lost_scheduler_stops_and_resumes(
         assert (rows["status"] == "ok").all(), rows[["status", "error"]]
         assert len(pd.read_parquet(out / "runs.parquet")) == count
     monkeypatch.undo()
-    with distributed.LocalCluster(
-        n_workers=1,
-        threads_per_worker=1,
-        processes=False,
-        protocol="tcp",
-        host="127.0.0.1",
-        dashboard_address=None,
-    ) as again:
+    with in_process_cluster() as again:
         runs, _ = compare(config, out, scheduler=again.scheduler_address)
     assert len(runs) == 6 and runs["run_id"].is_unique
     assert (runs["status"] == "ok").all(), runs[["status", "error"]]

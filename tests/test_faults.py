@@ -14,7 +14,6 @@ import os
 import signal
 import subprocess
 import sys
-import textwrap
 import time
 from pathlib import Path
 from typing import Any
@@ -22,26 +21,14 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
+from helpers import MODEL, STEPS, TRUTH, tiny
 
 from idbench.cli import main
-from idbench.config import CompareConfig, ConfigError
-from idbench.plugins import AUTOLOAD_ENV
+from idbench.config import ConfigError
 from idbench.sweep import compare
 
-TRUTH, MODEL, STEPS = "12x3x3", "4x1x1", 5
 TINY = ["--truth-mesh", TRUTH, "--meshes", MODEL, "--steps", str(STEPS), "--seeds",
         "1"]  # fmt: skip
-
-
-def tiny(**overrides: Any) -> CompareConfig:
-    base: dict[str, Any] = {
-        "truth_mesh": TRUTH,
-        "meshes": (MODEL,),
-        "steps": STEPS,
-        "seeds": 1,
-        "estimators": ("rls",),
-    }
-    return CompareConfig(**{**base, **overrides})
 
 
 BAD_ESTIMATORS = '''
@@ -152,34 +139,6 @@ TAKES_A_NAME = """
 NOT_A_DATACLASS = TAKES_A_NAME.replace(
     'register("ro-ukf", Fake)', 'register("mine", NotADataclass)'
 )
-
-
-@pytest.fixture
-def install(tmp_path, monkeypatch):
-    """Install a plugin module under an entry point, here and in child processes."""
-    site = tmp_path / "site"
-    site.mkdir()
-    monkeypatch.syspath_prepend(str(site))
-    paths = [str(site), os.environ.get("PYTHONPATH", "")]
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in paths if p))
-    monkeypatch.delenv(AUTOLOAD_ENV, raising=False)
-
-    def add(name: str, source: str) -> None:
-        module = f"idbench_test_{name.replace('-', '_')}"
-        sys.modules.pop(module, None)  # not another test's module of that name
-        added.append(module)
-        (site / f"{module}.py").write_text(textwrap.dedent(source))
-        info = site / f"{module}-0.1.dist-info"
-        info.mkdir()
-        (info / "METADATA").write_text(
-            f"Metadata-Version: 2.1\nName: {module}\nVersion: 0.1\n"
-        )
-        (info / "entry_points.txt").write_text(f"[idbench]\n{name} = {module}\n")
-
-    added: list[str] = []
-    yield add
-    for module in added:  # nor this one imported for the tests after
-        sys.modules.pop(module, None)
 
 
 # --- 1. threads: a Dask worker with two threads ------------------------------

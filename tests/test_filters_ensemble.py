@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import linear_data, linear_posteriors
 from test_filters_beam import E_TRUE, beam, observe_truth
 from toymodels import LinearToy
 
-from idbench import Diverged, ModelFailure, Observation, Prior
+from idbench import Diverged, ModelFailure, Prior
 from idbench.testing import check_estimator
 from idbench_filters import Enkf, Etkf
 
@@ -22,28 +23,12 @@ CASES = [(1, 1), (2, 1), (2, 2)]  # (p, observe every)
 
 
 def make_data(model: LinearToy, theta: np.ndarray, every: int, seed: int = 1):
-    rng = np.random.default_rng(seed)
-    obs = {}
-    for k in range(1, model.n_steps + 1):
-        if k % every == 0:
-            y = model.jac(k) @ theta + SIGMA * rng.normal(size=model.H.shape[0])
-            obs[k] = Observation(values=y, noise_std=SIGMA, step=k)
-    return obs
+    return linear_data(model, theta, every, SIGMA, seed)
 
 
 def kalman(model: LinearToy, prior: Prior, obs: dict):
     """Exact posterior (mean, covariance) of theta after each step."""
-    info = np.diag(1.0 / np.asarray(prior.std) ** 2)
-    rhs = info @ np.asarray(prior.mean)
-    out = []
-    for k in range(1, model.n_steps + 1):
-        if k in obs:
-            J = model.jac(k)
-            info = info + J.T @ J / SIGMA**2
-            rhs = rhs + J.T @ obs[k].values / SIGMA**2
-        P = np.linalg.inv(info)
-        out.append((P @ rhs, P))
-    return out
+    return linear_posteriors(model, prior, obs, SIGMA)
 
 
 def run(est, model, prior, obs):

@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import linear_data, linear_posteriors
 from toymodels import LinearToy, SensitiveLinearToy
 
-from idbench import Observation, Prior
+from idbench import Prior
 from idbench_filters import BatchLs, Rls, RoUkf, Ukf
 
 SIGMA = 0.05
@@ -20,29 +21,13 @@ RTOL = 1e-8
 
 
 def make_data(model: LinearToy, theta: np.ndarray, every: int, seed: int = 1):
-    rng = np.random.default_rng(seed)
-    obs = {}
-    for k in range(1, model.n_steps + 1):
-        if k % every == 0:
-            y = model.jac(k) @ theta + SIGMA * rng.normal(size=model.H.shape[0])
-            obs[k] = Observation(values=y, noise_std=SIGMA, step=k)
-    return obs
+    return linear_data(model, theta, every, SIGMA, seed)
 
 
 def exact_posteriors(model: LinearToy, prior: Prior, obs: dict):
     """Sequential Gaussian posterior (mean, std) after each step, computed directly."""
-    m0 = np.asarray(prior.mean)
-    info = np.diag(1.0 / np.asarray(prior.std) ** 2)
-    rhs = info @ m0
-    out = []
-    for k in range(1, model.n_steps + 1):
-        if k in obs:
-            J = model.jac(k)
-            info = info + J.T @ J / SIGMA**2
-            rhs = rhs + J.T @ obs[k].values / SIGMA**2
-        P = np.linalg.inv(info)
-        out.append((P @ rhs, np.sqrt(np.diag(P))))
-    return out
+    posteriors = linear_posteriors(model, prior, obs, SIGMA)
+    return [(mean, np.sqrt(np.diag(P))) for mean, P in posteriors]
 
 
 def least_squares_answer(model: LinearToy, obs: dict) -> np.ndarray:

@@ -24,28 +24,16 @@ import meshio
 import numpy as np
 import pandas as pd
 import pytest
+from helpers import MODEL, STEPS, TRUTH, tiny
 
 import idbench
 from idbench.cli import main
-from idbench.config import CompareConfig, ConfigError
+from idbench.config import ConfigError
 from idbench.plugins import AUTOLOAD_ENV
 from idbench.sweep import compare
 from idbench_fem.bodies import box as meshes
 
-TRUTH, MODEL, STEPS = "12x3x3", "4x1x1", 5
 BUILTIN_ESTIMATORS = {"ro-ukf", "ukf", "enkf", "etkf", "rls", "lms", "batch-ls"}
-
-
-
-def tiny(**overrides: Any) -> CompareConfig:
-    base: dict[str, Any] = {
-        "truth_mesh": TRUTH,
-        "meshes": (MODEL,),
-        "steps": STEPS,
-        "seeds": 1,
-        "estimators": ("rls",),
-    }
-    return CompareConfig(**{**base, **overrides})
 
 
 def by_estimator(runs: pd.DataFrame) -> pd.DataFrame:

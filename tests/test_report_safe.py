@@ -8,15 +8,10 @@ HTML, no ESC byte may reach stdout or stderr, and table rows stay one line.
 
 from __future__ import annotations
 
-import os
-import sys
-import textwrap
-
 import pandas as pd
 import pytest
 
 from idbench.cli import main
-from idbench.plugins import AUTOLOAD_ENV
 from idbench.sanitize import markdown_cell, printable
 
 HOSTILE = "a|b\n<img src=x onerror=alert(1)>\x1b]8;;http://x\x07link\x1b]8;;\x07\x1b[2J"
@@ -52,22 +47,9 @@ TINY = ["--truth-mesh", "12x3x3", "--meshes", "4x1x1", "--steps", "3",
 
 
 @pytest.fixture
-def hostile(tmp_path, monkeypatch):
+def hostile(tmp_path, install):
     """The plugin installed under an entry point (as pip would)."""
-    site = tmp_path / "site"
-    site.mkdir()
-    monkeypatch.syspath_prepend(str(site))
-    paths = [str(site), os.environ.get("PYTHONPATH", "")]
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in paths if p))
-    monkeypatch.delenv(AUTOLOAD_ENV, raising=False)
-    module = "idbench_test_hostile_names"  # not test_isolation's module of that name
-    sys.modules.pop(module, None)
-    (site / f"{module}.py").write_text(textwrap.dedent(PLUGIN))
-    info = site / f"{module}-0.1.dist-info"
-    info.mkdir()
-    meta = f"Metadata-Version: 2.1\nName: {module}\nVersion: 0.1\n"
-    (info / "METADATA").write_text(meta)
-    (info / "entry_points.txt").write_text(f"[idbench]\nhostile = {module}\n")
+    install("hostile", PLUGIN)
     return tmp_path / "out"
 
 

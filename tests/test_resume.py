@@ -13,48 +13,21 @@ import importlib.metadata
 import json
 import shutil
 from pathlib import Path
-from typing import Any
 
 import meshio
 import pandas as pd
 import pytest
+from helpers import MODEL, STEPS, TRUTH, tiny
 
 import idbench.executors
 import idbench.plugins
 from idbench.cli import main
-from idbench.config import CompareConfig
 from idbench.results import ResultsError
 from idbench.sweep import compare, runs_of
 from idbench_fem.bodies.box import parse as beam_mesh
 
-TRUTH, MODEL, STEPS = "12x3x3", "4x1x1", 5
 ARGS = ["compare", "--truth-mesh", TRUTH, "--meshes", MODEL, "--steps", str(STEPS),
         "--seeds", "1", "--estimators", "rls", "-q"]  # fmt: skip
-
-
-def tiny(**overrides: Any) -> CompareConfig:
-    base: dict[str, Any] = {
-        "truth_mesh": TRUTH,
-        "meshes": (MODEL,),
-        "steps": STEPS,
-        "seeds": 1,
-        "estimators": ("rls",),
-    }
-    return CompareConfig(**{**base, **overrides})
-
-
-@pytest.fixture
-def counted(monkeypatch) -> list[str]:
-    """The run ids :func:`idbench.executors.execute` runs (serial sweeps)."""
-    executed: list[str] = []
-    real = idbench.executors.execute
-
-    def wrapper(spec, session, phase=None):
-        executed.append(spec.run_id)
-        return real(spec, session, phase)
-
-    monkeypatch.setattr(idbench.executors, "execute", wrapper)
-    return executed
 
 
 def write_mesh(path: Path, spec: str) -> str:

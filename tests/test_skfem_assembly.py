@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from oracles import svk_forms
+from oracles import svk_forms, v01_kernel
 
 import idbench
 from idbench_fem.bodies import box
@@ -103,38 +103,6 @@ def test_registry_provides_the_model():
     assert model.parameters.names == ("E",)
 
 
-def _old_element_tangents(asm, kin, modulus):
-    """The v0.1 kernel (B^T D B by batched matmul), kept as an independent check."""
-    G = asm.grads
-    w = asm.volumes * modulus
-    n = asm.n_elements
-    Fs = kin.F * np.sqrt(2.0 * asm.mu * w)[:, None, None]
-    Q = (
-        Fs.transpose(0, 2, 1)[:, :, None, None, :]
-        * G.transpose(0, 2, 1)[:, None, :, :, None]
-    )
-    B = np.empty((n, 7, 4, 3))
-    for J in range(3):
-        B[:, 1 + J] = Q[:, J, J]
-    for c, (J, L) in enumerate(((0, 1), (0, 2), (1, 2))):
-        np.add(Q[:, J, L], Q[:, L, J], out=B[:, 4 + c])
-    B[:, 4:7] *= np.sqrt(0.5)
-    np.sum(B[:, 1:4], axis=1, out=B[:, 0])
-    B[:, 0] *= np.sqrt(abs(asm.lam) / (2.0 * asm.mu))
-    B = B.reshape(n, 7, 12)
-    Bt = B.transpose(0, 2, 1)
-    if asm.lam < 0:
-        B = B * np.array([-1.0, 1, 1, 1, 1, 1, 1])[:, None]
-    K = np.matmul(Bt, B)
-    GSG = np.matmul(
-        np.matmul(G, kin.S * asm.volumes[:, None, None]), G.transpose(0, 2, 1)
-    )
-    K5 = K.reshape(n, 4, 3, 4, 3)
-    for i in range(3):
-        K5[:, :, i, :, i] += GSG
-    return K
-
-
 @pytest.mark.parametrize("nu", [0.3, 0.45, -0.2])
 def test_tangent_blocks_equal_the_old_kernel(nu):
     m = _model(nu)
@@ -142,7 +110,7 @@ def test_tangent_blocks_equal_the_old_kernel(nu):
     rng = np.random.default_rng(5)
     modulus = rng.uniform(1000.0, 9000.0, asm.n_elements)
     kin = asm.kinematics(_state(m, scale=0.02), modulus)
-    old = _old_element_tangents(asm, kin, modulus).reshape(-1, 4, 3, 4, 3)
+    old = v01_kernel.old_element_tangents(asm, kin, modulus).reshape(-1, 4, 3, 4, 3)
     blocks = asm.element_tangent_blocks(kin, modulus)
     ia, ib = np.triu_indices(4)
     new = blocks.transpose(3, 0, 1, 2)  # (T, 10, 3, 3)

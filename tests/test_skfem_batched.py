@@ -8,7 +8,7 @@ from toymodels import LinearToy
 
 import idbench
 from idbench import ModelFailure, ModelSpec, Observation, Prior
-from idbench.testing import check_batch_model
+from idbench.testing import WithoutStepMany, check_batch_model
 from idbench_fem.bodies import box
 from idbench_fem.models.beam import SvkBeam
 from idbench_fem.models.beam_scenarios import SCENARIOS
@@ -20,18 +20,6 @@ E_TRUE = 5000.0
 
 def _beam(spec="6x2x2", n_steps=6, **kw):
     return SvkBeam(box.parse(spec), SCENARIOS[0], n_steps=n_steps, **kw)
-
-
-class NoBatch:
-    """The model without step_many: estimators must loop over step."""
-
-    def __init__(self, model):
-        self._model = model
-
-    def __getattr__(self, name):
-        if name == "step_many":
-            raise AttributeError(name)
-        return getattr(self._model, name)
 
 
 def _path(model, theta, steps):
@@ -148,7 +136,7 @@ def test_ro_ukf_with_and_without_step_many_agree(est, parameters):
     stats0 = model.batch_stats.pairs
     batched = _run(est, model, prior, obs)
     assert model.batch_stats.pairs - stats0 == 8 * est.solves_per_step
-    looped = _run(est, NoBatch(model), prior, obs)
+    looped = _run(est, WithoutStepMany(model), prior, obs)
     for a, b in zip(batched, looped, strict=True):
         np.testing.assert_allclose(a.mean, b.mean, rtol=1e-8)
         np.testing.assert_allclose(a.std, b.std, rtol=1e-6)
@@ -163,7 +151,7 @@ def test_full_ukf_with_and_without_step_many_agree():
     prior = Prior((2500.0,), (2500.0,))
     batched = _run(Ukf(), model, prior, obs)
     assert model.batch_stats.calls == 6
-    looped = _run(Ukf(), NoBatch(model), prior, obs)
+    looped = _run(Ukf(), WithoutStepMany(model), prior, obs)
     for a, b in zip(batched, looped, strict=True):
         np.testing.assert_allclose(a.mean, b.mean, rtol=1e-8)
         np.testing.assert_allclose(a.std, b.std, rtol=1e-6)

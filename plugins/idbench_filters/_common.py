@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench import Diverged, ForwardModel, IdentityTransform, ModelFailure
+from idbench import Diverged, ForwardModel, IdentityTransform, ModelFailure, Observation
 
 FloatArray = NDArray[np.float64]
 
@@ -126,3 +126,32 @@ def observation_jacobian(
         uj = advance(model, transform.to_theta(xj), k, prev_state)
         cols.append((np.asarray(model.observe(uj), dtype=float) - y0) / h)
     return np.stack(cols, axis=1)
+
+
+def advance_linearised(
+    model: ForwardModel,
+    xi: FloatArray,
+    k: int,
+    prev_state: FloatArray,
+    transform: IdentityTransform,
+    fd_step: float,
+    observation: Observation | None,
+) -> tuple[FloatArray, tuple[FloatArray, FloatArray] | None]:
+    """One step of an estimator with one own state (RLS, LMS).
+
+    Advances ``prev_state`` to step k with theta(xi) (:func:`advance`); if
+    ``observation`` is given, linearises the observation map there.
+
+    Returns
+    -------
+    tuple
+        The new state and, if observed, ``(J, e)``: the Jacobian d observe /
+        d xi (m, p) (:func:`observation_jacobian`) and the residual
+        e = y - observe(state) (m,); else None.
+    """
+    state = advance(model, transform.to_theta(xi), k, prev_state)
+    if observation is None:
+        return state, None
+    J = observation_jacobian(model, xi, k, state, prev_state, transform, fd_step)
+    e = np.asarray(observation.values, dtype=float) - model.observe(state)
+    return state, (J, e)

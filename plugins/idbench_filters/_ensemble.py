@@ -71,8 +71,6 @@ class EnsembleFilter(Filter):
 
     Attributes
     ----------
-    transform, sigma_floor
-        The shared settings, see :class:`idbench.Filter`.
     members
         Ensemble size N >= 2; None (default) means 2p + 2.
     inflation

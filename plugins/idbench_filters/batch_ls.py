@@ -46,8 +46,6 @@ class BatchLs(Filter):
 
     Attributes
     ----------
-    transform
-        ``"log"`` (xi = ln theta, default) or ``"identity"``.
     sigma_floor
         Lower bound (m) on the noise std that scales the residuals.
     refit

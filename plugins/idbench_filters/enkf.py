@@ -32,10 +32,8 @@ from idbench_filters._ensemble import EnsembleFilter
 class Enkf(EnsembleFilter):
     """Stochastic EnKF with perturbed, centred observations on [state; xi].
 
-    Attributes
-    ----------
-    transform, sigma_floor, members, inflation, init, seed
-        See :class:`~idbench_filters._ensemble.EnsembleFilter`.
+    No settings of its own: those of the ensemble filters' base (``members``,
+    ``inflation``, ``init``, ``seed``) and of :class:`idbench.Filter`.
     """
 
     def analysis(

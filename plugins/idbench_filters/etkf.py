@@ -34,10 +34,8 @@ from idbench_filters._ensemble import EnsembleFilter
 class Etkf(EnsembleFilter):
     """Deterministic square-root ensemble filter (ETKF) on [state; xi].
 
-    Attributes
-    ----------
-    transform, sigma_floor, members, inflation, init, seed
-        See :class:`~idbench_filters._ensemble.EnsembleFilter`.
+    No settings of its own: those of the ensemble filters' base (``members``,
+    ``inflation``, ``init``, ``seed``) and of :class:`idbench.Filter`.
     """
 
     def analysis(

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from idbench import Analysis, Filter, ForwardModel, Observation, Prior
-from idbench_filters._common import advance, check_positive, observation_jacobian
+from idbench_filters._common import advance_linearised, check_positive
 
 
 @dataclass
@@ -29,8 +29,6 @@ class Lms(Filter):
 
     Attributes
     ----------
-    transform
-        ``"log"`` (xi = ln theta, default) or ``"identity"``.
     sigma_floor
         Kept for a uniform interface; LMS does not weight by the noise.
     mu
@@ -62,15 +60,12 @@ class Lms(Filter):
 
     def assimilate(self, k: int, observation: Observation | None) -> Analysis:
         """Advance the own state one step, then one gradient step if observed."""
-        model = self.model
         xi = self._xi
-        u_prev = self._u
-        u = advance(model, self.to_theta(xi), k, u_prev)
-        if observation is not None:
-            J = observation_jacobian(
-                model, xi, k, u, u_prev, self.transformation, self.fd_step
-            )
-            e = np.asarray(observation.values, dtype=float) - model.observe(u)
+        u, linear = advance_linearised(
+            self.model, xi, k, self._u, self.transformation, self.fd_step, observation
+        )
+        if linear is not None:
+            J, e = linear
             xi = xi + self.mu * (J.T @ e) / (self.eps + float(np.sum(J * J)))
         self._xi, self._u = xi, u
         return Analysis(xi, None, u, finite=(u,))

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from idbench import Analysis, Filter, ForwardModel, Observation, Prior, noise_matrix
-from idbench_filters._common import advance, check_positive, observation_jacobian
+from idbench_filters._common import advance_linearised, check_positive
 
 
 @dataclass
@@ -33,8 +33,6 @@ class Rls(Filter):
 
     Attributes
     ----------
-    transform, sigma_floor
-        The shared settings, see :class:`idbench.Filter`.
     forgetting
         Forgetting factor lambda in (0, 1]; 1 (default) forgets nothing.
     fd_step
@@ -61,15 +59,12 @@ class Rls(Filter):
 
     def assimilate(self, k: int, observation: Observation | None) -> Analysis:
         """Advance the own state one step, then one RLS update if observed."""
-        model = self.model
         xi, P = self._xi, self._P
-        u_prev = self._u
-        u = advance(model, self.to_theta(xi), k, u_prev)
-        if observation is not None:
-            J = observation_jacobian(
-                model, xi, k, u, u_prev, self.transformation, self.fd_step
-            )
-            e = np.asarray(observation.values, dtype=float) - model.observe(u)
+        u, linear = advance_linearised(
+            self.model, xi, k, self._u, self.transformation, self.fd_step, observation
+        )
+        if linear is not None:
+            J, e = linear
             R = self.noise_var(observation)
             Pm = P / self.forgetting
             S = J @ Pm @ J.T + noise_matrix(R, J.shape[0])

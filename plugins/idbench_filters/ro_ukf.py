@@ -84,8 +84,6 @@ class RoUkf(Filter):
 
     Attributes
     ----------
-    transform, sigma_floor
-        The shared settings, see :class:`idbench.Filter`.
     sigma_points
         ``"simplex"`` (p + 1 solves a step, default) or ``"star"`` (2p + 1).
     param_noise

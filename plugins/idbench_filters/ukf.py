@@ -104,8 +104,6 @@ class Ukf(Filter):
 
     Attributes
     ----------
-    transform, sigma_floor
-        The shared settings, see :class:`idbench.Filter`.
     max_solves
         Budget of forward solves a step; :meth:`start` raises
         :class:`idbench.Skipped` when 2n + 1 exceeds it (default 1500: the

@@ -1,0 +1,55 @@
+"""Small pieces several test files share: a tiny comparison, linear-toy data."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from toymodels import LinearToy
+
+from idbench import CompareConfig, Observation, Prior
+
+TRUTH, MODEL, STEPS = "12x3x3", "4x1x1", 5
+"""The tiny comparison's truth mesh, model mesh and load steps."""
+
+
+def tiny(**overrides: Any) -> CompareConfig:
+    """One RLS run on the tiny beam (``overrides`` replace its settings)."""
+    base: dict[str, Any] = {
+        "truth_mesh": TRUTH,
+        "meshes": (MODEL,),
+        "steps": STEPS,
+        "seeds": 1,
+        "estimators": ("rls",),
+    }
+    return CompareConfig(**{**base, **overrides})
+
+
+def linear_data(
+    model: LinearToy, theta: np.ndarray, every: int, sigma: float, seed: int = 1
+) -> dict[int, Observation]:
+    """Observations H_k theta + noise (std ``sigma``) of every ``every``-th step."""
+    rng = np.random.default_rng(seed)
+    obs = {}
+    for k in range(1, model.n_steps + 1):
+        if k % every == 0:
+            y = model.jac(k) @ theta + sigma * rng.normal(size=model.H.shape[0])
+            obs[k] = Observation(values=y, noise_std=sigma, step=k)
+    return obs
+
+
+def linear_posteriors(
+    model: LinearToy, prior: Prior, obs: dict[int, Observation], sigma: float
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The exact Gaussian posterior (mean, covariance) of theta after each step."""
+    info = np.diag(1.0 / np.asarray(prior.std) ** 2)
+    rhs = info @ np.asarray(prior.mean)
+    out = []
+    for k in range(1, model.n_steps + 1):
+        if k in obs:
+            J = model.jac(k)
+            info = info + J.T @ J / sigma**2
+            rhs = rhs + J.T @ obs[k].values / sigma**2
+        P = np.linalg.inv(info)
+        out.append((P @ rhs, P))
+    return out
