@@ -34,7 +34,7 @@ from pathlib import Path
 import _cli
 import pandas as pd
 
-from idbench import compare
+from idbench import CompareConfig, compare
 from idbench.report import frontier, frontier_figure
 
 # Parameters (full size: about 90, 240, 525, 1100, 2000 nodes)

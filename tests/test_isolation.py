@@ -14,7 +14,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_faults import install  # noqa: F401  (the fixture)
 
 from idbench.config import CompareConfig
 from idbench.harness import execute
@@ -124,7 +123,7 @@ def clean(tmp_path_factory) -> Any:
 @pytest.mark.parametrize("mode", list(MODES))
 @pytest.mark.parametrize("hostile", list(CASES))
 def test_a_plugin_that_writes_into_its_model_fails_its_run_only(
-    install, tmp_path, clean, hostile, mode  # noqa: F811
+    install, tmp_path, clean, hostile, mode
 ):
     install("hostile", HOSTILE)
     timeout = 120.0 if mode == "timeout" else None
@@ -239,7 +238,7 @@ def _fresh(config: CompareConfig) -> tuple[Session, list[Any]]:
     ids=["built-in", "a-run-that-stops-early-first"],
 )
 def test_a_run_gives_the_same_numbers_alone_and_after_other_runs(
-    install, estimators  # noqa: F811
+    install, estimators
 ):
     install("late", LATE)
     config = CompareConfig(**{**SMALL, "steps": 4, "seeds": 1}, estimators=estimators)
