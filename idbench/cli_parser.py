@@ -269,7 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=_assignments("observe-option"),
         action="append",
         help="a setting of an observation model, NAME.SETTING=VALUE (repeatable; "
-        "e.g. cloud.points=1000, cloud.outliers=0.05)",
+        "e.g. cloud.points=2048, cloud.outliers=0.05)",
     )
     c.add_argument(
         "--seeds",
@@ -527,7 +527,7 @@ def observe_options(args: argparse.Namespace) -> dict[str, dict[str, Any]] | Non
             if not sep or not name or not setting:
                 raise UsageError(
                     f"--observe-option {key}={value!r}: need NAME.SETTING=VALUE, "
-                    "e.g. cloud.points=1000"
+                    "e.g. cloud.points=2048"
                 )
             out.setdefault(name, {})[setting] = value
     return out or None
