@@ -17,6 +17,15 @@ from idbench.plugins import AUTOLOAD_ENV
 
 STUDIES = Path(__file__).resolve().parent.parent / "studies"
 
+# The tests live in folders that mirror the packages (core/, fem/, filters/,
+# studies/); what they share (helpers, toymodels, oracles) stays here, and a
+# test module may import another's fixtures and toy models by module name.
+_TESTS = Path(__file__).resolve().parent
+for _folder in (_TESTS, *(p for p in sorted(_TESTS.iterdir()) if p.is_dir())):
+    if (_folder / "__init__.py").exists() or _folder.name.startswith((".", "_")):
+        continue
+    sys.path.insert(0, str(_folder))
+
 
 @pytest.fixture(autouse=True)
 def _isolated_cache(tmp_path_factory, monkeypatch):

@@ -26,7 +26,7 @@ from idbench.session import Session
 from idbench.settings import estimator_arguments, public_settings
 from idbench.sweep import compare, runs_of
 
-README = Path(__file__).resolve().parent.parent / "README.md"
+README = Path(__file__).resolve().parents[2] / "README.md"
 STEPS = 5
 TRUE_E = 2.0
 PRIOR = (1.0, 0.5)

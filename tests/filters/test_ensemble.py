@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from helpers import linear_data, linear_posteriors
-from test_filters_beam import E_TRUE, beam, observe_truth
+from test_beam import E_TRUE, beam, observe_truth
 from toymodels import LinearToy
 
 from idbench import Diverged, ModelFailure, Prior

@@ -27,7 +27,7 @@ def liver(tmp_path_factory):
 def body():
     from pathlib import Path
 
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]
     return bodies.load_body(root / "examples" / "liver" / "body.toml")
 
 

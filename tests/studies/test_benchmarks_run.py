@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+BENCH = Path(__file__).resolve().parents[2] / "benchmarks"
 FELUPE = importlib.util.find_spec("felupe") is not None
 GMSH = importlib.util.find_spec("gmsh")
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy import integrate, stats
-from test_filters_beam import E_TRUE, beam
-from test_filters_ensemble import SIGMA, BatchedToy, make_data
+from test_beam import E_TRUE, beam
+from test_ensemble import SIGMA, BatchedToy, make_data
 from toymodels import LinearToy
 
 from idbench import Observation, Prior

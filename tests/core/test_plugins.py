@@ -23,7 +23,7 @@ import idbench
 from idbench import hookspecs
 from idbench.plugins import AUTOLOAD_ENV
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 BUILTIN_MODELS = {"svk-beam"}
 BUILTIN_ESTIMATORS = {"ro-ukf", "ukf", "rls", "lms", "batch-ls"}

@@ -377,7 +377,7 @@ def test_body_file_with_a_gmsh_liver(tmp_path):
     assert b.material.make(E=1.0).linear_in_modulus
 
 
-EXAMPLES = __import__("pathlib").Path(__file__).resolve().parent.parent / "examples"
+EXAMPLES = __import__("pathlib").Path(__file__).resolve().parents[2] / "examples"
 
 
 @pytest.mark.parametrize(("geometry", "size"), [("liver", 150), ("kidney", 250)])

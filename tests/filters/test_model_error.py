@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_filters_ensemble import SIGMA, make_data
+from test_ensemble import SIGMA, make_data
 from toymodels import LinearToy, SensitiveLinearToy
 
 from idbench import Observation, Prior
