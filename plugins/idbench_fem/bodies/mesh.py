@@ -11,6 +11,7 @@ name or by a geometric selector (:class:`Region`).
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import io
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,6 +45,14 @@ class Region:
         (point, radius): the surface around the surface point nearest to
         ``point``: boundary facets whose centroid lies within radius of it,
         and always the facet containing it.
+    slab
+        (index, count): slab ``index`` (0-based) of ``count`` equal slabs
+        along x of the mesh's bounding box: points x with
+        ``min(floor(count (x - x_min) / (x_max - x_min)), count - 1) == index``
+        (a point on a slab boundary belongs to the slab after it).
+    excluding
+        Not a selector: what the region leaves out (a slab around an
+        inclusion, say); cells, facets and nodes that it selects are removed.
     """
 
     name: str | None = None
@@ -51,6 +60,8 @@ class Region:
     sphere: tuple[Vec, float] | None = None
     half_space: tuple[Vec, Vec] | None = None
     patch: tuple[Vec, float] | None = None
+    slab: tuple[int, int] | None = None
+    excluding: Region | None = None
 
     def __post_init__(self) -> None:
         given = [k for k in SELECTORS if getattr(self, k) is not None]
@@ -58,6 +69,8 @@ class Region:
             raise ValueError(
                 f"region: give exactly one of {', '.join(SELECTORS)} (got {given})"
             )
+        if self.slab is not None and not 0 <= self.slab[0] < self.slab[1]:
+            raise ValueError(f"region slab {self.slab!r}: need 0 <= index < count")
 
     @property
     def kind(self) -> str:
@@ -66,12 +79,17 @@ class Region:
 
     def describe(self) -> str:
         """Short text for messages, e.g. ``'ligament'`` or ``sphere (...)``."""
-        if self.name is not None:
-            return repr(self.name)
-        return f"{self.kind} {getattr(self, self.kind)!r}"
+        text = (
+            repr(self.name)
+            if self.name is not None
+            else f"{self.kind} {getattr(self, self.kind)!r}"
+        )
+        if self.excluding is not None:
+            text += f" excluding {self.excluding.describe()}"
+        return text
 
 
-SELECTORS = ("name", "box", "sphere", "half_space", "patch")
+SELECTORS = ("name", "box", "sphere", "half_space", "patch", "slab")
 
 
 @dataclass(frozen=True, eq=False)
@@ -142,6 +160,23 @@ class SolidMesh:
     def surface_nodes(self) -> IntArray:
         """Nodes on the boundary, increasing."""
         return np.unique(self.facets)
+
+    @property
+    def lower(self) -> FloatArray:
+        """Lower corner of the bounding box, (3,)."""
+        return np.asarray(self.points.min(axis=0))
+
+    @property
+    def upper(self) -> FloatArray:
+        """Upper corner of the bounding box, (3,)."""
+        return np.asarray(self.points.max(axis=0))
+
+    def digest(self) -> str:
+        """SHA-256 of the node coordinates and the connectivity."""
+        h = hashlib.sha256()
+        h.update(np.ascontiguousarray(self.points, dtype="<f8").tobytes())
+        h.update(np.ascontiguousarray(self.tets, dtype="<i8").tobytes())
+        return h.hexdigest()
 
 
 def _det(a: FloatArray, b: FloatArray, c: FloatArray) -> FloatArray:
@@ -489,8 +524,13 @@ def _unknown(mesh: SolidMesh, name: str, what: str) -> ValueError:
     )
 
 
-def _selected(x: FloatArray, region: Region) -> NDArray[np.bool_]:
-    """Which of the points ``x`` (n, 3) a box, sphere or half-space selects."""
+def _selected(x: FloatArray, region: Region, mesh: SolidMesh) -> NDArray[np.bool_]:
+    """Which of the points ``x`` (n, 3) a box, sphere, half-space or slab selects."""
+    if region.slab is not None:
+        index, count = region.slab
+        lo, hi = float(mesh.lower[0]), float(mesh.upper[0])
+        t = (x[:, 0] - lo) / (hi - lo)
+        return np.asarray(np.minimum((t * count).astype(np.int64), count - 1) == index)
     if region.box is not None:
         lo, hi = (np.asarray(v, dtype=float) for v in region.box)
         return np.all((x >= lo) & (x <= hi), axis=1)
@@ -543,7 +583,11 @@ def region_facets(mesh: SolidMesh, region: Region, what: str = "region") -> IntA
     elif region.patch is not None:
         out = patch_facets(mesh, *region.patch, what=what)
     else:
-        out = np.flatnonzero(_selected(mesh.points, region)[mesh.facets].all(axis=1))
+        out = np.flatnonzero(
+            _selected(mesh.points, region, mesh)[mesh.facets].all(axis=1)
+        )
+    if region.excluding is not None:
+        out = np.setdiff1d(out, region_facets(mesh, region.excluding, what))
     if len(out) == 0:
         raise ValueError(
             f"{what} {region.describe()} contains no boundary facet of "
@@ -567,7 +611,9 @@ def region_nodes(mesh: SolidMesh, region: Region, what: str = "region") -> IntAr
     elif region.patch is not None:
         out = np.unique(mesh.facets[patch_facets(mesh, *region.patch, what=what)])
     else:
-        out = np.flatnonzero(_selected(mesh.points, region))
+        out = np.flatnonzero(_selected(mesh.points, region, mesh))
+    if region.excluding is not None:
+        out = np.setdiff1d(out, region_nodes(mesh, region.excluding, what))
     if len(out) == 0:
         raise ValueError(
             f"{what} {region.describe()} contains no node of mesh {mesh.path!r}"
@@ -596,7 +642,10 @@ def region_cells(mesh: SolidMesh, region: Region, what: str = "region") -> IntAr
             raise _unknown(mesh, region.name, what)
         out = mesh.cell_sets[region.name]
     else:
-        out = np.flatnonzero(_selected(mesh.points[mesh.tets].mean(axis=1), region))
+        centroids = mesh.points[mesh.tets].mean(axis=1)
+        out = np.flatnonzero(_selected(centroids, region, mesh))
+    if region.excluding is not None:
+        out = np.setdiff1d(out, region_cells(mesh, region.excluding, what))
     if len(out) == 0:
         raise ValueError(
             f"{what} {region.describe()} contains no tetrahedron of mesh {mesh.path!r}"

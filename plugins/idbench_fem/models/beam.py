@@ -11,6 +11,7 @@ import functools
 import logging
 from collections.abc import Mapping
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -18,8 +19,17 @@ from numpy.typing import NDArray
 
 from idbench import Cost, ModelSpec, ParameterSpec, Scenario
 from idbench_fem.bodies import box as meshes
-from idbench_fem.bodies.mesh import extent
-from idbench_fem.bodies.regions import parameter_regions
+from idbench_fem.bodies.description import (
+    Body,
+    Manipulation,
+    Markers,
+    Material,
+    MeshFiles,
+    ShapeError,
+)
+from idbench_fem.bodies.mesh import Region, SolidMesh, extent
+from idbench_fem.bodies.mesh import from_arrays as solid_from_arrays
+from idbench_fem.bodies.regions import E_BOUNDS, parameter_regions
 from idbench_fem.fem.batched import BatchedSteps
 from idbench_fem.fem.interpolation import (
     grid_points,
@@ -29,7 +39,9 @@ from idbench_fem.fem.interpolation import (
 from idbench_fem.fem.newton import ASSEMBLY_BUFFERS, CHORD_RATIO, freeze
 from idbench_fem.fem.solver import resolve_backend
 from idbench_fem.fem.svk_assembly import Assembler
-from idbench_fem.models.beam_settings import BeamSettings, EndTraction
+from idbench_fem.models.beam_settings import DEFAULT_E, BeamSettings, EndTraction
+from idbench_fem.models.solid import SolidModel
+from idbench_fem.models.solid_settings import SolidSettings
 
 log = logging.getLogger(__name__)
 
@@ -326,6 +338,109 @@ def make_model(spec: ModelSpec) -> SvkBeam:
         parameters=settings.parameters,
         options=settings.options(),
     )
+    model.parameters = replace(
+        model.parameters, default=settings.true_values(model.parameters.p)
+    )
+    return model
+
+
+# -- the beam as a body of the solid model ------------------------------------------
+
+
+def beam_body(
+    mesh: SolidMesh,
+    scenario: Scenario | EndTraction,
+    markers: int = 2,
+    settings: BeamSettings | None = None,
+) -> Body:
+    """The cantilever as a body of the solid model, built in memory on ``mesh``.
+
+    Clamped at x = min x (a half-space selector), loaded by the scenario's
+    uniform end traction on x = max x, markers on the end face and the top
+    edges (:func:`marker_points`, located in each mesh's tets), the regular
+    shape-error grid of the bounding box (located exactly), the tip (the
+    end-face centre) as a probe, and ``settings.parameters``: one E, or
+    slabs along x and an inclusion box as parameter regions.
+
+    Raises
+    ------
+    ValueError
+        A scenario that is not an end traction, a bad inclusion box.
+    """
+    s = settings or BeamSettings()
+    load = EndTraction.of(scenario)
+    lower, upper = mesh.lower, mesh.upper
+    tol = 1e-9 * float(np.max(upper - lower))
+    x0, x1 = float(lower[0]), float(upper[0])
+    clamp = Region(half_space=((x0 + tol, 0.0, 0.0), (-1.0, 0.0, 0.0)))
+    end = Region(half_space=((x1 - tol, 0.0, 0.0), (1.0, 0.0, 0.0)))
+    traction = tuple(float(load.magnitude * d) for d in load.direction)
+    centre = 0.5 * (lower + upper)
+    centre[0] = upper[0]
+    return Body(
+        source="svk-beam",
+        mesh=MeshFiles(Path(mesh.path)),
+        material=Material("svk", DEFAULT_E, s.nu, 0.0),
+        fixed=clamp,
+        manipulations=(
+            Manipulation(load.name, "traction", end, _vec(traction)),
+        ),
+        markers=Markers(
+            tuple(_vec(p) for p in marker_points(int(markers), lower, upper)),
+            placement="volume",
+        ),
+        shape_error=ShapeError(s.grid, locate="contained"),
+        parameter_regions=_parameter_regions(s),
+        parameter_bounds=E_BOUNDS,
+        probes=(("tip", _vec(centre)),),
+    )
+
+
+def _vec(p: Any) -> tuple[float, float, float]:
+    return (float(p[0]), float(p[1]), float(p[2]))
+
+
+def _parameter_regions(s: BeamSettings) -> tuple[Region, ...]:
+    """Slabs along x (``regions``) and the ``inclusion`` box, for ``E_regions``."""
+    if s.parameters == "E":
+        return ()
+    inclusion = None
+    if s.inclusion is not None:
+        box = np.asarray(s.inclusion, dtype=float)
+        if box.shape != (6,) or np.any(box[1::2] <= box[0::2]):
+            raise ValueError(
+                f"inclusion {s.inclusion!r}: need (x0, x1, y0, y1, z0, z1), x0 < x1 "
+                "etc."
+            )
+        inclusion = Region(box=(_vec(box[0::2]), _vec(box[1::2])))
+    slabs = s.regions if s.regions is not None else (2 if inclusion is None else 1)
+    out = [Region(slab=(r, slabs), excluding=inclusion) for r in range(slabs)]
+    return (*out, inclusion) if inclusion is not None else tuple(out)
+
+
+def solid_settings(s: BeamSettings, chord_ratio: float | None = None) -> SolidSettings:
+    """The solid model's settings for the beam's (the absolute ``atol`` aside)."""
+    return SolidSettings(
+        body="svk-beam", law="svk", nu=s.nu, rtol=s.rtol,
+        max_iterations=s.max_iterations, solver=s.solver, processes=s.processes,
+        chord_ratio=chord_ratio, sensitivity_refine=s.sensitivity_refine,
+    )  # fmt: skip
+
+
+def make_preset(spec: ModelSpec) -> SolidModel:
+    """The ``svk-beam`` of ``spec`` as a :class:`SolidModel` of :func:`beam_body`."""
+    settings = spec.settings
+    if settings is None:
+        settings = BeamSettings()
+    elif isinstance(settings, Mapping):
+        settings = BeamSettings(**settings)
+    beam = meshes.parse(spec.mesh)
+    mesh = solid_from_arrays(beam.points, beam.tets, beam.spec)
+    body = beam_body(mesh, spec.scenario, spec.markers, settings)
+    model = SolidModel(
+        body, mesh, body.manipulations[0].name, mesh, spec.n_steps, spec.markers,
+        solid_settings(settings), absolute_atol=settings.atol,
+    )  # fmt: skip
     model.parameters = replace(
         model.parameters, default=settings.true_values(model.parameters.p)
     )

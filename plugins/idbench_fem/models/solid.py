@@ -58,9 +58,13 @@ from idbench_fem.bodies.description import Body
 from idbench_fem.bodies.loads import nodal_forces
 from idbench_fem.bodies.mesh import SolidMesh, extent, project_to_surface
 from idbench_fem.fem.batched import BatchedSteps
-from idbench_fem.fem.interpolation import barycentric, weights_matrix
+from idbench_fem.fem.interpolation import (
+    barycentric,
+    interpolation_matrix,
+    weights_matrix,
+)
 from idbench_fem.fem.law_assembly import LawAssembler
-from idbench_fem.fem.newton import ASSEMBLY_BUFFERS, freeze
+from idbench_fem.fem.newton import ASSEMBLY_BUFFERS, CHORD_RATIO, freeze
 from idbench_fem.fem.solver import resolve_backend
 from idbench_fem.fem.svk_assembly import Assembler
 from idbench_fem.models.solid_settings import DEFAULT_BODY, SolidSettings
@@ -98,6 +102,9 @@ class SolidModel(BatchedSteps):
         Load steps K and number of markers M.
     settings
         Overrides and solver options.
+    absolute_atol
+        Newton's absolute floor in N (None: ``settings.atol`` or 1e-12 times
+        the end force).
     """
 
     def __init__(
@@ -109,6 +116,8 @@ class SolidModel(BatchedSteps):
         n_steps: int = 20,
         markers: int = 2,
         settings: SolidSettings | None = None,
+        *,
+        absolute_atol: float | None = None,
     ) -> None:
         if n_steps < 1:
             raise ValueError(f"n_steps = {n_steps}: need at least one load step")
@@ -118,6 +127,13 @@ class SolidModel(BatchedSteps):
         self.n_steps = int(n_steps)
         self.rtol = float(s.rtol or RTOL)
         self.max_iterations = int(s.max_iterations or MAX_ITERATIONS)
+        self.sensitivity_refine = s.sensitivity_refine is not False
+        chord = s.chord_ratio
+        self.chord_ratio = float(CHORD_RATIO if chord is None else chord)
+        if not 0.0 <= self.chord_ratio < 1.0:
+            raise ValueError(
+                f"chord_ratio {self.chord_ratio!r}: must be in [0, 1) (0: plain Newton)"
+            )
         self.backend = resolve_backend(s.solver)
         self.law_name = s.law or body.material.law
         self.force_is_cubic = self.law_name == "svk"
@@ -125,7 +141,7 @@ class SolidModel(BatchedSteps):
             s.processes or 1,
             functools.partial(
                 SolidModel, body, mesh, manipulation, reference, n_steps, markers,
-                replace(s, processes=None),
+                replace(s, processes=None), absolute_atol=absolute_atol,
             ),
         )  # fmt: skip
         self.nu = float(body.material.nu if s.nu is None else s.nu)
@@ -153,9 +169,9 @@ class SolidModel(BatchedSteps):
             _region_value(body, r) for r in range(len(names))
         ])  # fmt: skip
         self._factors = moduli / true[self._regions]
-        lo, hi = _BOUNDS
+        lo, hi = body.parameter_bounds or (_BOUNDS[0] * E, _BOUNDS[1] * E)
         self.parameters = ParameterSpec(
-            names, tuple(lo * E for _ in names), tuple(hi * E for _ in names),
+            names, tuple(lo for _ in names), tuple(hi for _ in names),
             default=tuple(float(v) for v in true),
         )  # fmt: skip
 
@@ -163,7 +179,11 @@ class SolidModel(BatchedSteps):
             self.manipulation, mesh, body.material.density, t=float(s.load_scale)
         )
         self._f_end = f1.ravel()[self._asm.free_dofs]
-        self.atol = float(s.atol or ATOL) * float(np.linalg.norm(self._f_end))
+        self.atol = (
+            float(s.atol or ATOL) * float(np.linalg.norm(self._f_end))
+            if absolute_atol is None
+            else float(absolute_atol)
+        )
 
         f2f = self._asm.full_to_free
         pts = _reference_markers(body, reference)
@@ -174,9 +194,25 @@ class SolidModel(BatchedSteps):
             )
         self.marker_points = pts[_farthest_points(pts, markers)]
         self.grid_points = _reference_grid(body, reference)
-        self._obs = _surface_interpolation(mesh, self.marker_points, f2f)
-        self._grid = _interpolation(mesh, self.grid_points, f2f)
-        self._reference = reference.path
+        if body.markers.placement == "volume" and body.markers.region is None:
+            self._obs = interpolation_matrix(
+                self.marker_points, mesh.points, mesh.tets, f2f
+            )
+        else:
+            self._obs = _surface_interpolation(mesh, self.marker_points, f2f)
+        if body.shape_error.locate == "contained":
+            self._grid = interpolation_matrix(
+                self.grid_points, mesh.points, mesh.tets, f2f
+            )
+        else:
+            self._grid = _interpolation(mesh, self.grid_points, f2f)
+        self._probes = {
+            name: interpolation_matrix(
+                np.asarray(point, dtype=float)[None, :], mesh.points, mesh.tets, f2f
+            )
+            for name, point in body.probes
+        }
+        self._reference = reference
         self._cost = [0, 0, 0]
         self.last_residuals: list[float] = []
         freeze(self)  # shared by the copies runs get (see NewtonSolve.__copy__)
@@ -224,8 +260,26 @@ class SolidModel(BatchedSteps):
         return np.asarray(self._grid @ state).reshape(-1, 3)
 
     def probes(self, state: FloatArray) -> dict[str, float]:
-        """``u_max``: the largest nodal displacement (m)."""
-        return {"u_max": float(np.abs(state).max(initial=0.0))}
+        """The body's probes ``NAME_x``, ``NAME_y``, ``NAME_z`` (m); else ``u_max``.
+
+        ``u_max`` is the largest nodal displacement component (m), given for a
+        body without ``[[probe]]`` points.
+        """
+        if not self._probes:
+            return {"u_max": float(np.abs(state).max(initial=0.0))}
+        out = {}
+        for name, matrix in self._probes.items():
+            u = matrix @ state
+            out.update({f"{name}_x": u[0], f"{name}_y": u[1], f"{name}_z": u[2]})
+        return out
+
+    def probe(self, name: str, state: FloatArray) -> FloatArray:
+        """Displacement (3,) of the body's probe point ``name``."""
+        if name not in self._probes:
+            raise ValueError(
+                f"probe {name!r}: the body has {', '.join(self._probes) or 'none'}"
+            )
+        return np.asarray(self._probes[name] @ state)
 
     def sensitivity(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
         """D observe / d theta at the converged ``state``, shape (3M, p).
@@ -239,7 +293,7 @@ class SolidModel(BatchedSteps):
         g = self._asm.region_forces(
             self._asm.kinematics(u, self._factors), self._regions, self.parameters.p
         )
-        du = self._state_sensitivity(theta, k, u, modulus, g)
+        du = self._state_sensitivity(theta, k, u, modulus, g, self.sensitivity_refine)
         return np.asarray(self._obs @ du.reshape(self.n_state, -1))
 
     def cost(self) -> Cost:
@@ -249,14 +303,14 @@ class SolidModel(BatchedSteps):
     def describe(self) -> dict[str, Any]:
         """JSON-serialisable description of everything the results depend on."""
         m = self.manipulation
-        return {
+        out = {
             "model": "solid",
             "code_version": MODEL_VERSION,
             "body": Path(self.body.source).name,  # names, not paths: the
-            "body_sha256": _digest(Path(self.body.source)),  # contents key it
+            "body_sha256": _body_digest(self.body),  # contents key it
             "mesh": Path(self.mesh_data.path).name,
-            "mesh_sha256": _digest(Path(self.mesh_data.path)),
-            "reference_sha256": _digest(Path(self._reference)),
+            "mesh_sha256": _mesh_digest(self.mesh_data),
+            "reference_sha256": _mesh_digest(self._reference),
             "n_nodes": self.n_nodes,
             "n_elements": len(self.mesh_data.tets),
             "law": self.law_name,
@@ -271,6 +325,10 @@ class SolidModel(BatchedSteps):
             "atol": self.atol,
             "max_iterations": self.max_iterations,
         }
+        for name in ("chord_ratio", "sensitivity_refine"):
+            if getattr(self.settings, name) is not None:
+                out[name] = getattr(self.settings, name)
+        return out
 
     # -- extras: idbench simulate, tests ------------------------------------------
 
@@ -295,7 +353,23 @@ class SolidModel(BatchedSteps):
     def internal_force(self, theta: FloatArray, state: FloatArray) -> FloatArray:
         """Internal force f_int(state; theta) on the free dofs, (n_state,)."""
         modulus = self._modulus(theta, None)
-        return np.asarray(self._asm.forces(self._asm.kinematics(state, modulus)))
+        u = np.asarray(state, dtype=np.float64)
+        return np.asarray(self._asm.forces(self._asm.kinematics(u, modulus)))
+
+    def residual(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
+        """Newton residual f_int(state; theta) - f_ext(k), shape (n_state,)."""
+        return self.internal_force(theta, state) - self.external_force(k)
+
+    def tangent(self, theta: FloatArray, state: FloatArray) -> Any:
+        """The free-free tangent at ``state`` (scipy CSR)."""
+        modulus = self._modulus(theta, None)
+        kin = self._asm.kinematics(np.asarray(state, dtype=np.float64), modulus)
+        return self._pattern.matrix(self._asm.tangent_data(kin, modulus, self._pattern))
+
+    @property
+    def fixed_nodes(self) -> IntArray:
+        """Indices of the fixed nodes (all displacement components zero)."""
+        return np.flatnonzero(self._asm.full_to_free.reshape(-1, 3)[:, 0] < 0)
 
     # -- internals -------------------------------------------------------------
 
@@ -314,6 +388,20 @@ def _region_value(body: Body, r: int) -> float:
 
 def _digest(path: Path) -> str:
     return _digest_cached(path, path.stat().st_mtime)
+
+
+def _body_digest(body: Body) -> str:
+    """The body file's SHA-256; of its description for a body built in memory."""
+    path = Path(body.source)
+    if path.is_file():
+        return _digest(path)
+    return hashlib.sha256(repr(body).encode()).hexdigest()
+
+
+def _mesh_digest(mesh: SolidMesh) -> str:
+    """The mesh file's SHA-256; of its arrays for a mesh built in memory."""
+    path = Path(mesh.path)
+    return _digest(path) if path.is_file() else mesh.digest()
 
 
 @functools.lru_cache(maxsize=64)
