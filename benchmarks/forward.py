@@ -30,9 +30,11 @@ import numpy as np
 import pypardiso
 
 from idbench_fem.bodies import box as meshes
-from idbench_fem.models.beam import SvkBeam
+from idbench_fem.bodies.loads import traction_forces
+from idbench_fem.bodies.mesh import region_facets
+from idbench_fem.models.beam import build
 from idbench_fem.models.beam_scenarios import SCENARIOS
-from idbench_fem.models.beam_settings import EndTraction
+from idbench_fem.models.beam_settings import BeamSettings, EndTraction
 
 E, NU = 5000.0, 0.45
 N_STEPS = 4
@@ -82,8 +84,8 @@ def best_of(f, repeat):
 
 
 def ours(beam):
-    model = SvkBeam(
-        beam, SCENARIO, n_steps=N_STEPS, nu=NU, options={"solver": "pardiso"}
+    model = build(
+        beam, SCENARIO, N_STEPS, settings=BeamSettings(nu=NU, solver="pardiso")
     )
     theta = np.array([E])
 
@@ -130,7 +132,8 @@ def felupe_solve(beam, tols):
     solid = fem.SolidBody(svk_material(E, NU), field)
     bounds = {"clamped": fem.dof.Boundary(field[0], fx=beam.lower[0])}
     dof0, dof1 = fem.dof.partition(field, bounds)
-    w = beam.nodal_traction_weights()
+    end = region_facets(beam, meshes.loaded_face(beam))
+    w = traction_forces(beam, end, np.array([1.0, 0.0, 0.0]))[:, 0]  # area / 3
     loaded = np.flatnonzero(w)
     load = fem.PointLoad(field, loaded)
     its = [0]

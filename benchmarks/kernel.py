@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from idbench_fem.bodies import box as meshes
-from idbench_fem.models.beam import SvkBeam
+from idbench_fem.models.beam import build
 from idbench_fem.models.beam_scenarios import SCENARIOS
 
 
@@ -74,7 +74,7 @@ def main() -> None:
         f"{'factor ms':>9}"
     )
     for size in args.sizes:
-        m = SvkBeam(meshes.parse(size), SCENARIOS[0], n_steps=20)
+        m = build(meshes.parse(size), SCENARIOS[0], n_steps=20)
         theta = np.array([5000.0])
         u = m.reset()
         for k in range(1, 11):

@@ -29,9 +29,9 @@ import pypardiso
 
 import idbench
 from idbench_fem.bodies import box as meshes
-from idbench_fem.models.beam import SvkBeam
+from idbench_fem.models.beam import build
 from idbench_fem.models.beam_scenarios import SCENARIOS
-from idbench_fem.models.beam_settings import EndTraction
+from idbench_fem.models.beam_settings import BeamSettings, EndTraction
 from idbench_fem.models.solid import make_model
 
 E, NU = 5000.0, 0.45
@@ -179,7 +179,9 @@ def main():
         with tempfile.TemporaryDirectory() as tmp:
             svk_body = beam_body(beam, Path(tmp), "svk")
             nh_body = beam_body(beam, Path(tmp), "neo-hookean")
-            ref = SvkBeam(beam, SCENARIO, N_STEPS, NU, options={"solver": "pardiso"})
+            ref = build(
+                beam, SCENARIO, N_STEPS, settings=BeamSettings(nu=NU, solver="pardiso")
+            )
             models = [ref, solid(svk_body), solid(svk_body, kernel="general")]
             (t_beam, t_solid, t_gen), (u_beam, u_solid, u_gen) = race(models)
             scale = np.abs(u_beam).max()

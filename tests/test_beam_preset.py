@@ -2,8 +2,8 @@
 
 Each step's displacement field within 1e-10 (relative to the largest
 displacement) of Newton on scikit-fem's SVK forms (tests/oracles), on 6x2x2
-and 9x2x2 meshes, for each beam scenario; and (while it exists) equal to the
-SvkBeam class it replaces.
+and 9x2x2 meshes, for each beam scenario (the preset was checked equal to the
+``SvkBeam`` class it replaced, to 1e-15, before that class was deleted).
 """
 
 from __future__ import annotations
@@ -12,41 +12,10 @@ import numpy as np
 import pytest
 
 from idbench import ModelSpec
-from idbench_fem.models.beam import make_model, make_preset
+from idbench_fem.bodies import box
+from idbench_fem.models.beam import make_model
 from idbench_fem.models.beam_scenarios import SCENARIOS
 from idbench_fem.models.beam_settings import BeamSettings
-
-SETTINGS = (
-    BeamSettings(),
-    BeamSettings(parameters="E_regions", inclusion=(0.05, 0.12, 0, 0.03, 0, 0.03),
-                 grid=(6, 2, 2)),
-)  # fmt: skip
-
-
-@pytest.mark.parametrize("mesh", ["6x2x2", "9x2x2"])
-@pytest.mark.parametrize("scenario", SCENARIOS, ids=lambda s: s.name)
-@pytest.mark.parametrize("settings", SETTINGS, ids=["E", "E_regions"])
-def test_preset_equals_the_beam_class(mesh, scenario, settings):
-    spec = ModelSpec(mesh, scenario, 3, 3, settings)
-    old, new = make_model(spec), make_preset(spec)
-    assert new.parameters == old.parameters
-    theta = np.array(old.parameters.default) * 1.3
-    u_old, u_new = old.reset(), new.reset()
-    for k in range(1, 4):
-        u_old, u_new = old.step(theta, k, u_old), new.step(theta, k, u_new)
-        ref = old.displacement_field(u_old)
-        scale = np.abs(ref).max()
-        np.testing.assert_allclose(
-            new.displacement_field(u_new), ref, rtol=0, atol=1e-10 * scale
-        )
-    tol = 1e-10 * scale
-    np.testing.assert_allclose(new.observe(u_new), old.observe(u_old), atol=tol)
-    np.testing.assert_allclose(new.grid(u_new), old.grid(u_old), atol=tol)
-    a, b = old.probes(u_old), new.probes(u_new)
-    assert set(a) == set(b) == {"tip_x", "tip_y", "tip_z"}
-    np.testing.assert_allclose([b[n] for n in a], list(a.values()), atol=tol)
-    s_old, s_new = old.sensitivity(theta, 3, u_old), new.sensitivity(theta, 3, u_new)
-    np.testing.assert_allclose(s_new, s_old, rtol=0, atol=1e-10 * np.abs(s_old).max())
 
 
 def _oracle_solution(points, tets, fixed, traction, n_steps, E, nu):
@@ -97,7 +66,7 @@ def _oracle_solution(points, tets, fixed, traction, n_steps, E, nu):
 def test_preset_equals_the_oracle(mesh, scenario):
     """Each step's displacement field equals Newton on scikit-fem's SVK forms."""
     spec = ModelSpec(mesh, scenario, 2, 2, BeamSettings(nu=0.4, rtol=1e-13))
-    model = make_preset(spec)
+    model = make_model(spec)
     E = 6000.0
     points, tets = model.mesh()
     load = scenario.load
@@ -115,3 +84,69 @@ def test_preset_equals_the_oracle(mesh, scenario):
     tip = model.probe("tip", u)
     centre = np.flatnonzero(np.all(np.isclose(points, [0.2, 0.015, 0.015]), axis=1))
     np.testing.assert_allclose(tip, expected[-1][centre[0]], atol=1e-12)
+
+
+def test_registered_beam_is_the_solid_model_and_svkbeam_is_deprecated():
+    import idbench
+    from idbench_fem.models.beam import SvkBeam
+    from idbench_fem.models.solid import SolidModel
+
+    registry = idbench.build_registry()
+    spec = ModelSpec("6x2x2", registry.scenario("bend-y"), 2)
+    model = registry.model("svk-beam")(spec)
+    assert type(model) is SolidModel
+    assert model.describe()["body"] == "svk-beam"
+    with pytest.warns(DeprecationWarning, match="SvkBeam is deprecated"):
+        old = SvkBeam(box.parse("6x2x2"), SCENARIOS[0], n_steps=2)
+    assert type(old) is SolidModel and old.describe() == model.describe()
+
+
+def test_beam_body_options_in_a_toml_body(tmp_path):
+    """What the beam needs is a body option any TOML body can use."""
+    from idbench_fem.bodies.description import parse_body
+    from idbench_fem.bodies.mesh import region_cells
+
+    raw = {
+        "mesh": {"truth": "x.vtu"},
+        "fixed": {"half_space": {"point": [0, 0, 0], "normal": [-1, 0, 0]}},
+        "manipulation": [{"name": "pull", "kind": "gravity",
+                          "acceleration": [0, -9.81, 0]}],
+        "markers": {"points": [[0.2, 0.0, 0.03]], "placement": "volume"},
+        "shape_error": {"grid": [4, 2, 2], "locate": "contained"},
+        "parameters": {"regions": [{"slab": {"index": 0, "count": 2}},
+                                   {"slab": {"index": 1, "count": 2}}],
+                       "bounds": [1.0, 1e8]},
+        "probe": [{"name": "tip", "point": [0.2, 0.015, 0.015]}],
+    }  # fmt: skip
+    body = parse_body(raw, "b.toml", tmp_path)
+    assert body.markers.placement == "volume"
+    assert body.shape_error.locate == "contained"
+    assert body.parameter_bounds == (1.0, 1e8)
+    assert body.probes == (("tip", (0.2, 0.015, 0.015)),)
+    mesh = box.parse("9x2x2")
+    first, second = (region_cells(mesh, r) for r in body.parameter_regions)
+    assert len(first) + len(second) == len(mesh.tets)
+    assert len(np.intersect1d(first, second)) == 0
+    for bad, match in (
+        ({"markers": {"points": [[0, 0, 0]], "placement": "inside"}}, "placement"),
+        ({"parameters": {"regions": [{"slab": {"index": 2, "count": 2}}, "a"]}},
+         "index and count"),
+        ({"parameters": {"bounds": [5.0, 1.0]}}, "lower < upper"),
+        ({"probe": [{"name": "tip"}]}, "point"),
+    ):  # fmt: skip
+        with pytest.raises(ValueError, match=match):
+            parse_body({**raw, **bad}, "b.toml", tmp_path)
+
+
+def test_one_truth_serves_every_marker_count_and_grid():
+    """The truth's cache key leaves out markers and grid (they do not change states)."""
+    from idbench.truth import truth_key
+
+    keys = set()
+    for markers, grid in ((2, (20, 4, 4)), (6, (20, 4, 4)), (2, (10, 2, 2))):
+        settings = BeamSettings(grid=grid)
+        model = make_model(ModelSpec("6x2x2", SCENARIOS[0], 2, markers, settings))
+        keys.add(truth_key(model, np.array([5000.0])))
+    assert len(keys) == 1
+    other = make_model(ModelSpec("6x2x2", SCENARIOS[1], 2, 2))  # another load
+    assert truth_key(other, np.array([5000.0])) not in keys

@@ -528,8 +528,8 @@ def _selected(x: FloatArray, region: Region, mesh: SolidMesh) -> NDArray[np.bool
     """Which of the points ``x`` (n, 3) a box, sphere, half-space or slab selects."""
     if region.slab is not None:
         index, count = region.slab
-        lo, hi = float(mesh.lower[0]), float(mesh.upper[0])
-        t = (x[:, 0] - lo) / (hi - lo)
+        x0, x1 = float(mesh.lower[0]), float(mesh.upper[0])
+        t = (x[:, 0] - x0) / (x1 - x0)
         return np.asarray(np.minimum((t * count).astype(np.int64), count - 1) == index)
     if region.box is not None:
         lo, hi = (np.asarray(v, dtype=float) for v in region.box)

@@ -1,5 +1,8 @@
 r"""The ``solid`` model: any tetrahedral body described by a body TOML.
 
+The one forward model of the plugin: ``svk-beam`` is this model on a body
+built in memory (:mod:`idbench_fem.models.beam`).
+
 :class:`SolidModel` solves each quasi-static load step of a manipulation by
 Newton's method on the free displacements of a P1 tet mesh: the body's fixed
 region has all components zero, the manipulation's dead load is ramped as
@@ -18,13 +21,13 @@ belongs to). The internal force is linear in theta,
 :math:`\partial u / \partial \theta_r = -K^{-1} g_r(u)`: one back-substitution
 per parameter with the last factorization.
 
-Newton's conventions are the beam's (:mod:`idbench_fem.models.beam`): converged
+Newton (:mod:`idbench_fem.fem.newton`): converged
 when :math:`\|r\| \le \max(\mathrm{rtol} \|f_{ext}(k)\|, \mathrm{atol})`
 with rtol = 1e-8 and atol = 1e-12 times the end force; each update is halved
 (up to 8 times) while an element would have det F <= 0.
 
 Sigma points of a filter step go through :meth:`SolidModel.step_many`
-(:mod:`idbench_fem.fem.batched`, as the beam's): one pair solved by Newton, the
+(:mod:`idbench_fem.fem.batched`): one pair solved by Newton, the
 others predicted from its sensitivity and corrected by chord steps on its
 scaled factorization (both laws are linear in the moduli), optionally shared
 with helper processes (setting ``processes``).
@@ -33,7 +36,10 @@ Markers are the body's, snapped to the reference mesh's surface (the
 comparison's truth) and then projected onto each model mesh's surface;
 shape-error points are placed in the reference mesh and located in each
 model mesh (points a coarse mesh misses take its nearest tet's clipped
-barycentric weights).
+barycentric weights). A body may instead place markers in the volume
+(``placement = "volume"``: used as given, interpolated in the tet containing
+them) and locate shape-error points exactly (``locate = "contained"``), as the
+beam does; its ``[[probe]]`` points give the traces' probes.
 """
 
 from __future__ import annotations
@@ -54,9 +60,14 @@ from scipy.spatial import cKDTree
 from idbench import ConfigError, Cost, ModelSpec, ParameterSpec, Scenario
 from idbench_fem.bodies import resolve
 from idbench_fem.bodies.catalog import body_path, get_body, get_mesh, mesh_file
-from idbench_fem.bodies.description import Body
-from idbench_fem.bodies.loads import nodal_forces
-from idbench_fem.bodies.mesh import SolidMesh, extent, project_to_surface
+from idbench_fem.bodies.description import Body, Markers, ShapeError
+from idbench_fem.bodies.loads import nodal_forces, traction_weights
+from idbench_fem.bodies.mesh import (
+    SolidMesh,
+    extent,
+    project_to_surface,
+    region_facets,
+)
 from idbench_fem.fem.batched import BatchedSteps
 from idbench_fem.fem.interpolation import (
     barycentric,
@@ -179,8 +190,19 @@ class SolidModel(BatchedSteps):
             self.manipulation, mesh, body.material.density, t=float(s.load_scale)
         )
         self._f_end = f1.ravel()[self._asm.free_dofs]
+        self._load_weights: FloatArray | None = None
+        if self.manipulation.kind == "traction":  # f(k) = w (k/K) t, per component
+            assert self.manipulation.region is not None
+            facets = region_facets(mesh, self.manipulation.region)
+            weights = traction_weights(mesh, facets)
+            self._load_weights = np.repeat(weights, 3)[self._asm.free_dofs]
+            self._load_component = np.tile(np.arange(3), self.n_nodes)[
+                self._asm.free_dofs
+            ]
+            self._traction = float(s.load_scale) * np.asarray(self.manipulation.vector)
+        end = float(np.linalg.norm(self.external_force(self.n_steps)))
         self.atol = (
-            float(s.atol or ATOL) * float(np.linalg.norm(self._f_end))
+            float(s.atol or ATOL) * end
             if absolute_atol is None
             else float(absolute_atol)
         )
@@ -246,8 +268,7 @@ class SolidModel(BatchedSteps):
         self._cost[0] += 1
         self._factored_key = None
         for j in range(1, substeps + 1):
-            t = (k - 1 + j / substeps) / self.n_steps
-            u, _ = self._newton(modulus, t * self._f_end, u, k)
+            u, _ = self._newton(modulus, self._load(k, j / substeps), u, k)
         self._remember_factorization(theta, u)
         return u
 
@@ -348,7 +369,9 @@ class SolidModel(BatchedSteps):
 
     def external_force(self, k: int) -> FloatArray:
         """External force on the free dofs at step ``k``, (n_state,)."""
-        return (k / self.n_steps) * self._f_end
+        if self._load_weights is None:
+            return (k / self.n_steps) * self._f_end
+        return self._spread((k / self.n_steps) * self._traction)
 
     def internal_force(self, theta: FloatArray, state: FloatArray) -> FloatArray:
         """Internal force f_int(state; theta) on the free dofs, (n_state,)."""
@@ -373,6 +396,19 @@ class SolidModel(BatchedSteps):
 
     # -- internals -------------------------------------------------------------
 
+    def _load(self, k: int, fraction: float) -> FloatArray:
+        """The load ``fraction`` of the way from step k - 1's to step k's."""
+        if self._load_weights is None:
+            return ((k - 1 + fraction) / self.n_steps) * self._f_end
+        t0 = ((k - 1) / self.n_steps) * self._traction
+        t1 = (k / self.n_steps) * self._traction
+        return self._spread(t0 + fraction * (t1 - t0))
+
+    def _spread(self, traction: FloatArray) -> FloatArray:
+        """Nodal forces on the free dofs of a uniform traction vector (3,)."""
+        assert self._load_weights is not None
+        return np.asarray(self._load_weights * traction[self._load_component])
+
     def _modulus(self, theta: FloatArray, k: int | None) -> FloatArray:
         th = self._theta(theta, k)
         return np.asarray(th[self._regions] * self._factors)
@@ -391,11 +427,16 @@ def _digest(path: Path) -> str:
 
 
 def _body_digest(body: Body) -> str:
-    """The body file's SHA-256; of its description for a body built in memory."""
+    """The body file's SHA-256; of what the states depend on for a body in memory.
+
+    That is its description without markers, shape-error points and probes,
+    so that one truth serves every marker count (as the truth's key wants).
+    """
     path = Path(body.source)
     if path.is_file():
         return _digest(path)
-    return hashlib.sha256(repr(body).encode()).hexdigest()
+    states = replace(body, markers=Markers(), shape_error=ShapeError(), probes=())
+    return hashlib.sha256(repr(states).encode()).hexdigest()
 
 
 def _mesh_digest(mesh: SolidMesh) -> str:
