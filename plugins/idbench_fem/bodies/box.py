@@ -14,9 +14,7 @@ A mesh spec is one of
 
 from __future__ import annotations
 
-import contextlib
 import functools
-import io
 import math
 import os
 import re
@@ -25,7 +23,13 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench_fem.bodies.mesh import Region, SolidMesh, region_facets, region_nodes
+from idbench_fem.bodies.mesh import (
+    Region,
+    SolidMesh,
+    read_mesh,
+    region_facets,
+    region_nodes,
+)
 from idbench_fem.bodies.mesh import from_arrays as solid_mesh
 
 LENGTH = 0.2
@@ -54,10 +58,6 @@ def max_nodes() -> int:
         raise ValueError(f"{MAX_NODES_ENV}={text!r}: need a whole number") from None
 
 
-_OTHER_SOLIDS = {
-    "hexahedron", "hexahedron20", "hexahedron24", "hexahedron27", "wedge",
-    "wedge15", "pyramid", "pyramid13", "pyramid14", "tetra10", "tetra20",
-}  # fmt: skip
 
 
 def divisions_for_nodes(
@@ -157,20 +157,6 @@ def from_arrays(
     ValueError
         Bad arrays, degenerate or inverted tets, no end faces (one line).
     """
-    points = np.asarray(points)
-    tets = np.asarray(tets)
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"mesh {spec!r}: points must have shape (N, 3)")
-    if tets.ndim != 2 or tets.shape[1] != 4 or len(tets) == 0:
-        raise ValueError(f"mesh {spec!r}: needs tetrahedra, shape (T, 4)")
-    if not np.all(np.isfinite(points)):
-        raise ValueError(f"mesh {spec!r}: has non-finite node coordinates")
-    outside = (tets < 0) | (tets >= len(points))
-    if np.any(outside):
-        raise ValueError(
-            f"mesh {spec!r}: a tetrahedron refers to node {int(tets[outside][0])}, "
-            f"but the nodes are numbered 0..{len(points) - 1}"
-        )
     mesh = solid_mesh(points, tets, spec)
     clamped = _nodes_or_none(mesh, clamped_face(mesh))
     on_start = np.zeros(len(mesh.points), dtype=bool)
@@ -204,37 +190,15 @@ def _facets_or_none(mesh: SolidMesh, region: Region) -> NDArray[np.int64]:
 
 
 def read_file(path: str | Path, spec: str | None = None) -> SolidMesh:
-    """Read a tetrahedral mesh file with meshio."""
-    import meshio
+    """Read a tetrahedral beam mesh file (:func:`~idbench_fem.bodies.mesh.read_mesh`).
 
-    path = Path(path)
-    chatter = io.StringIO()
-    try:  # meshio prints its own error and may even sys.exit(1): keep it quiet
-        with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
-            m = meshio.read(path)
-    except (Exception, SystemExit) as exc:
-        why = " ".join(chatter.getvalue().split()) or f"{type(exc).__name__}: {exc}"
-        raise ValueError(
-            f"mesh file {str(path)!r}: meshio cannot read it ({why}); give a "
-            "tetrahedral mesh file (.msh, .vtu, .xdmf, ...) or NXxNYxNZ or a "
-            "node count"
-        ) from None
-    tets = [c.data for c in m.cells if c.type == "tetra"]
-    kinds = sorted({c.type for c in m.cells})
-    if not tets:
-        raise ValueError(
-            f"mesh file {str(path)!r} has no 'tetra' cells (found {kinds}); "
-            "only linear tetrahedra are supported"
-        )
-    if others := sorted(set(kinds) & _OTHER_SOLIDS):
-        raise ValueError(
-            f"mesh file {str(path)!r} mixes tetrahedra with {others} cells; "
-            "only linear tetrahedra are supported"
-        )
-    points = np.asarray(m.points, dtype=float)
-    if points.shape[1] != 3:
-        raise ValueError(f"mesh file {str(path)!r} is not 3-D")
-    return from_arrays(points, np.concatenate(tets), spec or str(path))
+    Raises
+    ------
+    ValueError
+        Unreadable file, no or not only linear tets, no end faces (one line).
+    """
+    mesh = read_mesh(path)
+    return from_arrays(mesh.points, mesh.tets, spec or str(path))
 
 
 def parse(spec: str) -> SolidMesh:

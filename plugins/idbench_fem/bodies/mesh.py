@@ -23,6 +23,12 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 Vec = tuple[float, float, float]
 
+_OTHER_SOLIDS = {
+    "hexahedron", "hexahedron20", "hexahedron24", "hexahedron27", "wedge",
+    "wedge15", "pyramid", "pyramid13", "pyramid14", "tetra10", "tetra20",
+}  # fmt: skip
+"""Volume cells other than linear tets (a mesh mixing them in is refused)."""
+
 _LOCAL_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
 """Faces of a positively oriented tet, outward normals by the right-hand rule."""
 
@@ -287,10 +293,16 @@ def from_arrays(
         raise ValueError(
             f"mesh {path!r} has no tetrahedra; a solid needs 'tetra' cells"
         )
-    if points.ndim != 2 or points.shape[1] != 3 or not np.isfinite(points).all():
-        raise ValueError(f"mesh {path!r}: points must be finite, shape (N, 3)")
-    if tets.min() < 0 or tets.max() >= len(points):
-        raise ValueError(f"mesh {path!r}: a tetrahedron refers to a missing node")
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"mesh {path!r}: points must have shape (N, 3)")
+    if not np.isfinite(points).all():
+        raise ValueError(f"mesh {path!r}: has non-finite node coordinates")
+    outside = (tets < 0) | (tets >= len(points))
+    if outside.any():
+        raise ValueError(
+            f"mesh {path!r}: a tetrahedron refers to node {int(tets[outside][0])}, "
+            f"but the nodes are numbered 0..{len(points) - 1}"
+        )
     used = np.unique(tets)
     remap = np.full(len(points), -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
@@ -380,11 +392,16 @@ def read_mesh(path: str | Path) -> SolidMesh:
             offsets[i] = n
             n += len(block.data)
             tets.append(block.data)
+    kinds = sorted({c.type for c in m.cells})
     if not tets:
-        kinds = sorted({c.type for c in m.cells})
         raise ValueError(
             f"mesh file {str(path)!r} has no 'tetra' cells (found {kinds}); "
             "a solid needs linear tetrahedra"
+        )
+    if others := sorted(set(kinds) & _OTHER_SOLIDS):
+        raise ValueError(
+            f"mesh file {str(path)!r} mixes tetrahedra with {others} cells; "
+            "only linear tetrahedra are supported"
         )
     cell_sets: dict[str, IntArray] = {}
     triangle_sets: dict[str, IntArray] = {}
