@@ -28,9 +28,11 @@ from _felupe import felupe_path
 from _timing import best_of, model_path, node_counts, one_blas_thread, ratio
 
 from idbench_fem.bodies import box as meshes
-from idbench_fem.models.beam import SvkBeam
+from idbench_fem.bodies.loads import traction_forces
+from idbench_fem.bodies.mesh import region_facets
+from idbench_fem.models.beam import build
 from idbench_fem.models.beam_scenarios import SCENARIOS
-from idbench_fem.models.beam_settings import EndTraction
+from idbench_fem.models.beam_settings import BeamSettings, EndTraction
 
 E, NU = 5000.0, 0.45
 N_STEPS = 4
@@ -71,8 +73,8 @@ def svk_material(E, nu):
 
 
 def ours(beam):
-    model = SvkBeam(
-        beam, SCENARIO, n_steps=N_STEPS, nu=NU, options={"solver": "pardiso"}
+    model = build(
+        beam, SCENARIO, N_STEPS, settings=BeamSettings(nu=NU, solver="pardiso")
     )
     run = model_path(model, np.array([E]))
     c0, f0 = model.cost(), model.factorizations
@@ -105,7 +107,8 @@ def ours(beam):
 
 
 def felupe_solve(beam, tols):
-    w = beam.nodal_traction_weights()
+    end = region_facets(beam, meshes.loaded_face(beam))
+    w = traction_forces(beam, end, np.array([1.0, 0.0, 0.0]))[:, 0]  # area / 3
 
     def nodal_loads(k):
         return w[:, None] * EndTraction.of(SCENARIO).traction(k, N_STEPS)[None, :]

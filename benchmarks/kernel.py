@@ -21,7 +21,7 @@ import numpy as np
 from _timing import best_of, one_blas_thread, parser, ratio
 
 from idbench_fem.bodies import box as meshes
-from idbench_fem.models.beam import SvkBeam
+from idbench_fem.models.beam import build
 from idbench_fem.models.beam_scenarios import SCENARIOS
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
@@ -35,7 +35,7 @@ def best(f, repeat=20):
 
 def row(size: str) -> None:
     """Time the kernels at step 10 of bend-y on the mesh ``size``; print one row."""
-    m = SvkBeam(meshes.parse(size), SCENARIOS[0], n_steps=20)
+    m = build(meshes.parse(size), SCENARIOS[0], n_steps=20)
     theta = np.array([5000.0])
     u = m.reset()
     for k in range(1, 11):

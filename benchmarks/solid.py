@@ -32,9 +32,9 @@ from _timing import model_path, node_counts, one_blas_thread, race, ratio
 
 import idbench
 from idbench_fem.bodies import box as meshes
-from idbench_fem.models.beam import SvkBeam
+from idbench_fem.models.beam import build
 from idbench_fem.models.beam_scenarios import SCENARIOS
-from idbench_fem.models.beam_settings import EndTraction
+from idbench_fem.models.beam_settings import BeamSettings, EndTraction
 from idbench_fem.models.solid import make_model
 
 E, NU = 5000.0, 0.45
@@ -127,7 +127,9 @@ def row(n):
     with tempfile.TemporaryDirectory() as tmp:
         svk_body = beam_body(beam, Path(tmp), "svk")
         nh_body = beam_body(beam, Path(tmp), "neo-hookean")
-        ref = SvkBeam(beam, SCENARIO, N_STEPS, NU, options={"solver": "pardiso"})
+        ref = build(
+            beam, SCENARIO, N_STEPS, settings=BeamSettings(nu=NU, solver="pardiso")
+        )
         models = [ref, solid(svk_body), solid(svk_body, kernel="general")]
         (t_beam, t_solid, t_gen), (u_beam, u_solid, u_gen) = paths(models)
         scale = np.abs(u_beam).max()

@@ -41,7 +41,7 @@ MOVED = {
     "model": "idbench_fem.models.beam",
     "newton": "idbench_fem.fem.newton",
     "probes": "idbench_fem.fem.interpolation",
-    "regions": "idbench_fem.bodies.regions",
+    "regions": "idbench_fem.models.beam",
     "resolve": "idbench_fem.bodies.resolve",
     "scenarios": "idbench_fem.models.beam_scenarios",
     "settings": "idbench_fem.models.beam_settings",

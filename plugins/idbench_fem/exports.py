@@ -13,12 +13,11 @@ from typing import Any
 EXPORTS = {
     "models.solid": "SolidModel",
     "models.solid_settings": "SolidSettings",
-    "models.beam": "SvkBeam",
+    "models.beam": "SvkBeam beam_body",
     "models.beam_settings": "BeamSettings EndTraction end_traction",
     "bodies.description": "Body load_body parse_body",
     "bodies.catalog": "SHIPPED body_path get_body get_mesh",
     "bodies.mesh": "Region SolidMesh read_mesh",
-    "bodies.box": "BeamMesh",
     "bodies.loads": "nodal_forces",
     "bodies.geometry": "make_meshes",
     "fem.materials": "LAWS NeoHookean Svk make_material",

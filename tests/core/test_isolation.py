@@ -97,7 +97,7 @@ HOSTILE = '''
 CASES = {  # estimator: words its run's error must hold
     "scales": "read-only",
     "shortens": "changed the model it was given (describe, n_steps)",
-    "replaces": "changed the model it was given (array _load_dir, array _load_weights",
+    "replaces": "changed the model it was given (array _f_end, array _factors, array",
     "deep": "read-only",
     "sparse": "read-only",
 }

@@ -114,7 +114,7 @@ def _inverted(path: Path) -> Path:
 
 
 def _degenerate(path: Path) -> Path:
-    flat = GOOD.clamped[:4]  # four nodes of the face x = 0: zero volume
+    flat = np.flatnonzero(GOOD.points[:, 0] == 0)[:4]  # on the face x = 0: flat
     _write(path, GOOD.points, [("tetra", np.vstack([GOOD.tets, flat]))])
     return path
 

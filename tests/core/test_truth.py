@@ -129,12 +129,12 @@ def test_simulate_cli_rejects_bad_input(tmp_path, capsys):
 
 def test_simulate_cli_writes_the_models_cell_data(tmp_path, capsys, monkeypatch):
     """A model's optional ``cell_data()`` (region tags) goes with every step."""
-    from idbench_fem.models import beam as beam_model
+    from idbench_fem.models import solid
 
     def cell_data(self):
-        return {"region": np.arange(len(self.beam.tets), dtype=float)}
+        return {"region": np.arange(len(self.mesh_data.tets), dtype=float)}
 
-    monkeypatch.setattr(beam_model.SvkBeam, "cell_data", cell_data, raising=False)
+    monkeypatch.setattr(solid.SolidModel, "cell_data", cell_data)
     out = tmp_path / "beam.xdmf"
     assert main(["simulate", "--mesh", "4x1x1", "--scenario", "bend-y",
                  "--steps", "2", "--out", str(out)]) == 0  # fmt: skip

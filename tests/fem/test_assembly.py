@@ -4,17 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from beams import beam_model
 from oracles import svk_forms, v01_kernel
 
 import idbench
 from idbench_fem.bodies import box
-from idbench_fem.models.beam import SvkBeam
 from idbench_fem.models.beam_scenarios import SCENARIOS
 
 
 def _model(nu=0.3, solver=None, spec="4x2x2"):
     options = {"regions": 2} | ({"solver": solver} if solver else {})
-    return SvkBeam(
+    return beam_model(
         box.parse(spec),
         SCENARIOS[3],
         n_steps=5,
@@ -52,10 +52,10 @@ def test_matches_scikit_fem_forms(nu):
     u = _state(m)
     r = m.internal_force(theta, u)
     K = m.tangent(theta, u).toarray()
-    free = np.setdiff1d(np.arange(m.n_nodes), m.beam.clamped)
+    free = np.setdiff1d(np.arange(m.n_nodes), m.fixed_nodes)
     r_ref, K_ref = svk_forms.residual_and_tangent(
-        m.beam.points,
-        m.beam.tets,
+        m.mesh_data.points,
+        m.mesh_data.tets,
         free,
         m.displacement_field(u),
         theta[m._regions],

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from beams import beam_model
 from toymodels import LinearToy
 
 import idbench
 from idbench import ModelFailure, ModelSpec, Observation, Prior
 from idbench.testing import WithoutStepMany, check_batch_model
 from idbench_fem.bodies import box
-from idbench_fem.models.beam import SvkBeam
 from idbench_fem.models.beam_scenarios import SCENARIOS
 from idbench_filters import RoUkf, Ukf
 from idbench_filters._common import advance_many
@@ -19,7 +19,7 @@ E_TRUE = 5000.0
 
 
 def _beam(spec="6x2x2", n_steps=6, **kw):
-    return SvkBeam(box.parse(spec), SCENARIOS[0], n_steps=n_steps, **kw)
+    return beam_model(box.parse(spec), SCENARIOS[0], n_steps=n_steps, **kw)
 
 
 def _path(model, theta, steps):

@@ -6,11 +6,12 @@ import sys
 
 import numpy as np
 import pytest
+from beams import beam_model
 
 from idbench_fem.bodies import box as meshes
+from idbench_fem.bodies.mesh import region_nodes
 from idbench_fem.fem import kernels
 from idbench_fem.fem.svk_assembly import Assembler
-from idbench_fem.models.beam import SvkBeam
 from idbench_fem.models.beam_scenarios import SCENARIOS
 
 numba = pytest.importorskip("numba")  # in the test extra; optional for users
@@ -19,7 +20,7 @@ numba = pytest.importorskip("numba")  # in the test extra; optional for users
 def _pair(spec: str = "6x2x2") -> tuple[Assembler, Assembler]:
     beam = meshes.parse(spec)
     free = np.ones(len(beam.points), dtype=bool)
-    free[beam.clamped] = False
+    free[region_nodes(beam, meshes.clamped_face(beam))] = False
     args = (beam.points, beam.tets, free, 0.45)
     return Assembler(*args, compiled=True), Assembler(*args, compiled=False)
 
@@ -72,7 +73,7 @@ def test_a_load_path_equals_the_numpy_one(monkeypatch):
     states = []
     for flag in ("1", "0"):
         monkeypatch.setenv(kernels.ENV, flag)
-        model = SvkBeam(meshes.parse("6x2x2"), SCENARIOS[1], n_steps=4)
+        model = beam_model(meshes.parse("6x2x2"), SCENARIOS[1], n_steps=4)
         assert model._asm.compiled is (flag == "1")
         u = model.reset()
         for k in range(1, 5):
@@ -107,7 +108,7 @@ def test_numba_that_does_not_import_means_numpy(tmp_path, monkeypatch):
     kernels._numba_works.cache_clear()
     try:
         assert not kernels.available()
-        beam = SvkBeam(meshes.parse("4x1x1"), SCENARIOS[1], n_steps=2)
+        beam = beam_model(meshes.parse("4x1x1"), SCENARIOS[1], n_steps=2)
         assert not beam._asm.compiled
         beam.step(np.array([5000.0]), 1, beam.reset())
     finally:

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from idbench_fem.bodies import box
+from idbench_fem.bodies.mesh import region_facets, region_nodes
 from idbench_fem.fem.interpolation import (
     grid_points,
     interpolation_matrix,
@@ -14,16 +15,23 @@ from idbench_fem.fem.interpolation import (
 )
 
 
+def _clamped(m):
+    return region_nodes(m, box.clamped_face(m))
+
+
+def _loaded(m):
+    return region_facets(m, box.loaded_face(m))
+
+
 def test_divisions_spec():
     m = box.parse("14x3x3")
     assert m.points.shape == (15 * 4 * 4, 3)
     assert m.tets.shape == (14 * 9 * 6, 4)
-    np.testing.assert_allclose(m.size, [box.LENGTH, box.WIDTH, box.HEIGHT])
-    assert len(m.clamped) == 16
-    assert len(m.loaded_faces) == 2 * 9
-    np.testing.assert_allclose(
-        m.nodal_traction_weights().sum(), box.WIDTH * box.HEIGHT
-    )
+    np.testing.assert_allclose(m.upper - m.lower, [box.LENGTH, box.WIDTH, box.HEIGHT])
+    assert len(_clamped(m)) == 16
+    assert np.all(m.points[_clamped(m), 0] == 0.0)
+    assert len(_loaded(m)) == 2 * 9
+    np.testing.assert_allclose(m.facet_areas(_loaded(m)).sum(), box.WIDTH * box.HEIGHT)
     x = m.points[m.tets]
     vol = np.einsum(
         "ti,ti->t", x[:, 1] - x[:, 0], np.cross(x[:, 2] - x[:, 0], x[:, 3] - x[:, 0])
@@ -73,9 +81,9 @@ def test_meshio_round_trip(tmp_path, suffix):
     back = box.parse(str(path))
     np.testing.assert_allclose(back.points, m.points)
     np.testing.assert_array_equal(back.tets, m.tets)
-    np.testing.assert_array_equal(back.clamped, m.clamped)
+    np.testing.assert_array_equal(_clamped(back), _clamped(m))
     np.testing.assert_allclose(
-        back.nodal_traction_weights(), m.nodal_traction_weights()
+        back.facet_areas(_loaded(back)), m.facet_areas(_loaded(m))
     )
 
 
@@ -109,7 +117,7 @@ def test_grid_strictly_inside():
 def test_probe_interpolates_linear_fields_exactly():
     m = box.parse("5x2x2")
     free = np.ones(len(m.points), bool)
-    free[m.clamped] = False
+    free[_clamped(m)] = False
     f2f = np.full(3 * len(m.points), -1)
     f2f[np.repeat(free, 3)] = np.arange(3 * free.sum())
     rng = np.random.default_rng(0)

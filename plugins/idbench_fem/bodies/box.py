@@ -1,4 +1,4 @@
-"""Beam meshes: parse a mesh spec into linear tetrahedra and find the boundary.
+"""Box meshes of the beam: parse a mesh spec into a :class:`SolidMesh`.
 
 A mesh spec is one of
 
@@ -9,25 +9,28 @@ A mesh spec is one of
   elements as near cubic as the section allows;
 - anything else: a path to a tetrahedral mesh file that meshio reads. The body
   is its bounding box: the clamped face is x = min x, the loaded face x = max x,
-  both found geometrically.
+  both found geometrically (:func:`clamped_face`, :func:`loaded_face`).
 """
 
 from __future__ import annotations
 
-import contextlib
 import functools
-import hashlib
-import io
 import math
 import os
 import re
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench_fem.bodies.mesh import check_connected, check_not_folded
+from idbench_fem.bodies.mesh import (
+    Region,
+    SolidMesh,
+    read_mesh,
+    region_facets,
+    region_nodes,
+)
+from idbench_fem.bodies.mesh import from_arrays as solid_mesh
 
 LENGTH = 0.2
 """Default beam length along x (m)."""
@@ -55,66 +58,6 @@ def max_nodes() -> int:
         raise ValueError(f"{MAX_NODES_ENV}={text!r}: need a whole number") from None
 
 
-_OTHER_SOLIDS = {
-    "hexahedron", "hexahedron20", "hexahedron24", "hexahedron27", "wedge",
-    "wedge15", "pyramid", "pyramid13", "pyramid14", "tetra10", "tetra20",
-}  # fmt: skip
-
-
-@dataclass(frozen=True)
-class BeamMesh:
-    """A tetrahedral beam and its boundary.
-
-    Attributes
-    ----------
-    spec
-        The mesh spec it was built from.
-    points
-        Node coordinates, shape (N, 3).
-    tets
-        Connectivity, shape (T, 4), positively oriented.
-    lower, upper
-        Bounding-box corners, shape (3,) each.
-    clamped
-        Indices of the nodes on the clamped face x = min x.
-    loaded_faces
-        Node triples of the boundary triangles on the loaded face x = max x,
-        shape (F, 3).
-    """
-
-    spec: str
-    points: NDArray[np.float64]
-    tets: NDArray[np.int64]
-    lower: NDArray[np.float64]
-    upper: NDArray[np.float64]
-    clamped: NDArray[np.int64]
-    loaded_faces: NDArray[np.int64]
-
-    @property
-    def size(self) -> NDArray[np.float64]:
-        """Edge lengths (L, W, H) of the bounding box, shape (3,)."""
-        return self.upper - self.lower
-
-    def digest(self) -> str:
-        """SHA-256 of the node coordinates and the connectivity."""
-        h = hashlib.sha256()
-        h.update(np.ascontiguousarray(self.points, dtype="<f8").tobytes())
-        h.update(np.ascontiguousarray(self.tets, dtype="<i8").tobytes())
-        return h.hexdigest()
-
-    def nodal_traction_weights(self) -> NDArray[np.float64]:
-        """Nodal weights of a uniform traction on the loaded face, shape (N,).
-
-        For P1 triangles the consistent load of a uniform traction t is
-        ``t * area / 3`` per vertex; the weights sum to the face area.
-        """
-        p = self.points[self.loaded_faces]
-        area = 0.5 * np.linalg.norm(
-            np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1
-        )
-        w = np.zeros(len(self.points))
-        np.add.at(w, self.loaded_faces.ravel(), np.repeat(area / 3.0, 3))
-        return w
 
 
 def divisions_for_nodes(
@@ -147,7 +90,7 @@ def structured(
     nz: int,
     size: tuple[float, float, float] = (LENGTH, WIDTH, HEIGHT),
     spec: str | None = None,
-) -> BeamMesh:
+) -> SolidMesh:
     """Build the structured beam with ``nx x ny x nz`` hexes, each split into 6 tets.
 
     Built once per process and shared (its arrays are read-only): a sweep
@@ -169,7 +112,7 @@ def structured(
 @functools.lru_cache(maxsize=8)
 def _structured(
     nx: int, ny: int, nz: int, size: tuple[float, ...], spec: str
-) -> BeamMesh:
+) -> SolidMesh:
     from skfem import MeshTet
 
     m = MeshTet.init_tensor(
@@ -179,112 +122,86 @@ def _structured(
     )
     mesh = from_arrays(m.p.T, m.t.T, spec)
     for value in vars(mesh).values():
-        if isinstance(value, np.ndarray):
-            value.setflags(write=False)
+        for a in value.values() if isinstance(value, dict) else [value]:
+            if isinstance(a, np.ndarray):
+                a.setflags(write=False)
     return mesh
+
+
+def _tolerance(mesh: SolidMesh) -> float:
+    return 1e-9 * float(np.max(mesh.upper - mesh.lower))
+
+
+def clamped_face(mesh: SolidMesh) -> Region:
+    """The selector of the beam's clamped face x = min x (to 1e-9 of the size)."""
+    x0 = float(mesh.lower[0]) + _tolerance(mesh)
+    return Region(half_space=((x0, 0.0, 0.0), (-1.0, 0.0, 0.0)))
+
+
+def loaded_face(mesh: SolidMesh) -> Region:
+    """The selector of the beam's loaded face x = max x (to 1e-9 of the size)."""
+    x1 = float(mesh.upper[0]) - _tolerance(mesh)
+    return Region(half_space=((x1, 0.0, 0.0), (1.0, 0.0, 0.0)))
 
 
 def from_arrays(
     points: NDArray[np.float64], tets: NDArray[np.int64], spec: str
-) -> BeamMesh:
-    """Build a :class:`BeamMesh` from coordinates (N, 3) and tets (T, 4).
+) -> SolidMesh:
+    """Build the :class:`SolidMesh` of a beam from coordinates (N, 3) and tets (T, 4).
 
-    Orients every tet positively and finds the clamped and loaded faces.
+    Orients every tet positively and checks that the beam has flat end faces
+    normal to x (:func:`clamped_face`, :func:`loaded_face`).
+
+    Raises
+    ------
+    ValueError
+        Bad arrays, degenerate or inverted tets, no end faces (one line).
     """
-    points = np.ascontiguousarray(points, dtype=np.float64)
-    tets = np.ascontiguousarray(tets, dtype=np.int64).copy()
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"mesh {spec!r}: points must have shape (N, 3)")
-    if tets.ndim != 2 or tets.shape[1] != 4 or len(tets) == 0:
-        raise ValueError(f"mesh {spec!r}: needs tetrahedra, shape (T, 4)")
-    if not np.all(np.isfinite(points)):
-        raise ValueError(f"mesh {spec!r}: has non-finite node coordinates")
-    outside = (tets < 0) | (tets >= len(points))
-    if np.any(outside):
-        raise ValueError(
-            f"mesh {spec!r}: a tetrahedron refers to node {int(tets[outside][0])}, "
-            f"but the nodes are numbered 0..{len(points) - 1}"
-        )
-    used = np.unique(tets)
-    if len(used) != len(points):  # drop nodes no tet uses (e.g. gmsh geometry points)
-        remap = np.full(len(points), -1, dtype=np.int64)
-        remap[used] = np.arange(len(used))
-        points, tets = points[used], remap[tets]
-    x = points[tets]
-    det = np.einsum(
-        "ti,ti->t", x[:, 1] - x[:, 0], np.cross(x[:, 2] - x[:, 0], x[:, 3] - x[:, 0])
-    )
-    scale = float(np.max(np.ptp(points, axis=0)))
-    flat = np.abs(det) <= 1e-12 * scale**3
-    if np.any(flat):
-        raise ValueError(
-            f"mesh {spec!r}: has {int(flat.sum())} degenerate (zero-volume) "
-            f"tetrahedra, e.g. tetrahedron {int(np.argmax(flat))}"
-        )
-    flip = det < 0
-    tets[flip, 2], tets[flip, 3] = tets[flip, 3].copy(), tets[flip, 2].copy()
-    check_not_folded(points, tets, spec)
-    check_connected(len(points), tets, spec)
-    lower, upper = points.min(axis=0), points.max(axis=0)
-    tol = 1e-9 * scale
-    clamped = np.flatnonzero(np.abs(points[:, 0] - lower[0]) <= tol)
-    on_end = np.abs(points[:, 0] - upper[0]) <= tol
-    faces = np.concatenate(
-        [tets[:, [1, 2, 3]], tets[:, [0, 2, 3]], tets[:, [0, 1, 3]], tets[:, [0, 1, 2]]]
-    )
-    faces = faces[on_end[faces].all(axis=1)]
-    key = np.sort(faces, axis=1)
-    _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
-    loaded = faces[first[counts == 1]]
-    on_start = np.zeros(len(points), dtype=bool)
+    mesh = solid_mesh(points, tets, spec)
+    clamped = _nodes_or_none(mesh, clamped_face(mesh))
+    on_start = np.zeros(len(mesh.points), dtype=bool)
     on_start[clamped] = True
-    flat_start = on_start[tets].sum(axis=1) >= 3  # a tet with a face on x = min x
+    flat_start = on_start[mesh.tets].sum(axis=1) >= 3  # a tet with a face on x0
+    loaded = _facets_or_none(mesh, loaded_face(mesh))
     if len(clamped) < 3 or not np.any(flat_start) or len(loaded) == 0:
         which = "loaded face x = max x" if len(loaded) == 0 else ""
         if len(clamped) < 3 or not np.any(flat_start):
             which = "clamped face x = min x"
+        lo, hi = mesh.lower[0], mesh.upper[0]
         raise ValueError(
-            f"mesh {spec!r}: has no {which} (x = {lower[0]:g} .. {upper[0]:g}); "
+            f"mesh {spec!r}: has no {which} (x = {lo:g} .. {hi:g}); "
             "the beam must have flat end faces normal to x"
         )
-    return BeamMesh(spec, points, tets, lower, upper, clamped, loaded)
+    return mesh
 
 
-def read_file(path: str | Path, spec: str | None = None) -> BeamMesh:
-    """Read a tetrahedral mesh file with meshio."""
-    import meshio
-
-    path = Path(path)
-    chatter = io.StringIO()
-    try:  # meshio prints its own error and may even sys.exit(1): keep it quiet
-        with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
-            m = meshio.read(path)
-    except (Exception, SystemExit) as exc:
-        why = " ".join(chatter.getvalue().split()) or f"{type(exc).__name__}: {exc}"
-        raise ValueError(
-            f"mesh file {str(path)!r}: meshio cannot read it ({why}); give a "
-            "tetrahedral mesh file (.msh, .vtu, .xdmf, ...) or NXxNYxNZ or a "
-            "node count"
-        ) from None
-    tets = [c.data for c in m.cells if c.type == "tetra"]
-    kinds = sorted({c.type for c in m.cells})
-    if not tets:
-        raise ValueError(
-            f"mesh file {str(path)!r} has no 'tetra' cells (found {kinds}); "
-            "only linear tetrahedra are supported"
-        )
-    if others := sorted(set(kinds) & _OTHER_SOLIDS):
-        raise ValueError(
-            f"mesh file {str(path)!r} mixes tetrahedra with {others} cells; "
-            "only linear tetrahedra are supported"
-        )
-    points = np.asarray(m.points, dtype=float)
-    if points.shape[1] != 3:
-        raise ValueError(f"mesh file {str(path)!r} is not 3-D")
-    return from_arrays(points, np.concatenate(tets), spec or str(path))
+def _nodes_or_none(mesh: SolidMesh, region: Region) -> NDArray[np.int64]:
+    try:
+        return region_nodes(mesh, region)
+    except ValueError:
+        return np.empty(0, dtype=np.int64)
 
 
-def parse(spec: str) -> BeamMesh:
+def _facets_or_none(mesh: SolidMesh, region: Region) -> NDArray[np.int64]:
+    try:
+        return region_facets(mesh, region)
+    except ValueError:
+        return np.empty(0, dtype=np.int64)
+
+
+def read_file(path: str | Path, spec: str | None = None) -> SolidMesh:
+    """Read a tetrahedral beam mesh file (:func:`~idbench_fem.bodies.mesh.read_mesh`).
+
+    Raises
+    ------
+    ValueError
+        Unreadable file, no or not only linear tets, no end faces (one line).
+    """
+    mesh = read_mesh(path)
+    return from_arrays(mesh.points, mesh.tets, spec or str(path))
+
+
+def parse(spec: str) -> SolidMesh:
     """Build the beam mesh named by ``spec`` (see the module docstring).
 
     Raises

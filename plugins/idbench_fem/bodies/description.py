@@ -40,20 +40,28 @@ manipulated, what is observed and what is identified::
     [markers]              # points = [[x, y, z], ...] (snapped to the surface)
     region = "anterior"    # or all surface nodes of a region
     snap_distance = 0.005  # m, how far a marker may be from the surface
+    # placement = "volume" # points used as given, located in each mesh's tets
 
     [shape_error]
     grid = [10, 7, 6]      # regular grid clipped to the body, or nodes = true
     margin = 0.003         # m, keep grid points this far inside the surface
+    # locate = "contained" # every point must lie in each model mesh
 
     [parameters]           # absent: one E; else one E per region
     regions = ["parenchyma", "inclusion"]
+    # bounds = [1.0, 1e8]  # Pa, of every parameter (default 1e-3 E .. 1e3 E)
+
+    [[probe]]              # optional: traces get tip_x, tip_y, tip_z
+    name = "tip"           # (no probe: u_max, the largest displacement)
+    point = [0.2, 0.015, 0.015]
 
 Selectors (wherever a region is expected): ``"name"`` or ``{ name = ... }``,
 ``{ box = { lower = [...], upper = [...] } }``,
 ``{ sphere = { centre = [...], radius = r } }``,
 ``{ half_space = { point = [...], normal = [...] } }`` (the side the normal
 points to), ``{ patch = { point = [...], radius = r } }`` (the surface around
-the surface point nearest to ``point``).
+the surface point nearest to ``point``), ``{ slab = { index = i, count = n } }``
+(slab i of n equal slabs along x of the mesh's bounding box).
 
 A prescribed displacement is refused: with displacements imposed and only
 displacements observed, the solution of a body with one homogeneous E does
@@ -141,13 +149,27 @@ class Manipulation:
     transfer: str = ""
 
 
+PLACEMENTS = ("surface", "volume")
+"""How markers given by coordinates are read: snapped to the surface, or as is."""
+
+LOCATES = ("nearest", "contained")
+"""How shape-error points are located in a model mesh."""
+
+
 @dataclass(frozen=True)
 class Markers:
-    """Observed points: coordinates snapped to the surface, or a region's nodes."""
+    """Observed points: coordinates snapped to the surface, or a region's nodes.
+
+    ``placement = "surface"``: the points are snapped to the reference mesh's
+    surface and projected onto each model mesh's; ``"volume"``: they are
+    used as given and interpolated in the tet of each model mesh that
+    contains them (points on the boundary of a box, say).
+    """
 
     points: tuple[Vec, ...] = ()
     region: Region | None = None
     snap_distance: float = 0.005
+    placement: str = "surface"
 
 
 @dataclass(frozen=True)
@@ -157,6 +179,9 @@ class ShapeError:
     grid: tuple[int, int, int] = (10, 8, 6)
     nodes: bool = False
     margin: float = 0.0
+    locate: str = "nearest"
+    """``"nearest"``: a point a coarse mesh misses takes the clipped weights of
+    its nearest tet; ``"contained"``: every point must lie in each model mesh."""
 
 
 @dataclass(frozen=True)
@@ -181,6 +206,11 @@ class Body:
     markers: Markers
     shape_error: ShapeError
     parameter_regions: tuple[Region, ...] = ()
+    parameter_bounds: tuple[float, float] | None = None
+    """Bounds (Pa) of every parameter; None: 1e-3 E to 1e3 E."""
+    probes: tuple[tuple[str, Vec], ...] = ()
+    """Named points whose displacements are the traces' probes (``NAME_x``
+    ...); none: the largest nodal displacement ``u_max``."""
 
     def manipulation(self, name: str) -> Manipulation:
         """The manipulation called ``name``."""
@@ -253,6 +283,17 @@ class _TableReader:
     def _selector(self, key: str, kind: str, spec: Any) -> Region:
         if kind == "name":
             return self.region(key, spec)
+        if kind == "slab":
+            ok = isinstance(spec, dict) and set(spec) == {"index", "count"}
+            index, count = (spec.get("index"), spec.get("count")) if ok else (0, 0)
+            if not ok or not all(
+                isinstance(v, int) and not isinstance(v, bool) for v in (index, count)
+            ) or not 0 <= index < count:
+                raise self.error(
+                    f"{key} = {spec!r}: need a table with whole numbers index and "
+                    "count, 0 <= index < count"
+                )
+            return Region(slab=(index, count))
         fields = {
             "box": ("lower", "upper"),
             "sphere": ("centre", "radius"),
@@ -311,6 +352,7 @@ def parse_body(
         "markers",
         "shape_error",
         "parameters",
+        "probe",
     )
     _TableReader(source, "body").keys(raw, top)
 
@@ -384,7 +426,7 @@ def parse_body(
 
     mk = _table(raw, "markers", source)
     c = _TableReader(source, "[markers]")
-    c.keys(mk, ("points", "region", "snap_distance"))
+    c.keys(mk, ("points", "region", "snap_distance", "placement"))
     if ("points" in mk) == ("region" in mk):
         raise c.error("needs exactly one of points = [[x, y, z], ...] or region = ...")
     pts = mk.get("points", [])
@@ -394,13 +436,14 @@ def parse_body(
         tuple(c.vector(f"points[{i}]", p) for i, p in enumerate(pts)),
         c.region("region", mk["region"]) if "region" in mk else None,
         c.number("snap_distance", mk.get("snap_distance", 0.005), positive=True),
+        _choice(c, "placement", mk.get("placement", "surface"), PLACEMENTS),
     )
     if "points" in mk and not markers.points:
         raise c.error("points = []: need at least one marker")
 
     se = _table(raw, "shape_error", source)
     c = _TableReader(source, "[shape_error]")
-    c.keys(se, ("grid", "nodes", "margin"))
+    c.keys(se, ("grid", "nodes", "margin", "locate"))
     grid = se.get("grid", [10, 8, 6])
     if (
         not isinstance(grid, list)
@@ -416,11 +459,14 @@ def parse_body(
     margin = c.number("margin", se.get("margin", 0.0))
     if margin < 0:
         raise c.error(f"margin = {margin:g}: need >= 0 (m)")
-    shape_error = ShapeError((grid[0], grid[1], grid[2]), nodes, margin)
+    shape_error = ShapeError(
+        (grid[0], grid[1], grid[2]), nodes, margin,
+        _choice(c, "locate", se.get("locate", "nearest"), LOCATES),
+    )  # fmt: skip
 
     pa = _table(raw, "parameters", source)
     c = _TableReader(source, "[parameters]")
-    c.keys(pa, ("regions",))
+    c.keys(pa, ("regions", "bounds"))
     regions = pa.get("regions", [])
     if not isinstance(regions, list) or len(regions) == 1:
         raise c.error(
@@ -430,6 +476,14 @@ def parse_body(
     parameter_regions = tuple(
         c.region(f"regions[{i}]", r) for i, r in enumerate(regions)
     )
+    bounds = pa.get("bounds")
+    if bounds is not None:
+        if not isinstance(bounds, list) or len(bounds) != 2:
+            raise c.error(f"bounds = {bounds!r}: need [lower, upper] in Pa")
+        lo, hi = (c.number("bounds", b, positive=True) for b in bounds)
+        if not lo < hi:
+            raise c.error(f"bounds = {bounds!r}: need lower < upper")
+        bounds = (lo, hi)
     return Body(
         source,
         meshes,
@@ -439,7 +493,32 @@ def parse_body(
         markers,
         shape_error,
         parameter_regions,
+        bounds,
+        _probes(raw.get("probe", []), source),
     )
+
+
+def _choice(c: _TableReader, key: str, value: Any, allowed: tuple[str, ...]) -> str:
+    if value not in allowed:
+        raise c.error(f"{key} = {value!r}: allowed are {', '.join(allowed)}")
+    return str(value)
+
+
+def _probes(raw: Any, source: str) -> tuple[tuple[str, Vec], ...]:
+    """``[[probe]]`` tables: ``name`` and ``point`` (a point in the body)."""
+    if not isinstance(raw, list):
+        raise ValueError(f"{source}: [[probe]] must be a list of tables")
+    out = []
+    for i, p in enumerate(raw):
+        c = _TableReader(source, f"[[probe]] {i}")
+        if not isinstance(p, dict):
+            raise c.error("must be a table with name and point")
+        c.keys(p, ("name", "point"))
+        name = p.get("name")
+        if not isinstance(name, str) or not name.isidentifier():
+            raise c.error(f"name = {name!r}: need a name (letters, digits, _)")
+        out.append((name, c.vector("point", p.get("point"))))
+    return tuple(out)
 
 
 def _manipulation(raw: Any, i: int, source: str) -> Manipulation:

@@ -56,6 +56,22 @@ def traction_forces(
     return _scatter(mesh, mesh.facets[facets].ravel(), load)
 
 
+def traction_weights(mesh: SolidMesh, facets: IntArray) -> FloatArray:
+    """Nodal weights (N,) of a uniform traction on ``facets``: area / 3 per vertex.
+
+    The force of a traction vector t is ``weights[:, None] * t``. Each node's
+    sum runs over its facets in the order of their sorted node triples, so
+    the weights do not depend on how a mesh numbers its facets.
+    """
+    tri = np.sort(mesh.facets[facets], axis=1)
+    facets = np.asarray(facets)[np.lexsort(tri.T[::-1])]
+    w = np.zeros(len(mesh.points))
+    np.add.at(
+        w, mesh.facets[facets].ravel(), np.repeat(mesh.facet_areas(facets) / 3.0, 3)
+    )
+    return w
+
+
 def pressure_forces(mesh: SolidMesh, facets: IntArray, pressure: float) -> FloatArray:
     """Nodal forces (N, 3) of a dead pressure (positive: into the body)."""
     n2a = mesh.facet_normals(facets)  # outward normal times twice the area

@@ -11,6 +11,7 @@ name or by a geometric selector (:class:`Region`).
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import io
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +22,12 @@ from numpy.typing import NDArray
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 Vec = tuple[float, float, float]
+
+_OTHER_SOLIDS = {
+    "hexahedron", "hexahedron20", "hexahedron24", "hexahedron27", "wedge",
+    "wedge15", "pyramid", "pyramid13", "pyramid14", "tetra10", "tetra20",
+}  # fmt: skip
+"""Volume cells other than linear tets (a mesh mixing them in is refused)."""
 
 _LOCAL_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
 """Faces of a positively oriented tet, outward normals by the right-hand rule."""
@@ -44,6 +51,14 @@ class Region:
         (point, radius): the surface around the surface point nearest to
         ``point``: boundary facets whose centroid lies within radius of it,
         and always the facet containing it.
+    slab
+        (index, count): slab ``index`` (0-based) of ``count`` equal slabs
+        along x of the mesh's bounding box: points x with
+        ``min(floor(count (x - x_min) / (x_max - x_min)), count - 1) == index``
+        (a point on a slab boundary belongs to the slab after it).
+    excluding
+        Not a selector: what the region leaves out (a slab around an
+        inclusion, say); cells, facets and nodes that it selects are removed.
     """
 
     name: str | None = None
@@ -51,6 +66,8 @@ class Region:
     sphere: tuple[Vec, float] | None = None
     half_space: tuple[Vec, Vec] | None = None
     patch: tuple[Vec, float] | None = None
+    slab: tuple[int, int] | None = None
+    excluding: Region | None = None
 
     def __post_init__(self) -> None:
         given = [k for k in SELECTORS if getattr(self, k) is not None]
@@ -58,6 +75,8 @@ class Region:
             raise ValueError(
                 f"region: give exactly one of {', '.join(SELECTORS)} (got {given})"
             )
+        if self.slab is not None and not 0 <= self.slab[0] < self.slab[1]:
+            raise ValueError(f"region slab {self.slab!r}: need 0 <= index < count")
 
     @property
     def kind(self) -> str:
@@ -66,12 +85,17 @@ class Region:
 
     def describe(self) -> str:
         """Short text for messages, e.g. ``'ligament'`` or ``sphere (...)``."""
-        if self.name is not None:
-            return repr(self.name)
-        return f"{self.kind} {getattr(self, self.kind)!r}"
+        text = (
+            repr(self.name)
+            if self.name is not None
+            else f"{self.kind} {getattr(self, self.kind)!r}"
+        )
+        if self.excluding is not None:
+            text += f" excluding {self.excluding.describe()}"
+        return text
 
 
-SELECTORS = ("name", "box", "sphere", "half_space", "patch")
+SELECTORS = ("name", "box", "sphere", "half_space", "patch", "slab")
 
 
 @dataclass(frozen=True, eq=False)
@@ -142,6 +166,23 @@ class SolidMesh:
     def surface_nodes(self) -> IntArray:
         """Nodes on the boundary, increasing."""
         return np.unique(self.facets)
+
+    @property
+    def lower(self) -> FloatArray:
+        """Lower corner of the bounding box, (3,)."""
+        return np.asarray(self.points.min(axis=0))
+
+    @property
+    def upper(self) -> FloatArray:
+        """Upper corner of the bounding box, (3,)."""
+        return np.asarray(self.points.max(axis=0))
+
+    def digest(self) -> str:
+        """SHA-256 of the node coordinates and the connectivity."""
+        h = hashlib.sha256()
+        h.update(np.ascontiguousarray(self.points, dtype="<f8").tobytes())
+        h.update(np.ascontiguousarray(self.tets, dtype="<i8").tobytes())
+        return h.hexdigest()
 
 
 def _det(a: FloatArray, b: FloatArray, c: FloatArray) -> FloatArray:
@@ -252,10 +293,16 @@ def from_arrays(
         raise ValueError(
             f"mesh {path!r} has no tetrahedra; a solid needs 'tetra' cells"
         )
-    if points.ndim != 2 or points.shape[1] != 3 or not np.isfinite(points).all():
-        raise ValueError(f"mesh {path!r}: points must be finite, shape (N, 3)")
-    if tets.min() < 0 or tets.max() >= len(points):
-        raise ValueError(f"mesh {path!r}: a tetrahedron refers to a missing node")
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"mesh {path!r}: points must have shape (N, 3)")
+    if not np.isfinite(points).all():
+        raise ValueError(f"mesh {path!r}: has non-finite node coordinates")
+    outside = (tets < 0) | (tets >= len(points))
+    if outside.any():
+        raise ValueError(
+            f"mesh {path!r}: a tetrahedron refers to node {int(tets[outside][0])}, "
+            f"but the nodes are numbered 0..{len(points) - 1}"
+        )
     used = np.unique(tets)
     remap = np.full(len(points), -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
@@ -345,11 +392,16 @@ def read_mesh(path: str | Path) -> SolidMesh:
             offsets[i] = n
             n += len(block.data)
             tets.append(block.data)
+    kinds = sorted({c.type for c in m.cells})
     if not tets:
-        kinds = sorted({c.type for c in m.cells})
         raise ValueError(
             f"mesh file {str(path)!r} has no 'tetra' cells (found {kinds}); "
             "a solid needs linear tetrahedra"
+        )
+    if others := sorted(set(kinds) & _OTHER_SOLIDS):
+        raise ValueError(
+            f"mesh file {str(path)!r} mixes tetrahedra with {others} cells; "
+            "only linear tetrahedra are supported"
         )
     cell_sets: dict[str, IntArray] = {}
     triangle_sets: dict[str, IntArray] = {}
@@ -489,8 +541,13 @@ def _unknown(mesh: SolidMesh, name: str, what: str) -> ValueError:
     )
 
 
-def _selected(x: FloatArray, region: Region) -> NDArray[np.bool_]:
-    """Which of the points ``x`` (n, 3) a box, sphere or half-space selects."""
+def _selected(x: FloatArray, region: Region, mesh: SolidMesh) -> NDArray[np.bool_]:
+    """Which of the points ``x`` (n, 3) a box, sphere, half-space or slab selects."""
+    if region.slab is not None:
+        index, count = region.slab
+        x0, x1 = float(mesh.lower[0]), float(mesh.upper[0])
+        t = (x[:, 0] - x0) / (x1 - x0)
+        return np.asarray(np.minimum((t * count).astype(np.int64), count - 1) == index)
     if region.box is not None:
         lo, hi = (np.asarray(v, dtype=float) for v in region.box)
         return np.all((x >= lo) & (x <= hi), axis=1)
@@ -543,7 +600,11 @@ def region_facets(mesh: SolidMesh, region: Region, what: str = "region") -> IntA
     elif region.patch is not None:
         out = patch_facets(mesh, *region.patch, what=what)
     else:
-        out = np.flatnonzero(_selected(mesh.points, region)[mesh.facets].all(axis=1))
+        out = np.flatnonzero(
+            _selected(mesh.points, region, mesh)[mesh.facets].all(axis=1)
+        )
+    if region.excluding is not None:
+        out = np.setdiff1d(out, region_facets(mesh, region.excluding, what))
     if len(out) == 0:
         raise ValueError(
             f"{what} {region.describe()} contains no boundary facet of "
@@ -567,7 +628,9 @@ def region_nodes(mesh: SolidMesh, region: Region, what: str = "region") -> IntAr
     elif region.patch is not None:
         out = np.unique(mesh.facets[patch_facets(mesh, *region.patch, what=what)])
     else:
-        out = np.flatnonzero(_selected(mesh.points, region))
+        out = np.flatnonzero(_selected(mesh.points, region, mesh))
+    if region.excluding is not None:
+        out = np.setdiff1d(out, region_nodes(mesh, region.excluding, what))
     if len(out) == 0:
         raise ValueError(
             f"{what} {region.describe()} contains no node of mesh {mesh.path!r}"
@@ -596,7 +659,10 @@ def region_cells(mesh: SolidMesh, region: Region, what: str = "region") -> IntAr
             raise _unknown(mesh, region.name, what)
         out = mesh.cell_sets[region.name]
     else:
-        out = np.flatnonzero(_selected(mesh.points[mesh.tets].mean(axis=1), region))
+        centroids = mesh.points[mesh.tets].mean(axis=1)
+        out = np.flatnonzero(_selected(centroids, region, mesh))
+    if region.excluding is not None:
+        out = np.setdiff1d(out, region_cells(mesh, region.excluding, what))
     if len(out) == 0:
         raise ValueError(
             f"{what} {region.describe()} contains no tetrahedron of mesh {mesh.path!r}"

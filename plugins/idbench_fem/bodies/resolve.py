@@ -57,8 +57,9 @@ def fixed_nodes(body: Body, mesh: SolidMesh) -> IntArray:
 def marker_points(body: Body, mesh: SolidMesh) -> FloatArray:
     """Marker coordinates (M, 3) on the surface of ``mesh``.
 
-    Coordinates are projected to the nearest surface point; a region gives all
-    of its surface nodes.
+    Coordinates are projected to the nearest surface point (with
+    ``placement = "volume"``: kept as given, if inside the body); a region
+    gives all of its surface nodes.
 
     Raises
     ------
@@ -77,6 +78,15 @@ def marker_points(body: Body, mesh: SolidMesh) -> FloatArray:
             )
         return mesh.points[on_surface]
     pts = np.asarray(mk.points, dtype=float)
+    if mk.placement == "volume":
+        out = np.flatnonzero(~inside(mesh, pts))
+        if len(out):
+            i = int(out[0])
+            raise ValueError(
+                f"{body.source}: marker {i} at {list(mk.points[i])} lies outside "
+                f"{mesh.path!r} (placement = 'volume')"
+            )
+        return pts
     snapped, _, _, dist = project_to_surface(mesh, pts)
     far = np.flatnonzero(dist > mk.snap_distance)
     if len(far):

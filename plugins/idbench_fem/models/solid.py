@@ -1,5 +1,8 @@
 r"""The ``solid`` model: any tetrahedral body described by a body TOML.
 
+The one forward model of the plugin: ``svk-beam`` is this model on a body
+built in memory (:mod:`idbench_fem.models.beam`).
+
 :class:`SolidModel` solves each quasi-static load step of a manipulation by
 Newton's method on the free displacements of a P1 tet mesh: the body's fixed
 region has all components zero, the manipulation's dead load is ramped as
@@ -18,13 +21,13 @@ belongs to). The internal force is linear in theta,
 :math:`\partial u / \partial \theta_r = -K^{-1} g_r(u)`: one back-substitution
 per parameter with the last factorization.
 
-Newton's conventions are the beam's (:mod:`idbench_fem.models.beam`): converged
+Newton (:mod:`idbench_fem.fem.newton`): converged
 when :math:`\|r\| \le \max(\mathrm{rtol} \|f_{ext}(k)\|, \mathrm{atol})`
 with rtol = 1e-8 and atol = 1e-12 times the end force; each update is halved
 (up to 8 times) while an element would have det F <= 0.
 
 Sigma points of a filter step go through :meth:`SolidModel.step_many`
-(:mod:`idbench_fem.fem.batched`, as the beam's): one pair solved by Newton, the
+(:mod:`idbench_fem.fem.batched`): one pair solved by Newton, the
 others predicted from its sensitivity and corrected by chord steps on its
 scaled factorization (both laws are linear in the moduli), optionally shared
 with helper processes (setting ``processes``).
@@ -33,7 +36,10 @@ Markers are the body's, snapped to the reference mesh's surface (the
 comparison's truth) and then projected onto each model mesh's surface;
 shape-error points are placed in the reference mesh and located in each
 model mesh (points a coarse mesh misses take its nearest tet's clipped
-barycentric weights).
+barycentric weights). A body may instead place markers in the volume
+(``placement = "volume"``: used as given, interpolated in the tet containing
+them) and locate shape-error points exactly (``locate = "contained"``), as the
+beam does; its ``[[probe]]`` points give the traces' probes.
 """
 
 from __future__ import annotations
@@ -54,13 +60,22 @@ from scipy.spatial import cKDTree
 from idbench import ConfigError, Cost, ModelSpec, ParameterSpec, Scenario
 from idbench_fem.bodies import resolve
 from idbench_fem.bodies.catalog import body_path, get_body, get_mesh, mesh_file
-from idbench_fem.bodies.description import Body
-from idbench_fem.bodies.loads import nodal_forces
-from idbench_fem.bodies.mesh import SolidMesh, extent, project_to_surface
+from idbench_fem.bodies.description import Body, Markers, ShapeError
+from idbench_fem.bodies.loads import nodal_forces, traction_weights
+from idbench_fem.bodies.mesh import (
+    SolidMesh,
+    extent,
+    project_to_surface,
+    region_facets,
+)
 from idbench_fem.fem.batched import BatchedSteps
-from idbench_fem.fem.interpolation import barycentric, weights_matrix
+from idbench_fem.fem.interpolation import (
+    barycentric,
+    interpolation_matrix,
+    weights_matrix,
+)
 from idbench_fem.fem.law_assembly import LawAssembler
-from idbench_fem.fem.newton import ASSEMBLY_BUFFERS, freeze
+from idbench_fem.fem.newton import ASSEMBLY_BUFFERS, CHORD_RATIO, freeze
 from idbench_fem.fem.solver import resolve_backend
 from idbench_fem.fem.svk_assembly import Assembler
 from idbench_fem.models.observables import Observables
@@ -100,6 +115,9 @@ class SolidModel(Observables, BatchedSteps):
         Load steps K and number of markers M.
     settings
         Overrides and solver options.
+    absolute_atol
+        Newton's absolute floor in N (None: ``settings.atol`` or 1e-12 times
+        the end force).
     """
 
     def __init__(
@@ -111,6 +129,8 @@ class SolidModel(Observables, BatchedSteps):
         n_steps: int = 20,
         markers: int = 2,
         settings: SolidSettings | None = None,
+        *,
+        absolute_atol: float | None = None,
     ) -> None:
         if n_steps < 1:
             raise ValueError(f"n_steps = {n_steps}: need at least one load step")
@@ -120,6 +140,13 @@ class SolidModel(Observables, BatchedSteps):
         self.n_steps = int(n_steps)
         self.rtol = float(s.rtol or RTOL)
         self.max_iterations = int(s.max_iterations or MAX_ITERATIONS)
+        self.sensitivity_refine = s.sensitivity_refine is not False
+        chord = s.chord_ratio
+        self.chord_ratio = float(CHORD_RATIO if chord is None else chord)
+        if not 0.0 <= self.chord_ratio < 1.0:
+            raise ValueError(
+                f"chord_ratio {self.chord_ratio!r}: must be in [0, 1) (0: plain Newton)"
+            )
         self.backend = resolve_backend(s.solver)
         self.law_name = s.law or body.material.law
         self.force_is_cubic = self.law_name == "svk"
@@ -127,7 +154,7 @@ class SolidModel(Observables, BatchedSteps):
             s.processes or 1,
             functools.partial(
                 SolidModel, body, mesh, manipulation, reference, n_steps, markers,
-                replace(s, processes=None),
+                replace(s, processes=None), absolute_atol=absolute_atol,
             ),
         )  # fmt: skip
         self.nu = float(body.material.nu if s.nu is None else s.nu)
@@ -155,9 +182,9 @@ class SolidModel(Observables, BatchedSteps):
             _region_value(body, r) for r in range(len(names))
         ])  # fmt: skip
         self._factors = moduli / true[self._regions]
-        lo, hi = _BOUNDS
+        lo, hi = body.parameter_bounds or (_BOUNDS[0] * E, _BOUNDS[1] * E)
         self.parameters = ParameterSpec(
-            names, tuple(lo * E for _ in names), tuple(hi * E for _ in names),
+            names, tuple(lo for _ in names), tuple(hi for _ in names),
             default=tuple(float(v) for v in true),
         )  # fmt: skip
 
@@ -165,7 +192,22 @@ class SolidModel(Observables, BatchedSteps):
             self.manipulation, mesh, body.material.density, t=float(s.load_scale)
         )
         self._f_end = f1.ravel()[self._asm.free_dofs]
-        self.atol = float(s.atol or ATOL) * float(np.linalg.norm(self._f_end))
+        self._load_weights: FloatArray | None = None
+        if self.manipulation.kind == "traction":  # f(k) = w (k/K) t, per component
+            assert self.manipulation.region is not None
+            facets = region_facets(mesh, self.manipulation.region)
+            weights = traction_weights(mesh, facets)
+            self._load_weights = np.repeat(weights, 3)[self._asm.free_dofs]
+            self._load_component = np.tile(np.arange(3), self.n_nodes)[
+                self._asm.free_dofs
+            ]
+            self._traction = float(s.load_scale) * np.asarray(self.manipulation.vector)
+        end = float(np.linalg.norm(self.external_force(self.n_steps)))
+        self.atol = (
+            float(s.atol or ATOL) * end
+            if absolute_atol is None
+            else float(absolute_atol)
+        )
 
         f2f = self._asm.full_to_free
         pts = _reference_markers(body, reference)
@@ -176,9 +218,25 @@ class SolidModel(Observables, BatchedSteps):
             )
         self.marker_points = pts[_farthest_points(pts, markers)]
         self.grid_points = _reference_grid(body, reference)
-        self._obs = _surface_interpolation(mesh, self.marker_points, f2f)
-        self._grid = _interpolation(mesh, self.grid_points, f2f)
-        self._reference = reference.path
+        if body.markers.placement == "volume" and body.markers.region is None:
+            self._obs = interpolation_matrix(
+                self.marker_points, mesh.points, mesh.tets, f2f
+            )
+        else:
+            self._obs = _surface_interpolation(mesh, self.marker_points, f2f)
+        if body.shape_error.locate == "contained":
+            self._grid = interpolation_matrix(
+                self.grid_points, mesh.points, mesh.tets, f2f
+            )
+        else:
+            self._grid = _interpolation(mesh, self.grid_points, f2f)
+        self._probes = {
+            name: interpolation_matrix(
+                np.asarray(point, dtype=float)[None, :], mesh.points, mesh.tets, f2f
+            )
+            for name, point in body.probes
+        }
+        self._reference = reference
         self._cost = [0, 0, 0]
         self.last_residuals: list[float] = []
         freeze(self)  # shared by the copies runs get (see NewtonSolve.__copy__)
@@ -217,8 +275,7 @@ class SolidModel(Observables, BatchedSteps):
             return u
         self._last_path_step = None
         for j in range(1, substeps + 1):
-            t = (k - 1 + j / substeps) / self.n_steps
-            u, _ = self._newton(modulus, t * self._f_end, u, k)
+            u, _ = self._newton(modulus, self._load(k, j / substeps), u, k)
         self._remember_factorization(theta, u)
         return u
 
@@ -231,8 +288,26 @@ class SolidModel(Observables, BatchedSteps):
         return np.asarray(self._grid @ state).reshape(-1, 3)
 
     def probes(self, state: FloatArray) -> dict[str, float]:
-        """``u_max``: the largest nodal displacement (m)."""
-        return {"u_max": float(np.abs(state).max(initial=0.0))}
+        """The body's probes ``NAME_x``, ``NAME_y``, ``NAME_z`` (m); else ``u_max``.
+
+        ``u_max`` is the largest nodal displacement component (m), given for a
+        body without ``[[probe]]`` points.
+        """
+        if not self._probes:
+            return {"u_max": float(np.abs(state).max(initial=0.0))}
+        out = {}
+        for name, matrix in self._probes.items():
+            u = matrix @ state
+            out.update({f"{name}_x": u[0], f"{name}_y": u[1], f"{name}_z": u[2]})
+        return out
+
+    def probe(self, name: str, state: FloatArray) -> FloatArray:
+        """Displacement (3,) of the body's probe point ``name``."""
+        if name not in self._probes:
+            raise ValueError(
+                f"probe {name!r}: the body has {', '.join(self._probes) or 'none'}"
+            )
+        return np.asarray(self._probes[name] @ state)
 
     def sensitivity(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
         """D observe / d theta at the converged ``state``, shape (3M, p).
@@ -246,7 +321,7 @@ class SolidModel(Observables, BatchedSteps):
         g = self._asm.region_forces(
             self._asm.kinematics(u, self._factors), self._regions, self.parameters.p
         )
-        du = self._state_sensitivity(theta, k, u, modulus, g)
+        du = self._state_sensitivity(theta, k, u, modulus, g, self.sensitivity_refine)
         return np.asarray(self._obs @ du.reshape(self.n_state, -1))
 
     def cost(self) -> Cost:
@@ -256,14 +331,14 @@ class SolidModel(Observables, BatchedSteps):
     def describe(self) -> dict[str, Any]:
         """JSON-serialisable description of everything the results depend on."""
         m = self.manipulation
-        return {
+        out = {
             "model": "solid",
             "code_version": MODEL_VERSION,
             "body": Path(self.body.source).name,  # names, not paths: the
-            "body_sha256": _digest(Path(self.body.source)),  # contents key it
+            "body_sha256": _body_digest(self.body),  # contents key it
             "mesh": Path(self.mesh_data.path).name,
-            "mesh_sha256": _digest(Path(self.mesh_data.path)),
-            "reference_sha256": _digest(Path(self._reference)),
+            "mesh_sha256": _mesh_digest(self.mesh_data),
+            "reference_sha256": _mesh_digest(self._reference),
             "n_nodes": self.n_nodes,
             "n_elements": len(self.mesh_data.tets),
             "law": self.law_name,
@@ -278,6 +353,10 @@ class SolidModel(Observables, BatchedSteps):
             "atol": self.atol,
             "max_iterations": self.max_iterations,
         }
+        for name in ("chord_ratio", "sensitivity_refine"):
+            if getattr(self.settings, name) is not None:
+                out[name] = getattr(self.settings, name)
+        return out
 
     # -- extras: idbench simulate, tests ------------------------------------------
 
@@ -297,14 +376,45 @@ class SolidModel(Observables, BatchedSteps):
 
     def external_force(self, k: int) -> FloatArray:
         """External force on the free dofs at step ``k``, (n_state,)."""
-        return (k / self.n_steps) * self._f_end
+        if self._load_weights is None:
+            return (k / self.n_steps) * self._f_end
+        return self._spread((k / self.n_steps) * self._traction)
 
     def internal_force(self, theta: FloatArray, state: FloatArray) -> FloatArray:
         """Internal force f_int(state; theta) on the free dofs, (n_state,)."""
         modulus = self._modulus(theta, None)
-        return np.asarray(self._asm.forces(self._asm.kinematics(state, modulus)))
+        u = np.asarray(state, dtype=np.float64)
+        return np.asarray(self._asm.forces(self._asm.kinematics(u, modulus)))
+
+    def residual(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
+        """Newton residual f_int(state; theta) - f_ext(k), shape (n_state,)."""
+        return self.internal_force(theta, state) - self.external_force(k)
+
+    def tangent(self, theta: FloatArray, state: FloatArray) -> Any:
+        """The free-free tangent at ``state`` (scipy CSR)."""
+        modulus = self._modulus(theta, None)
+        kin = self._asm.kinematics(np.asarray(state, dtype=np.float64), modulus)
+        return self._pattern.matrix(self._asm.tangent_data(kin, modulus, self._pattern))
+
+    @property
+    def fixed_nodes(self) -> IntArray:
+        """Indices of the fixed nodes (all displacement components zero)."""
+        return np.flatnonzero(self._asm.full_to_free.reshape(-1, 3)[:, 0] < 0)
 
     # -- internals -------------------------------------------------------------
+
+    def _load(self, k: int, fraction: float) -> FloatArray:
+        """The load ``fraction`` of the way from step k - 1's to step k's."""
+        if self._load_weights is None:
+            return ((k - 1 + fraction) / self.n_steps) * self._f_end
+        t0 = ((k - 1) / self.n_steps) * self._traction
+        t1 = (k / self.n_steps) * self._traction
+        return self._spread(t0 + fraction * (t1 - t0))
+
+    def _spread(self, traction: FloatArray) -> FloatArray:
+        """Nodal forces on the free dofs of a uniform traction vector (3,)."""
+        assert self._load_weights is not None
+        return np.asarray(self._load_weights * traction[self._load_component])
 
     def _modulus(self, theta: FloatArray, k: int | None) -> FloatArray:
         th = self._theta(theta, k)
@@ -321,6 +431,25 @@ def _region_value(body: Body, r: int) -> float:
 
 def _digest(path: Path) -> str:
     return _digest_cached(path, path.stat().st_mtime)
+
+
+def _body_digest(body: Body) -> str:
+    """The body file's SHA-256; of what the states depend on for a body in memory.
+
+    That is its description without markers, shape-error points and probes,
+    so that one truth serves every marker count (as the truth's key wants).
+    """
+    path = Path(body.source)
+    if path.is_file():
+        return _digest(path)
+    states = replace(body, markers=Markers(), shape_error=ShapeError(), probes=())
+    return hashlib.sha256(repr(states).encode()).hexdigest()
+
+
+def _mesh_digest(mesh: SolidMesh) -> str:
+    """The mesh file's SHA-256; of its arrays for a mesh built in memory."""
+    path = Path(mesh.path)
+    return _digest(path) if path.is_file() else mesh.digest()
 
 
 @functools.lru_cache(maxsize=64)

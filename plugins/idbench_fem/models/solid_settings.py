@@ -69,6 +69,11 @@ class SolidSettings:
     processes
         Processes that solve a batched step's sigma points (None: 1; see the
         beam's setting of that name). Not part of the run's identity.
+    chord_ratio
+        A Newton update that cut the residual at least this much keeps its
+        factorization (a chord step), in [0, 1) (None: 1e-2; 0: plain Newton).
+    sensitivity_refine
+        Refine sensitivities with one step of iterative refinement (None: on).
     """
 
     body: str = DEFAULT_BODY
@@ -82,6 +87,8 @@ class SolidSettings:
     kernel: str = "auto"
     load_scale: float = 1.0
     processes: int | None = None
+    chord_ratio: float | None = None
+    sensitivity_refine: bool | None = None
 
     EXECUTION: ClassVar[tuple[str, ...]] = ("processes",)
     """Settings that change where work runs, not results (left out of run ids)."""
@@ -109,6 +116,12 @@ class SolidSettings:
         p = self.processes
         if p is not None and (not isinstance(p, int) or isinstance(p, bool) or p < 1):
             raise ValueError(f"processes {p!r}: need a whole number >= 1")
+        c = self.chord_ratio
+        if c is not None and not (_number(c) and 0 <= c < 1):
+            raise ValueError(f"chord_ratio {c!r}: must be in [0, 1) (0: plain Newton)")
+        r = self.sensitivity_refine
+        if r is not None and not isinstance(r, bool):
+            raise ValueError(f"sensitivity_refine {r!r}: need true or false")
 
     def proposed_scenarios(self) -> list[Scenario]:
         """The body's manipulations as scenarios (their loads name ``body``).
@@ -164,7 +177,14 @@ class SolidSettings:
         """
         out = [self.body, self.law, self.nu, self.reference, self.rtol, self.atol,
                self.max_iterations]  # fmt: skip
-        return out if self.load_scale == 1.0 else [*out, self.load_scale]
+        if self.load_scale != 1.0:
+            out.append(self.load_scale)
+        extra = [
+            [name, getattr(self, name)]
+            for name in ("chord_ratio", "sensitivity_refine")
+            if getattr(self, name) is not None
+        ]
+        return [*out, *extra]
 
 
 def _number(x: Any) -> bool:
