@@ -113,11 +113,15 @@ def _parameter_regions(s: BeamSettings) -> tuple[Region, ...]:
 
 
 def solid_settings(s: BeamSettings, chord_ratio: float | None = None) -> SolidSettings:
-    """The solid model's settings for the beam's (its absolute ``atol`` aside)."""
+    """The solid model's settings for the beam's (its absolute ``atol`` aside).
+
+    Plain Newton from the given state at every step (``path_reuse=False``), as
+    the study's beam has always been solved: its numbers stay the study's.
+    """
     return SolidSettings(
         body=BODY, law="svk", nu=s.nu, rtol=s.rtol, max_iterations=s.max_iterations,
         solver=s.solver, processes=s.processes, chord_ratio=chord_ratio,
-        sensitivity_refine=s.sensitivity_refine,
+        sensitivity_refine=s.sensitivity_refine, path_reuse=False,
     )  # fmt: skip
 
 

@@ -269,7 +269,8 @@ class SolidModel(Observables, BatchedSteps):
             raise ValueError(f"state has shape {u.shape}, expected ({self.n_state},)")
         self._cost[0] += 1
         self._factored_key = None
-        if substeps == 1:  # along a path: reuses the last step's factorization
+        if substeps == 1 and self.settings.path_reuse is not False:
+            # along a path: reuses the last step's factorization
             u = self._path_step(theta, k, u, modulus)
             self._remember_factorization(theta, u)
             return u
@@ -353,7 +354,7 @@ class SolidModel(Observables, BatchedSteps):
             "atol": self.atol,
             "max_iterations": self.max_iterations,
         }
-        for name in ("chord_ratio", "sensitivity_refine"):
+        for name in ("chord_ratio", "sensitivity_refine", "path_reuse"):
             if getattr(self.settings, name) is not None:
                 out[name] = getattr(self.settings, name)
         return out

@@ -74,6 +74,12 @@ class SolidSettings:
         factorization (a chord step), in [0, 1) (None: 1e-2; 0: plain Newton).
     sensitivity_refine
         Refine sensitivities with one step of iterative refinement (None: on).
+    path_reuse
+        A step that continues the previous one starts from the path's
+        extrapolation and keeps its factorization (chords, refactoring by the
+        rule of :meth:`~idbench_fem.fem.batched.BatchedSteps._path_step`);
+        results equal plain Newton to the tolerance (None: on; False: plain
+        Newton from the given state, as the study's beam).
     """
 
     body: str = DEFAULT_BODY
@@ -89,6 +95,7 @@ class SolidSettings:
     processes: int | None = None
     chord_ratio: float | None = None
     sensitivity_refine: bool | None = None
+    path_reuse: bool | None = None
 
     EXECUTION: ClassVar[tuple[str, ...]] = ("processes",)
     """Settings that change where work runs, not results (left out of run ids)."""
@@ -181,7 +188,7 @@ class SolidSettings:
             out.append(self.load_scale)
         extra = [
             [name, getattr(self, name)]
-            for name in ("chord_ratio", "sensitivity_refine")
+            for name in ("chord_ratio", "sensitivity_refine", "path_reuse")
             if getattr(self, name) is not None
         ]
         return [*out, *extra]
