@@ -7,6 +7,7 @@ prints it, so the page cannot drift from the code.
 from __future__ import annotations
 
 import argparse
+import os
 
 import mkdocs_gen_files
 
@@ -21,16 +22,18 @@ def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentP
 
 
 def _help(parser: argparse.ArgumentParser) -> str:
-    parser.formatter_class = lambda prog: argparse.HelpFormatter(prog, width=88)
     return parser.format_help()
 
 
 def main() -> None:
+    """Write ``reference/cli.md``: the top-level help, then each subcommand's."""
+    os.environ["COLUMNS"] = "88"  # argparse wraps help to this width
     parser = build_parser()
     lines = [
         "# Command line",
         "",
-        "Generated from the parser at build time: what `idbench COMMAND --help` prints.",
+        "Generated from the parser at build time: what `idbench COMMAND --help`"
+        " prints.",
         "",
         "```text",
         _help(parser).rstrip(),

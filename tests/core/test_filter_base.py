@@ -26,7 +26,8 @@ from idbench.session import Session
 from idbench.settings import estimator_arguments, public_settings
 from idbench.sweep import compare, runs_of
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+DOCS = Path(__file__).resolve().parents[2] / "docs"
+TUTORIAL = DOCS / "tutorials" / "estimator-plugin.md"
 STEPS = 5
 TRUE_E = 2.0
 PRIOR = (1.0, 0.5)
@@ -34,12 +35,11 @@ NOISE = 0.2
 
 
 def readme_estimator_module() -> types.ModuleType:
-    """The Python example of the README's ``## Writing an estimator plugin``."""
-    text = README.read_text()
-    section = text.split("\n## Writing an estimator plugin\n", 1)[1].split("\n## ")[0]
-    (code,) = re.findall(r"```python\n(.*?)```", section, flags=re.S)
+    """The Python example of the docs' estimator-plugin tutorial."""
+    text = TUTORIAL.read_text()
+    (code,) = re.findall(r"```python\n(.*?)```", text, flags=re.S)
     module = types.ModuleType("readme_estimator_plugin")
-    exec(compile(code, str(README), "exec"), module.__dict__)
+    exec(compile(code, str(TUTORIAL), "exec"), module.__dict__)
     return module
 
 
