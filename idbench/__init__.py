@@ -26,6 +26,7 @@ from idbench.interfaces import (
     SensitiveModel,
     Skipped,
     SurfaceModel,
+    TargetModel,
 )
 from idbench.lowrank import LowRankCovariance
 from idbench.plugins import (
@@ -89,6 +90,7 @@ __all__ = [
     "SensitiveModel",
     "Skipped",
     "SurfaceModel",
+    "TargetModel",
     "Sparsity",
     "__version__",
     "build_registry",

@@ -115,8 +115,16 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
     number >= 1; ``bounds`` a finite (2, d) box, ``volume`` a number > 0;
     ``parameters.default``, if set, must lie inside the bounds;
     ``surface(state)`` must give finite vertices (V, 3) and triangles (T, 3)
-    indexing them; ``reaction(theta, k, state)`` a finite vector.
+    indexing them; ``reaction(theta, k, state)`` a finite vector;
+    ``targets(state)`` finite displacements (T, 3) (T = 0: none).
     """
+    targets = getattr(model, "targets", None)
+    if targets is not None:
+        moved = np.asarray(targets(state), dtype=float)
+        assert moved.ndim == 2 and moved.shape[1] == 3, (
+            "targets(state) must be displacements (T, 3) (T = 0: none)"
+        )
+        assert np.all(np.isfinite(moved)), "targets(state) must be finite"
     surface = getattr(model, "surface", None)
     if surface is not None:
         vertices, triangles = surface(state)
@@ -140,7 +148,7 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
         named = probes(state)
         assert isinstance(named, dict), "probes() must return a dict"
         reserved = {"run_id", "step", "load", "observed", "shape_error",
-                    "shape_error_mean", "shape_error_direct", "n_solves",
+                    "shape_error_mean", "shape_error_direct", "n_solves", "tre_mm",
                     "newton_its", "wall_s", *model.parameters.names}  # fmt: skip
         for name, value in named.items():
             assert isinstance(name, str) and name, f"probe name {name!r}"

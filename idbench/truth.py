@@ -52,6 +52,10 @@ class Truth:
         has no ``probes``).
     nodes
         The truth model's ``n_nodes`` (NaN if it does not say).
+    targets
+        Hidden-target displacements per step, shape (K, T, 3), or None if the
+        model has no ``targets`` (:class:`~idbench.interfaces.TargetModel`)
+        or none to show (T = 0).
     """
 
     states: FloatArray
@@ -59,6 +63,7 @@ class Truth:
     grid: FloatArray
     probes: dict[str, FloatArray]
     nodes: float = float("nan")
+    targets: FloatArray | None = None
 
 
 def truth_key(model: ForwardModel, theta: FloatArray) -> str:
@@ -101,6 +106,7 @@ def simulate_path(
 def probe(model: ForwardModel, states: FloatArray) -> Truth:
     """Observations, shape-error points and probes of each state."""
     probes: Any = getattr(model, "probes", None)
+    targets: Any = getattr(model, "targets", None)
     named: dict[str, list[float]] = {}
     for s in states if callable(probes) else ():
         for name, value in probes(s).items():
@@ -111,7 +117,16 @@ def probe(model: ForwardModel, states: FloatArray) -> Truth:
         grid=np.array([model.grid(s) for s in states]),
         probes={name: np.array(values) for name, values in named.items()},
         nodes=float(getattr(model, "n_nodes", float("nan"))),
+        targets=_targets(targets, states),
     )
+
+
+def _targets(targets: Any, states: FloatArray) -> FloatArray | None:
+    """Target displacements (K, T, 3) of the states; None without targets."""
+    if not callable(targets) or not len(states):
+        return None
+    moved = np.array([targets(s) for s in states], dtype=float)
+    return moved if moved.size else None
 
 
 def simulate_truth(

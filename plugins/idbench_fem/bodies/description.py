@@ -48,6 +48,10 @@ manipulated, what is observed and what is identified::
     [parameters]           # absent: one E; else one E per region
     regions = ["parenchyma", "inclusion"]
 
+    [targets]              # optional: hidden points, never observed, scored (TRE)
+    tumour = [0.02, 0.003, 0.0]                     # one point (m)
+    vessel = [[0.01, 0.0, 0.0], [0.03, 0.0, 0.0]]   # or several
+
 Selectors (wherever a region is expected): ``"name"`` or ``{ name = ... }``,
 ``{ box = { lower = [...], upper = [...] } }``,
 ``{ sphere = { centre = [...], radius = r } }``,
@@ -181,6 +185,8 @@ class Body:
     markers: Markers
     shape_error: ShapeError
     parameter_regions: tuple[Region, ...] = ()
+    targets: tuple[tuple[str, Vec], ...] = ()
+    """Hidden target points (name, point); ``name[i]`` for a list's i-th."""
 
     def manipulation(self, name: str) -> Manipulation:
         """The manipulation called ``name``."""
@@ -311,6 +317,7 @@ def parse_body(
         "markers",
         "shape_error",
         "parameters",
+        "targets",
     )
     _TableReader(source, "body").keys(raw, top)
 
@@ -439,7 +446,22 @@ def parse_body(
         markers,
         shape_error,
         parameter_regions,
+        _targets(_table(raw, "targets", source), source),
     )
+
+
+def _targets(table: dict[str, Any], source: str) -> tuple[tuple[str, Vec], ...]:
+    """``[targets]``: name = [x, y, z], or name = [[x, y, z], ...]."""
+    c = _TableReader(source, "[targets]")
+    out: list[tuple[str, Vec]] = []
+    for name, value in table.items():
+        many = isinstance(value, list) and bool(value) and isinstance(value[0], list)
+        if not many:
+            out.append((name, c.vector(name, value)))
+            continue
+        for i, v in enumerate(value):
+            out.append((f"{name}[{i}]", c.vector(f"{name}[{i}]", v)))
+    return tuple(out)
 
 
 def _manipulation(raw: Any, i: int, source: str) -> Manipulation:

@@ -152,6 +152,10 @@ class SvkBeam(Observables, BatchedSteps):
         self._obs = interpolation_matrix(self.marker_points, points, tets, f2f)
         self._grid = interpolation_matrix(self.grid_points, points, tets, f2f)
         self._tip = interpolation_matrix(centre[None, :], points, tets, f2f)
+        target = 0.5 * (beam.lower + beam.upper)  # inside, 90% along the length
+        target[0] = beam.lower[0] + 0.9 * (beam.upper[0] - beam.lower[0])
+        self.target_points = target[None, :]
+        self._target = interpolation_matrix(self.target_points, points, tets, f2f)
 
         self.last_residuals: list[float] = []
         self._cost = [0, 0, 0]
@@ -205,6 +209,10 @@ class SvkBeam(Observables, BatchedSteps):
     def grid(self, state: FloatArray) -> FloatArray:
         """Displacements of the shape-error grid points, shape (G, 3)."""
         return (self._grid @ state).reshape(-1, 3)
+
+    def targets(self, state: FloatArray) -> FloatArray:
+        """Displacement (1, 3) of the hidden target: the axis at 90% of the length."""
+        return np.asarray(self._target @ state).reshape(1, 3)
 
     def tip(self, state: FloatArray) -> FloatArray:
         """Displacement of the end-face centre, shape (3,)."""

@@ -178,6 +178,10 @@ class SolidModel(Observables, BatchedSteps):
         self.grid_points = _reference_grid(body, reference)
         self._obs = _surface_interpolation(mesh, self.marker_points, f2f)
         self._grid = _interpolation(mesh, self.grid_points, f2f)
+        self.target_points = np.array(
+            [point for _, point in body.targets], dtype=float
+        ).reshape(-1, 3)
+        self._targets = _interpolation(mesh, self.target_points, f2f)
         self._reference = reference.path
         self._cost = [0, 0, 0]
         self.last_residuals: list[float] = []
@@ -229,6 +233,10 @@ class SolidModel(Observables, BatchedSteps):
     def grid(self, state: FloatArray) -> FloatArray:
         """Displacements of the shape-error points, shape (G, 3)."""
         return np.asarray(self._grid @ state).reshape(-1, 3)
+
+    def targets(self, state: FloatArray) -> FloatArray:
+        """Displacements (T, 3) of the body's ``[targets]`` (T = 0 without)."""
+        return np.asarray(self._targets @ state).reshape(-1, 3)
 
     def probes(self, state: FloatArray) -> dict[str, float]:
         """``u_max``: the largest nodal displacement (m)."""
