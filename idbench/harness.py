@@ -337,6 +337,8 @@ def _run_on(
         if session.known_reference(spec) is None:
             session.remember_reference(spec, means[-1])
     row.update(scoring.final_columns(spec, session, means, stds, traces, est))
+    if spec.setup.data:
+        row["heldout_final_mm"] = traces[-1]["heldout_mm"]
     if targets.has_targets(metrics_model, truth):
         row.update(
             targets.final_columns(
@@ -400,7 +402,13 @@ def _estimate(
         )  # fmt: skip
         if scored:
             trace["tre_mm"] = targets.step_tre_mm(
-                metrics_model, state, truth.targets[k - 1]  # type: ignore[index]
+                metrics_model,
+                state,
+                truth.targets[k - 1],  # type: ignore[index]
+            )
+        if spec.setup.data:  # a recording: its held-out marker tracks
+            trace["heldout_mm"] = targets.heldout_mm(
+                metrics_model, state, truth.observations[k - 1]
             )
         trace.update(
             n_solves=est.cost.forward_solves - solves_before,

@@ -178,6 +178,7 @@ def with_metrics(runs: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
     metrics += ["nees_true", "nees_ref", "w1_posterior"]
     metrics += ["settling_step", "shape_error_mm", "direct_mm", "transfer_mm"]
     metrics += ["tre_final_mm", "target_std_final_mm", "tre_covered_final"]
+    metrics += ["heldout_final_mm"]
     metrics += ["n_solves", "wall_s_step"]
     return df, [m for m in metrics if m in df.columns]
 
@@ -230,6 +231,7 @@ def headers(summary: pd.DataFrame, short: bool = False) -> dict[str, str]:
         "tre_final_mm": ("TRE, hidden targets (mm)", "TRE mm"),
         "target_std_final_mm": ("predicted target std (mm)", "tgt sd"),
         "tre_covered_final": ("target in 95% region", "tgt c95"),
+        "heldout_final_mm": ("held-out markers (mm)", "held mm"),
         "nees_true": ("NEES vs true (mean)", "NEES t"),
         "nees_ref": ("NEES vs ref (mean)", "NEES r"),
         "w1_posterior": ("W1 to posterior", "W1 post"),

@@ -27,6 +27,12 @@ run:
   covered.
 
 A model without targets gives no such columns and costs nothing.
+
+On a recording (``--data``, :mod:`idbench.recording`) the truth's targets are
+the recording's held-out targets, and its held-out marker tracks score each
+step's ``heldout_mm``: the mean distance (mm) between the model's markers
+(``observe``) and the tracks, occluded (NaN) markers left out;
+``heldout_final_mm`` at the last step.
 """
 
 from __future__ import annotations
@@ -59,6 +65,22 @@ def step_tre_mm(model: ForwardModel, state: FloatArray, truth_targets: Any) -> f
     """Mean TRE (mm) over the targets of ``model`` at ``state`` vs the truth's."""
     moved = _moved(model, state)
     return float(MM * metrics.target_registration_error(moved, truth_targets).mean())
+
+
+def heldout_mm(model: ForwardModel, state: FloatArray, tracks: Any) -> float:
+    """Mean distance (mm) of the model's markers at ``state`` to held-out tracks.
+
+    ``tracks`` (3M,) are marker displacements, NaN where occluded (left out);
+    NaN if none is visible or the sizes differ.
+    """
+    moved = np.asarray(model.observe(state), dtype=float).reshape(-1, 3)
+    held = np.asarray(tracks, dtype=float).reshape(-1, 3)
+    if moved.shape != held.shape:
+        return float("nan")
+    seen = np.isfinite(held).all(axis=1)
+    if not seen.any():
+        return float("nan")
+    return float(MM * np.linalg.norm(moved[seen] - held[seen], axis=1).mean())
 
 
 def empty_columns() -> dict[str, Any]:
