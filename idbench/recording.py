@@ -31,9 +31,9 @@ applied load as the fraction k/K of the scenario's end load (the load in the
 body's terms: step k of its manipulation), and for each frame k (1..K,
 ``FFFFF`` = ``k`` in five digits) the observation model's frame data
 ``frame.FFFFF/NAME``: ``markers`` (3M,) the marker displacements; ``points``
-(N, 3) (N may differ from frame to frame), ``origin`` (3,) and ``sigma`` (N,)
+(N, 3) (N may differ from frame to frame), ``origin`` (3,) and ``sigma`` ()
 for a cloud (points in the body's coordinates, m; ``origin`` the camera
-centre; ``sigma`` the noise std along each ray); ``force`` (c,) in N; in a
+centre; ``sigma`` the noise std along the rays); ``force`` (c,) in N; in a
 combination ``BLOCK/NAME`` (``cloud/points``, ``force/force``). Held out,
 never given to an estimator: ``held_out/markers`` (K, 3M) marker tracks (NaN
 where occluded) and ``held_out/targets`` (K, T, 3), the displacements of the
@@ -217,7 +217,7 @@ def _read(root: Path, key: str) -> Recording:
         }
         if not data:
             raise RecordingError(f"{where}: frame {k} has no data ({prefix}NAME)")
-        _check_frame(where, k, data)
+        _check_frame(where, k, data, int(raw["markers"]))
         frames.append(Frame(k, data))
     held = {
         n.removeprefix("held_out/"): v
@@ -279,7 +279,9 @@ def _timeline(
     return time, load
 
 
-def _check_frame(where: str, k: int, data: Mapping[str, FloatArray]) -> None:
+def _check_frame(
+    where: str, k: int, data: Mapping[str, FloatArray], markers: int
+) -> None:
     """One frame's arrays: finite cloud points, observed markers all there."""
     for name, value in data.items():
         leaf = name.rpartition("/")[2]
@@ -294,12 +296,37 @@ def _check_frame(where: str, k: int, data: Mapping[str, FloatArray]) -> None:
                     f"{where}: frame {k}: the cloud {name} has {bad} of {len(value)} "
                     "points with NaN or infinite coordinates (drop them)"
                 )
+        elif leaf == "markers" and value.size != 3 * markers:
+            raise RecordingError(
+                f"{where}: frame {k}: {name} has {value.size} values; markers = "
+                f"{markers} needs {3 * markers} (x, y, z of each)"
+            )
         elif leaf == "markers" and not np.isfinite(value).all():
             raise RecordingError(
                 f"{where}: frame {k}: observed {name} has NaN (occluded) values; an "
                 "estimator needs every marker of every frame: keep occluded tracks "
                 "in held_out/markers, or observe a cloud"
             )
+
+
+def check_frames(rec: Recording, observation: Any) -> None:
+    """Every frame has what ``observation`` (its observation model) reads.
+
+    Raises
+    ------
+    RecordingError
+        Naming the first frame whose data the model cannot read.
+    """
+    for frame in rec.frames:
+        try:
+            observation.values(frame)
+        except (KeyError, ValueError, IndexError) as exc:
+            have = ", ".join(sorted(frame.data))
+            raise RecordingError(
+                f"recording {str(rec.path)!r}: frame {frame.step}: observe "
+                f"{rec.observe!r} cannot read it ({type(exc).__name__}: {exc}); "
+                f"the frame has {have}"
+            ) from None
 
 
 def check_body(rec: Recording, bounds: Any, scenarios: Sequence[str]) -> None:

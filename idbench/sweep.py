@@ -24,7 +24,7 @@ from typing import Any
 
 import pandas as pd
 
-from idbench import recording
+from idbench import observe, recording
 from idbench.config import (
     CompareConfig,
     ConfigError,
@@ -172,6 +172,8 @@ def plan(config: CompareConfig, session: Session) -> Plan:
     if rec is not None:
         bounds = getattr(models[config.meshes[0]], "bounds", None)
         recording.check_body(rec, bounds, loads)
+        obs = observe.build(rec.observe, rec.observe_settings, reg)
+        recording.check_frames(rec, obs)
     if config.observe != ("markers",) or config.observe_settings:
         built = list(models.values())
         runs = expand(config, setup, resolve_observations(config, reg, built))

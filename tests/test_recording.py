@@ -120,6 +120,10 @@ BAD = [
     ("markers", millimetres, None, 'units = "m" cannot be right'),
     ("markers", None, lambda t: t.replace('"bend-y"', '"twist"'),
      "load 'twist' is not one the body has"),
+    ("markers", None, lambda t: t.replace("markers = 2", "markers = 3"),
+     "frame 1: markers has 6 values; markers = 3 needs 9"),
+    ("cloud", None, lambda t: t.replace('observe = "cloud"', 'observe = "force"'),
+     "frame 1: observe 'force' cannot read it (KeyError"),
 ]  # fmt: skip
 
 
@@ -145,3 +149,50 @@ def test_a_missing_frame_is_named(recordings, tmp_path):
     bad = edited(recordings / "markers", tmp_path / "bad", drop)
     with pytest.raises(recording.RecordingError, match="frame 3 has no data"):
         recording.read(bad)
+
+
+def test_a_recording_written_by_hand_as_the_readme_says(tmp_path, monkeypatch):
+    """Clouds of a different size every frame, no idbench writer, no truth mesh."""
+    from idbench.session import Session
+    from idbench.sweep import runs_of
+    from idbench.truth import simulate_path
+
+    monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    spec = runs_of(CompareConfig(truth_mesh=TRUTH, meshes=(MESH,), **base()))[0]
+    truth = Session().model(spec, TRUTH, role="truth")
+    states = simulate_path(truth, np.array([5000.0]))
+    rng = np.random.default_rng(0)
+    arrays: dict[str, Any] = {
+        "time": np.array([0.0, 0.4, 0.5, 1.0]),
+        "load": np.arange(1, STEPS + 1) / STEPS,
+    }
+    for k, u in enumerate(states, start=1):
+        vertices, triangles = truth.surface(u)
+        seen = np.unique(triangles)
+        pick = rng.choice(seen, size=30 + 10 * k, replace=False)
+        arrays[f"frame.{k:05d}/points"] = vertices[pick]
+        arrays[f"frame.{k:05d}/origin"] = np.array([0.5, -2.0, 2.0])
+        arrays[f"frame.{k:05d}/sigma"] = np.array(1e-4)
+    arrays["held_out/markers"] = np.array([truth.observe(u) for u in states])
+    arrays["held_out/targets"] = np.array([truth.targets(u) for u in states])
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    np.savez(folder / "frames.npz", **arrays)
+    (folder / "recording.toml").write_text(
+        f'format = 1\nunits = "m"\nmodel = "{spec.setup.model}"\n'
+        'scenario = "bend-y"\nobserve = "cloud"\nnoise = 0.0001\nmarkers = 2\n'
+        f'steps = {STEPS}\nheld_out = ["markers", "targets"]\n'
+    )
+    runs, traces = compare(CompareConfig(
+        meshes=(MESH,), estimators=("ro-ukf",), seeds=1, obs_every=(1,),
+        prior=(4000.0, 2000.0), data=str(folder),
+    ))  # fmt: skip
+    assert list(runs.status) == ["ok"], runs.error.tolist()
+    assert runs.E_true.isna().all()  # the manifest gives no [true]
+    markers, _ = compare(CompareConfig(
+        truth_mesh=TRUTH, meshes=(MESH,), estimators=("ro-ukf",),
+        **base(), prior=(4000.0, 2000.0),
+    ))  # fmt: skip
+    # the coarse beam identifies about what it identifies from markers
+    assert abs(runs.E_final.iloc[0] / markers.E_final.iloc[0] - 1) < 0.05
+    assert traces.tre_mm.notna().all() and traces.heldout_mm.notna().all()
