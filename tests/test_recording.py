@@ -14,6 +14,7 @@ from idbench import recording
 from idbench.cli import main
 from idbench.config import CompareConfig
 from idbench.recorder import record
+from idbench.report import write_report
 from idbench.sweep import compare
 
 TRUTH, MESH, STEPS = "20x3x3", "6x2x2", 4
@@ -63,6 +64,9 @@ def test_a_recording_round_trips_through_compare_data(recordings, tmp_path):
         assert (runs.heldout_final_mm > 0).all()
         traces = pd.read_parquet(out / "traces.parquet")
         assert traces.heldout_mm.notna().all() and traces.tre_mm.notna().all()
+    write_report(out)  # no shape error anywhere: the report still draws
+    text = (out / "report.md").read_text()
+    assert "TRE, hidden targets (mm)" in text and "held-out markers (mm)" in text
 
 
 def test_the_manifest_reads_back(recordings):
