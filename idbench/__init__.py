@@ -31,6 +31,7 @@ from idbench.interfaces import (
     SensitiveModel,
     Skipped,
     SurfaceModel,
+    TargetModel,
     VolumeModel,
 )
 from idbench.lowrank import LowRankCovariance
@@ -100,6 +101,7 @@ __all__ = [
     "SensitiveModel",
     "Skipped",
     "SurfaceModel",
+    "TargetModel",
     "Sparsity",
     "VolumeModel",
     "__version__",

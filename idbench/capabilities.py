@@ -25,6 +25,7 @@ from idbench.interfaces import (
     ReactionModel,
     SensitiveModel,
     SurfaceModel,
+    TargetModel,
     VolumeModel,
 )
 
@@ -40,6 +41,7 @@ OPTIONAL: dict[str, type] = {
     "cell_data": CellDataModel,
     "surface": SurfaceModel,
     "reaction": ReactionModel,
+    "targets": TargetModel,
 }
 """Each optional member of a forward model and the protocol that declares it."""
 
@@ -53,6 +55,7 @@ METHODS = frozenset(
         "cell_data",
         "surface",
         "reaction",
+        "targets",
     }
 )
 """The optional members that are methods (the others are values)."""

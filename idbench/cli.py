@@ -219,6 +219,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         posterior=args.posterior,
         model=args.model,
         shorthand_settings=options or None,
+        data=str(args.data) if args.data else None,
     )
     if args.scheduler and logging.getLogger().getEffectiveLevel() > logging.INFO:
         from idbench.executors import quiet_logging
@@ -383,6 +384,28 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _record(args: argparse.Namespace, reg: Any) -> None:
+    """``simulate --record DIR``: the recording of one comparison's data."""
+    from idbench.config import build_config
+    from idbench.recorder import record
+
+    config = build_config(
+        registry=reg,
+        model=args.model,
+        shorthand_settings=model_options(args) or None,
+        truth_mesh=args.mesh,
+        scenarios=(args.scenario,),
+        steps=args.steps,
+        true=args.true,
+        observe=(args.observe,) if args.observe else None,
+        observe_settings=observe_options(args),
+        noise=(args.noise,) if args.noise is not None else None,
+        obs_points=(args.obs_points,) if args.obs_points is not None else None,
+    )
+    path = record(config, args.record, seed=args.seed, registry=reg)
+    print(f"wrote recording {path} ({args.steps} frames)")
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     """``idbench simulate``: one load path, written as an XDMF time series.
 
@@ -403,11 +426,19 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     )
     from idbench.truth import simulate_path
 
-    if args.out.is_dir() or args.out.suffix.lower() != ".xdmf":
+    if args.out is None and args.record is None:
+        raise UsageError("simulate needs --out FILE.xdmf, --record DIR, or both")
+    if args.out is not None and (
+        args.out.is_dir() or args.out.suffix.lower() != ".xdmf"
+    ):
         raise UsageError(f"--out {str(args.out)!r}: need a file name ending in .xdmf")
     if args.steps < 1:
         raise UsageError(f"--steps {args.steps}: must be >= 1")
     reg = registry()
+    if args.record is not None:
+        _record(args, reg)
+        if args.out is None:
+            return 0
     try:
         model_name = args.model or reg.default_model()
     except KeyError as exc:

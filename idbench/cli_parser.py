@@ -219,6 +219,14 @@ def build_parser() -> argparse.ArgumentParser:
     d = _config_default
     c.add_argument("--config", type=Path, help="TOML file with any of these options")
     c.add_argument(
+        "--data",
+        type=Path,
+        metavar="RECORDING",
+        help="observe a recording folder (idbench simulate --record, or your own: "
+        "see the README) instead of a simulated truth; it sets the scenario, "
+        "steps, observation model, markers and noise",
+    )
+    c.add_argument(
         "--quick",
         action="store_true",
         help="a small comparison: the model's quick truth and meshes, one seed",
@@ -399,8 +407,30 @@ def build_parser() -> argparse.ArgumentParser:
     _add_model_arguments(s)
     _add_shorthands(s)
     s.add_argument("--steps", type=_number("steps", int), default=20, help="load steps")
+    s.add_argument("--out", type=_path("out"), help="output .xdmf file")
     s.add_argument(
-        "--out", type=_path("out"), required=True, help="output .xdmf file"
+        "--record",
+        type=_path("record"),
+        metavar="DIR",
+        help="write a recording folder (recording.toml + frames.npz) of what the "
+        "observation model sees, noise included, for compare --data",
+    )
+    s.add_argument(
+        "--observe", help="observation model of the recording (default: markers)"
+    )
+    s.add_argument(
+        "--observe-option",
+        dest="observe_options",
+        type=_assignments("observe-option"),
+        action="append",
+        help="a setting of the observation model, NAME.SETTING=VALUE (repeatable)",
+    )
+    s.add_argument(
+        "--noise", type=_number("noise"), help="the markers' noise sigma (m)"
+    )
+    s.add_argument("--obs-points", type=_number("obs-points", int), help="markers M")
+    s.add_argument(
+        "--seed", type=_number("seed", int), default=0, help="noise seed (default 0)"
     )
     _add_plugin_commands(sub)
     return parser

@@ -87,6 +87,10 @@ class CompareConfig:
     observe_settings
         ``[observe.NAME]`` tables of settings, e.g. ``{"cloud": {"points": 500}}``;
         a table with ``kind`` defines a variant of that kind.
+    data
+        A recording folder (:mod:`idbench.recording`) to observe instead of a
+        simulated truth; it sets the scenario, steps, observation model,
+        markers and noise, and there is no truth mesh.
     """
 
     estimators: tuple[str, ...] | None = None
@@ -110,6 +114,7 @@ class CompareConfig:
     posterior_settings: dict[str, Any] = field(default_factory=dict)
     observe: tuple[str, ...] = ("markers",)
     observe_settings: dict[str, dict[str, Any]] = field(default_factory=dict)
+    data: str | None = None
 
     def __post_init__(self) -> None:
         for name in ("estimators", "meshes", "scenarios"):
@@ -304,7 +309,10 @@ class CompareConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain, JSON-serialisable settings (for the manifest)."""
-        return dataclasses.asdict(self)
+        out = dataclasses.asdict(self)
+        if out["data"] is None:  # folders written before recordings match
+            del out["data"]
+        return out
 
 
 def max_runs() -> int:

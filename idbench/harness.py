@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from idbench import scoring
+from idbench import scoring, targets
 from idbench.capabilities import n_nodes_of
 from idbench.config import ConfigError
 from idbench.interfaces import (
@@ -327,7 +327,7 @@ def _run_on(
         with _blame(who, "start()"):
             seen = session.estimator_model(spec, model)  # h(x) of the run's
             estimator.start(seen, session.prior(master, spec))  # observation model
-        est, means, stds = _estimate(
+        est, means, stds, last = _estimate(
             spec, estimator, who, stream, truth, direct, traces,
             (model, metrics_model), t_start,
         )  # fmt: skip
@@ -340,6 +340,15 @@ def _run_on(
         if session.known_reference(spec) is None:
             session.remember_reference(spec, means[-1])
     row.update(scoring.final_columns(spec, session, means, stds, traces, est))
+    if spec.setup.data:
+        row["heldout_final_mm"] = traces[-1]["heldout_mm"]
+    if targets.has_targets(metrics_model, truth):
+        row.update(
+            targets.final_columns(
+                metrics_model, estimator, last, means[-1], stds[-1],
+                truth.targets[-1],  # type: ignore[index]
+            )
+        )  # fmt: skip
     row["warning"] = run_warning(
         model.parameters, stream, truth, spec.noise, means[-1],
         np.array([row[f"{n}_ref"] for n in spec.setup.names]),
@@ -356,12 +365,13 @@ def _estimate(
     traces: list[dict[str, Any]],
     models: tuple[ForwardModel, ForwardModel],
     t_start: float,
-) -> tuple[Any, FloatArray, FloatArray]:
+) -> tuple[Any, FloatArray, FloatArray, FloatArray]:
     """Feed the stream to the estimator; score and trace every step.
 
     Returns the last :class:`~idbench.interfaces.Estimate`, the means and the
-    stds (K, p). The shape error uses the estimator's own state where it has
-    one, else one forward solve with the current estimate (not counted).
+    stds (K, p), and the last step's model state (what it was scored with).
+    The shape error uses the estimator's own state where it has one, else one
+    forward solve with the current estimate (not counted).
     """
     _, metrics_model = models  # bounds from the metrics model (not lent out)
     p = metrics_model.parameters.p
@@ -370,6 +380,8 @@ def _estimate(
     stds = np.full((spec.setup.steps, p), np.nan)
     solves_before = 0
     newton_before = 0
+    scored = targets.has_targets(metrics_model, truth)
+    state = shadow
     for k, obs in enumerate(stream, start=1):
         t0 = time.perf_counter()
         with _blame(who, "update()", k):
@@ -391,6 +403,16 @@ def _estimate(
             spec, k, obs, est, mean, std, metrics_model.grid(state), truth, direct,
             innovation,
         )  # fmt: skip
+        if scored:
+            trace["tre_mm"] = targets.step_tre_mm(
+                metrics_model,
+                state,
+                truth.targets[k - 1],  # type: ignore[index]
+            )
+        if spec.setup.data:  # a recording: its held-out marker tracks
+            trace["heldout_mm"] = targets.heldout_mm(
+                metrics_model, state, truth.observations[k - 1]
+            )
         trace.update(
             n_solves=est.cost.forward_solves - solves_before,
             newton_its=est.cost.newton_its - newton_before,
@@ -402,4 +424,4 @@ def _estimate(
         if spec.timeout is not None and time.perf_counter() - t_start > spec.timeout:
             raise RunTimeout(f"run exceeded --timeout {spec.timeout:g} s at step {k}")
 
-    return est, means, stds
+    return est, means, stds, state

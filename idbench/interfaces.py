@@ -238,8 +238,9 @@ class ForwardModel(Protocol):
     ``displacement_field`` (:class:`FieldModel`) and ``cell_data``
     (:class:`CellDataModel`) for ``idbench simulate``; ``surface``
     (:class:`SurfaceModel`, for the ``cloud`` observation) and ``reaction``
-    (:class:`ReactionModel`, for ``force``). The core looks them up
-    in one place, :mod:`idbench.capabilities`;
+    (:class:`ReactionModel`, for ``force``) and ``targets``
+    (:class:`TargetModel`, hidden targets scored by their TRE). The core
+    looks them up in one place, :mod:`idbench.capabilities`;
     :func:`idbench.testing.check_model` checks them.
 
     A model is built once per process and each run works with
@@ -332,6 +333,25 @@ class ReactionModel(ForwardModel, Protocol):
         The sum of the internal forces f_int(state; theta) at the constrained
         or driven nodes (what a force sensor on the tool or the support
         measures), per component; model force units (N for the built-ins).
+        """
+        ...
+
+
+@runtime_checkable
+class TargetModel(ForwardModel, Protocol):
+    """A forward model with hidden targets (a tumour, points on a vessel).
+
+    Optional: targets are never observed; every run scores the target
+    registration error (TRE) between the model's targets moved with the
+    estimate and the truth's (:mod:`idbench.targets`). Truth and model name
+    the same undeformed target points (a body description's ``[targets]``).
+    """
+
+    def targets(self, state: FloatArray) -> FloatArray:
+        """Displacements (T, 3) of the target points at ``state``, in metres.
+
+        T = 0 (an empty (0, 3) array): the model has no targets this time
+        (e.g. a body description without ``[targets]``); no TRE columns.
         """
         ...
 

@@ -323,3 +323,51 @@ def nis(innovation: ArrayLike, covariance: ArrayLike) -> float:
         return float(v @ np.linalg.solve(S, v))
     except np.linalg.LinAlgError:
         return float("nan")
+
+
+TARGET_LEVEL = 0.95
+"""Probability mass of the target-covariance region a TRE coverage tests."""
+
+
+def target_registration_error(predicted: ArrayLike, true: ArrayLike) -> FloatArray:
+    """Distance (T,) between each target's predicted and true position.
+
+    Both are displacements of the same undeformed target points (T, 3), so
+    each distance is the norm of their difference (the model's length unit;
+    the tables hold it in mm: ``tre_mm``).
+    """
+    a = np.asarray(predicted, dtype=float).reshape(-1, 3)
+    b = np.asarray(true, dtype=float).reshape(-1, 3)
+    if a.shape != b.shape:
+        raise ValueError(f"target shapes differ: {a.shape} vs {b.shape}")
+    return np.asarray(np.linalg.norm(a - b, axis=1))
+
+
+def ellipsoid_covers(
+    error: ArrayLike, covariance: ArrayLike, level: float = TARGET_LEVEL
+) -> float:
+    r"""Whether ``error`` (3,) lies in the ``level`` region of N(0, covariance).
+
+    The region is the ellipsoid :math:`e^T C^{-1} e \le \chi^2_3(\text{level})`
+    (7.81 for 95%). A degenerate C (fewer independent directions than 3, e.g.
+    one parameter moving a target along a curve) is a flat region: only an
+    error in C's range can lie in it, so the part of ``error`` outside that
+    range must be below 1e-9 of the error's size (else: not covered).
+
+    Returns
+    -------
+    float
+        1.0 (covered), 0.0 (not), NaN if anything is not finite.
+    """
+    e = np.asarray(error, dtype=float).ravel()
+    c = np.asarray(covariance, dtype=float).reshape(e.size, e.size)
+    if not (np.all(np.isfinite(e)) and np.all(np.isfinite(c))):
+        return float("nan")
+    bound = float(scipy.stats.chi2.ppf(level, e.size))
+    w, v = np.linalg.eigh(0.5 * (c + c.T))
+    z = v.T @ e
+    keep = w > 1e-12 * max(float(w.max(initial=0.0)), 0.0)
+    outside = float(np.linalg.norm(z[~keep]))
+    if outside > 1e-9 * max(float(np.linalg.norm(e)), 1e-300):
+        return 0.0
+    return float(np.sum(z[keep] ** 2 / w[keep]) <= bound)

@@ -184,7 +184,9 @@ def figures(
         figs["stiffness_vs_resolution"] = fg.parameters_vs_resolution(
             ok, names, axes, study
         )
-    if not ok.empty and "shape_error_mean_final" in ok:
+    column = "shape_error_mean_final"
+    shaped = column in ok and bool(ok[column].notna().any())
+    if not ok.empty and shaped:  # none on a recording (no truth field)
         figs["shape_error"] = fg.shape_error_vs_resolution(ok, axes, study)
     if not ok.empty and not traces.empty and names and names[0] in traces:
         figs["estimates_vs_step"] = fg.estimates_vs_step(ok, traces, names, axes)
@@ -192,7 +194,10 @@ def figures(
     if not ok.empty and names and all(c in ok for c in covered):
         if ok[covered].notna().any().any():
             figs["uncertainty"] = fg.uncertainty_vs_resolution(ok, names, axes)
-    figs["realtime_frontier"] = fg.frontier_figure(frontier(runs, traces), BUDGETS_HZ)
+    table = frontier(runs, traces)
+    if not shaped:  # no shape error to draw: the figure says no run has one
+        table = table.iloc[0:0]
+    figs["realtime_frontier"] = fg.frontier_figure(table, BUDGETS_HZ)
     return figs
 
 

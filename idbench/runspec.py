@@ -50,6 +50,10 @@ class Setup:
         The model's execution settings (see
         :func:`idbench.settings.execution_names`), as sorted items: passed to the
         model, left out of every key and of the run id.
+    data
+        A recording the runs observe instead of a simulated truth
+        (:mod:`idbench.recording`): (its folder, the digest of its content);
+        empty: the truth is simulated.
     """
 
     model: str
@@ -61,6 +65,7 @@ class Setup:
     prior: tuple[float, float]
     reference: str
     execution: Items = ()
+    data: tuple[str, ...] = ()
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -116,6 +121,9 @@ class RunSpec:
         fields.pop("timeout")
         fields.pop("posterior")
         fields["setup"].pop("execution")
+        fields["setup"].pop("data")
+        if self.setup.data:  # its content, not where it lies
+            fields["data"] = self.setup.data[1]
         if not self.observed_otherwise():
             fields.pop("observe")
             fields.pop("observe_settings")
@@ -142,7 +150,7 @@ class RunSpec:
         return [
             s.model, self.scenario, s.truth_mesh, s.steps, s._true_key(),
             *s.identity, self.obs_every, self.obs_points, self.noise, self.seed,
-            *self._observe_key(),
+            *self._observe_key(), *s.data[1:],
         ]  # fmt: skip
 
     def noise_key(self) -> list[Any]:
@@ -159,7 +167,7 @@ class RunSpec:
         s = self.setup
         return [
             s.model, self.scenario, s.truth_mesh, s.steps, s._true_key(),
-            *s.identity, self.obs_points, self.seed,
+            *s.identity, self.obs_points, self.seed, *s.data[1:],
         ]  # fmt: skip
 
     def reference_key(self) -> str:
@@ -178,12 +186,17 @@ class RunSpec:
     def truth_product_key(self, scenario: str) -> str:
         """Identity of the probed truth of ``scenario`` (model and true values)."""
         truth = self.model_key(self.setup.truth_mesh, scenario, "truth")
-        return stable_hash([truth, [list(item) for item in self.setup.true]])
+        key = [truth, [list(item) for item in self.setup.true]]
+        if self.setup.data:  # a recorded truth, probed for this run's mesh
+            key += [self.setup.data[1], self.mesh]
+        return stable_hash(key)
 
     def direct_key(self, scenario: str) -> str:
         """Identity of the direct run: the run's mesh on ``scenario`` at the truth."""
         model = self.model_key(self.mesh, scenario, "metrics")
-        return stable_hash([model, [list(item) for item in self.setup.true]])
+        return stable_hash(
+            [model, [list(item) for item in self.setup.true], *self.setup.data[1:]]
+        )
 
 
 def expand(

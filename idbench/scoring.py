@@ -233,7 +233,7 @@ def transfer(spec: RunSpec, session: Session, theta: FloatArray) -> dict[str, An
         "transfer_error": np.nan,
         "transfer_error_direct": np.nan,
     }
-    if not target:
+    if not target or spec.setup.data:  # a recording has no transfer path
         return out
     model = session.model(spec, spec.mesh, target, role="metrics")
     truth = session.truth(spec, target)

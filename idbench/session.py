@@ -14,9 +14,10 @@ from typing import Any
 
 import numpy as np
 
-from idbench import observe
+from idbench import observe, recording
 from idbench.files import stable_hash
 from idbench.interfaces import (
+    ConfigError,
     FloatArray,
     ForwardModel,
     ModelSpec,
@@ -138,6 +139,8 @@ class Session:
     def truth(self, spec: RunSpec, scenario: str | None = None) -> Truth:
         """The truth of ``scenario`` (default: the run's), from the disk cache."""
         scenario = scenario or spec.scenario
+        if spec.setup.data:
+            return self._recorded_truth(spec)
         # the states depend on the set-up only (cached on disk), the probed
         # observations also on the markers: one Truth per truth model and
         # true values (a session may serve sweeps with other true values)
@@ -146,6 +149,46 @@ class Session:
             model = self.model(spec, spec.setup.truth_mesh, scenario, role="truth")
             self._truths[key] = simulate_truth(model, self.theta_true(spec))
         return self._truths[key]
+
+    def _recorded_truth(self, spec: RunSpec) -> Truth:
+        """What a recording holds out, as a truth for ``spec``'s model mesh.
+
+        Held-out markers as the observations (NaN without), held-out targets
+        as the targets; no states, probes or nodes; the shape-error grid NaN
+        (in the metrics model's shape: there is no truth field to compare).
+        """
+        key = spec.truth_product_key(spec.scenario)
+        if key not in self._truths:
+            rec = self.recorded(spec)
+            model = self.model(spec, spec.mesh, role="metrics")
+            u0 = model.reset()
+            steps = spec.setup.steps
+            grid = np.asarray(model.grid(u0)).shape
+            markers = rec.held_out.get("markers")
+            if markers is None:
+                markers = np.full((steps, np.asarray(model.observe(u0)).size), np.nan)
+            self._truths[key] = Truth(
+                states=np.empty((steps, 0)),
+                observations=np.asarray(markers, dtype=float),
+                grid=np.full((steps, *grid), np.nan),
+                probes={},
+                targets=rec.held_out.get("targets"),
+            )
+        return self._truths[key]
+
+    def recorded(self, spec: RunSpec) -> recording.Recording:
+        """The run's recording (``spec.setup.data``), as planned.
+
+        Raises
+        ------
+        ConfigError
+            If its content changed since the comparison was planned.
+        """
+        path, digest = spec.setup.data
+        rec = recording.read(path)
+        if rec.digest != digest:
+            raise ConfigError(f"recording {path!r} changed since it was planned")
+        return rec
 
     def observations(self, spec: RunSpec) -> list[Observation | None]:
         """The noisy, sparse observation stream of a run.
@@ -156,7 +199,7 @@ class Session:
         spacing only selects steps. Another observation model: its frames
         (:meth:`frames`) made into observations of the observed steps.
         """
-        if spec.observed_otherwise():
+        if spec.observed_otherwise() or spec.setup.data:
             obs = self.observation_model(spec)
             stream: list[Observation | None] = []
             for k, frame in enumerate(self.frames(spec), start=1):
@@ -189,12 +232,17 @@ class Session:
     def frames(self, spec: RunSpec) -> list[observe.Frame]:
         """The run's frame of every step 1..K (simulated from the truth).
 
+        Read from the recording instead where the run has one
+        (``spec.setup.data``, :mod:`idbench.recording`).
+
         Each block senses the truth once per (truth, block settings but its
         noise) (:meth:`sensed`), then measures with its own generator, seeded
         by the run's :meth:`RunSpec.noise_key` and the block's identity
         (common random numbers across estimators and meshes; the markers'
         generator is today's).
         """
+        if spec.setup.data:  # a recording's frames, instead of the truth's
+            return self.recorded(spec).frames
         key = stable_hash([spec.data_key(), list(spec.observe_settings)])
         if key not in self._frames:
             obs = self.observation_model(spec)
@@ -374,6 +422,8 @@ class Session:
         """Shape-error point displacements (K, G, d) of the model run with the truth."""
         scenario = scenario or spec.scenario
         key = spec.direct_key(scenario)
+        if spec.setup.data and key not in self._direct:  # no true values: NaN
+            return np.full_like(self.truth(spec).grid, np.nan)
         if key not in self._direct:
             model = self.model(spec, spec.mesh, scenario, role="metrics")
             states = simulate_path(model, self.theta_true(spec))

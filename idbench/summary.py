@@ -115,7 +115,9 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
         ``settling_step``, ``shape_error_mm`` (mean distance
         per grid point at the last step, mm), ``direct_mm`` (the same run
         with the true values, no assimilation), ``transfer_mm`` (on the
-        transfer path), ``n_solves`` and ``wall_s_step``. Each metric
+        transfer path), where the model has hidden targets
+        (:mod:`idbench.targets`) ``tre_final_mm``, ``target_std_final_mm``
+        and ``tre_covered_final``, then ``n_solves`` and ``wall_s_step``. Each metric
         ``m`` is followed by ``m_lo`` and ``m_hi``, the bounds of its 95%
         interval over the row's ok runs (:func:`idbench.intervals.interval`:
         a t interval, a bootstrap for settling steps, solves and NEES, exact
@@ -175,6 +177,8 @@ def with_metrics(runs: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
         metrics += [f"{n}_cover{c}" for c in COVERAGE]
     metrics += ["nees_true", "nees_ref", "w1_posterior"]
     metrics += ["settling_step", "shape_error_mm", "direct_mm", "transfer_mm"]
+    metrics += ["tre_final_mm", "target_std_final_mm", "tre_covered_final"]
+    metrics += ["heldout_final_mm"]
     metrics += ["n_solves", "wall_s_step"]
     return df, [m for m in metrics if m in df.columns]
 
@@ -224,6 +228,10 @@ def headers(summary: pd.DataFrame, short: bool = False) -> dict[str, str]:
         "shape_error_mm": ("shape error (mm/pt)", "err mm"),
         "direct_mm": ("direct, true values (mm/pt)", "direct mm"),
         "transfer_mm": ("transfer error (mm/pt)", "transf mm"),
+        "tre_final_mm": ("TRE, hidden targets (mm)", "TRE mm"),
+        "target_std_final_mm": ("predicted target std (mm)", "tgt sd"),
+        "tre_covered_final": ("target in 95% region", "tgt c95"),
+        "heldout_final_mm": ("held-out markers (mm)", "held mm"),
         "nees_true": ("NEES vs true (mean)", "NEES t"),
         "nees_ref": ("NEES vs ref (mean)", "NEES r"),
         "w1_posterior": ("W1 to posterior", "W1 post"),

@@ -24,6 +24,7 @@ from typing import Any
 
 import pandas as pd
 
+from idbench import observe, recording
 from idbench.capabilities import n_nodes_of
 from idbench.config import CompareConfig, ConfigError
 from idbench.executors import (
@@ -108,6 +109,9 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         Naming the first bad value and what is allowed.
     """
     reg = session.registry
+    rec = None
+    if config.data:  # a recording fixes the data axes; there is no truth mesh
+        config, rec = recording.configure(config)
     config = config.resolve(reg)
     assert config.model and config.scenarios and config.meshes and config.truth_mesh
     _known("model", [config.model], reg.models, reg)
@@ -117,6 +121,9 @@ def plan(config: CompareConfig, session: Session) -> Plan:
     own = proposed_scenarios(settings, config.model)  # e.g. a body file's
     if own:
         reg = reg.with_scenarios(list(own), reg.models[config.model].plugin)
+    loads = [sc.name for sc in own] if own else list(reg.scenarios)
+    if rec is not None:
+        recording.check_body(rec, None, loads)
     _known("estimator", config.estimators, reg.estimators, reg)
     _known("scenario", config.scenarios, reg.scenarios, reg)
     _known("reference estimator", [config.reference], reg.estimators, reg)
@@ -142,21 +149,31 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         identity=settings_identity(settings),
         truth_mesh=config.truth_mesh,
         steps=config.steps,
-        true=true_values(probe.parameters, config.true, config.model),
+        true=(
+            true_values(probe.parameters, config.true, config.model)
+            if rec is None
+            else recording.true_values(rec, probe.parameters.names)
+        ),
         prior=(float(config.prior[0]), float(config.prior[1])),  # type: ignore[index]
         reference=config.reference,  # type: ignore[arg-type]
+        data=() if rec is None else (str(rec.path), rec.digest),
     )
     runs = expand(config, setup)
     nodes: dict[str, int] = {}
     models: dict[str, ForwardModel] = {}
-    for mesh in (*config.meshes, config.truth_mesh):
+    for mesh in (*config.meshes, *([config.truth_mesh] if rec is None else [])):
         role = "truth" if mesh == config.truth_mesh else "est"
         build = functools.partial(session.model, runs[0], mesh, role=role)
         models[mesh] = model = _build(reg, config, mesh, settings, build)
         nodes[mesh] = int(n_nodes_of(model) or 0)
-    for mesh in config.meshes:
+    for mesh in config.meshes if rec is None else ():
         truth = models[config.truth_mesh]
         check_truth_mesh(truth, config.truth_mesh, models[mesh], mesh)
+    if rec is not None:
+        bounds = getattr(models[config.meshes[0]], "bounds", None)
+        recording.check_body(rec, bounds, loads)
+        obs = observe.build(rec.observe, rec.observe_settings, reg)
+        recording.check_frames(rec, obs)
     if config.observe != ("markers",) or config.observe_settings:
         built = list(models.values())
         runs = expand(config, setup, resolve_observations(config, reg, built))
@@ -212,7 +229,8 @@ def model_inputs(
         transfer = reg.scenario(spec.scenario).transfer
         keys = []
         for scenario in (spec.scenario, transfer) if transfer else (spec.scenario,):
-            for mesh, role in ((spec.mesh, "est"), (spec.setup.truth_mesh, "truth")):
+            pairs = [(spec.mesh, "est"), (spec.setup.truth_mesh, "truth")]
+            for mesh, role in pairs[: 1 if spec.setup.data else 2]:
                 key = spec.model_key(mesh, scenario, role)
                 if key not in described:
                     build = functools.partial(session.model, spec, mesh, scenario, role)
@@ -540,6 +558,8 @@ def prepare(runs: list[RunSpec], session: Session) -> None:
     seen = set()
     for spec in runs:
         scen = session.scenario(spec, spec.scenario)
+        if spec.setup.data:  # a recording: nothing to simulate or sense
+            continue
         for name in (spec.scenario, scen.transfer):
             key = spec.truth_product_key(name) if name else None
             if name and key not in seen:

@@ -131,7 +131,8 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
     ``cell_data()`` arrays of one value per tetrahedron of ``mesh()``;
     ``parameters.default``, if set, must lie inside the bounds;
     ``surface(state)`` must give finite vertices (V, 3) and triangles (T, 3)
-    indexing them; ``reaction(theta, k, state)`` a finite vector.
+    indexing them; ``reaction(theta, k, state)`` a finite vector;
+    ``targets(state)`` finite displacements (T, 3) (T = 0: none).
     """
     usable = present(model)
     for name in given(model):
@@ -142,6 +143,13 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
             f"model has {name} but is no idbench.{protocol.__name__}: it lacks "
             f"{', '.join(lacks) or 'a ForwardModel member'}"
         )
+    targets = member(model, "targets")
+    if targets is not None:
+        moved = np.asarray(targets(state), dtype=float)
+        assert moved.ndim == 2 and moved.shape[1] == 3, (
+            "targets(state) must be displacements (T, 3) (T = 0: none)"
+        )
+        assert np.all(np.isfinite(moved)), "targets(state) must be finite"
     surface = member(model, "surface")
     if surface is not None:
         vertices, triangles = surface(state)
@@ -165,7 +173,7 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
         named = probes(state)
         assert isinstance(named, dict), "probes() must return a dict"
         reserved = {"run_id", "step", "load", "observed", "shape_error",
-                    "shape_error_mean", "shape_error_direct", "n_solves",
+                    "shape_error_mean", "shape_error_direct", "n_solves", "tre_mm",
                     "newton_its", "wall_s", *model.parameters.names}  # fmt: skip
         for name, value in named.items():
             assert isinstance(name, str) and name, f"probe name {name!r}"

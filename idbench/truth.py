@@ -15,11 +15,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import platformdirs
 
-from idbench.capabilities import n_nodes_of, probes_of
+from idbench.capabilities import member, n_nodes_of, probes_of
 from idbench.files import atomic_write, digest, stable_hash
 from idbench.interfaces import FloatArray, ForwardModel, ModelFailure
 
@@ -52,6 +53,10 @@ class Truth:
         has no ``probes``).
     nodes
         The truth model's ``n_nodes`` (NaN if it does not say).
+    targets
+        Hidden-target displacements per step, shape (K, T, 3), or None if the
+        model has no ``targets`` (:class:`~idbench.interfaces.TargetModel`)
+        or none to show (T = 0).
     """
 
     states: FloatArray
@@ -59,6 +64,7 @@ class Truth:
     grid: FloatArray
     probes: dict[str, FloatArray]
     nodes: float = float("nan")
+    targets: FloatArray | None = None
 
 
 def truth_key(model: ForwardModel, theta: FloatArray) -> str:
@@ -101,6 +107,7 @@ def simulate_path(
 def probe(model: ForwardModel, states: FloatArray) -> Truth:
     """Observations, shape-error points and probes of each state."""
     probes = probes_of(model)
+    targets = member(model, "targets")
     named: dict[str, list[float]] = {}
     if probes is not None:
         for s in states:
@@ -113,7 +120,16 @@ def probe(model: ForwardModel, states: FloatArray) -> Truth:
         grid=np.array([model.grid(s) for s in states]),
         probes={name: np.array(values) for name, values in named.items()},
         nodes=float("nan") if nodes is None else float(nodes),
+        targets=_targets(targets, states),
     )
+
+
+def _targets(targets: Any, states: FloatArray) -> FloatArray | None:
+    """Target displacements (K, T, 3) of the states; None without targets."""
+    if not callable(targets) or not len(states):
+        return None
+    moved = np.array([targets(s) for s in states], dtype=float)
+    return moved if moved.size else None
 
 
 def simulate_truth(

@@ -55,6 +55,10 @@ manipulated, what is observed and what is identified::
     name = "tip"           # (no probe: u_max, the largest displacement)
     point = [0.2, 0.015, 0.015]
 
+    [targets]              # optional: hidden points, never observed, scored (TRE)
+    tumour = [0.02, 0.003, 0.0]                     # one point (m)
+    vessel = [[0.01, 0.0, 0.0], [0.03, 0.0, 0.0]]   # or several
+
 Selectors (wherever a region is expected): ``"name"`` or ``{ name = ... }``,
 ``{ box = { lower = [...], upper = [...] } }``,
 ``{ sphere = { centre = [...], radius = r } }``,
@@ -211,6 +215,8 @@ class Body:
     probes: tuple[tuple[str, Vec], ...] = ()
     """Named points whose displacements are the traces' probes (``NAME_x``
     ...); none: the largest nodal displacement ``u_max``."""
+    targets: tuple[tuple[str, Vec], ...] = ()
+    """Hidden target points (name, point); ``name[i]`` for a list's i-th."""
 
     def manipulation(self, name: str) -> Manipulation:
         """The manipulation called ``name``."""
@@ -353,6 +359,7 @@ def parse_body(
         "shape_error",
         "parameters",
         "probe",
+        "targets",
     )
     _TableReader(source, "body").keys(raw, top)
 
@@ -495,7 +502,22 @@ def parse_body(
         parameter_regions,
         bounds,
         _probes(raw.get("probe", []), source),
+        _targets(_table(raw, "targets", source), source),
     )
+
+
+def _targets(table: dict[str, Any], source: str) -> tuple[tuple[str, Vec], ...]:
+    """``[targets]``: name = [x, y, z], or name = [[x, y, z], ...]."""
+    c = _TableReader(source, "[targets]")
+    out: list[tuple[str, Vec]] = []
+    for name, value in table.items():
+        many = isinstance(value, list) and bool(value) and isinstance(value[0], list)
+        if not many:
+            out.append((name, c.vector(name, value)))
+            continue
+        for i, v in enumerate(value):
+            out.append((f"{name}[{i}]", c.vector(f"{name}[{i}]", v)))
+    return tuple(out)
 
 
 def _choice(c: _TableReader, key: str, value: Any, allowed: tuple[str, ...]) -> str:

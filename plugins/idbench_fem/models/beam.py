@@ -70,6 +70,8 @@ def beam_body(
     lower, upper = mesh.lower, mesh.upper
     centre = 0.5 * (lower + upper)
     centre[0] = upper[0]
+    target = 0.5 * (lower + upper)  # a hidden target: on the axis, 90% along
+    target[0] = lower[0] + 0.9 * (upper[0] - lower[0])
     traction = _vec([load.magnitude * d for d in load.direction])
     return Body(
         source=BODY,
@@ -87,6 +89,7 @@ def beam_body(
         parameter_regions=_parameter_regions(s),
         parameter_bounds=E_BOUNDS,
         probes=(("tip", _vec(centre)),),
+        targets=(("target", _vec(target)),),
     )
 
 

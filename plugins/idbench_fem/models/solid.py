@@ -236,6 +236,10 @@ class SolidModel(Observables, BatchedSteps):
             )
             for name, point in body.probes
         }
+        self.target_points = np.array(
+            [point for _, point in body.targets], dtype=float
+        ).reshape(-1, 3)
+        self._targets = _interpolation(mesh, self.target_points, f2f)
         self._reference = reference
         self._cost = [0, 0, 0]
         self.last_residuals: list[float] = []
@@ -287,6 +291,10 @@ class SolidModel(Observables, BatchedSteps):
     def grid(self, state: FloatArray) -> FloatArray:
         """Displacements of the shape-error points, shape (G, 3)."""
         return np.asarray(self._grid @ state).reshape(-1, 3)
+
+    def targets(self, state: FloatArray) -> FloatArray:
+        """Displacements (T, 3) of the body's ``[targets]`` (T = 0 without)."""
+        return np.asarray(self._targets @ state).reshape(-1, 3)
 
     def probes(self, state: FloatArray) -> dict[str, float]:
         """The body's probes ``NAME_x``, ``NAME_y``, ``NAME_z`` (m); else ``u_max``.

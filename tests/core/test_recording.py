@@ -1,0 +1,202 @@
+"""Recordings: simulate --record, compare --data, and bad recordings in one line."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from idbench import recording
+from idbench.cli import main
+from idbench.config import CompareConfig
+from idbench.recorder import record
+from idbench.report import write_report
+from idbench.sweep import compare
+
+TRUTH, MESH, STEPS = "20x3x3", "6x2x2", 4
+ESTIMATORS = ("rls", "ro-ukf")
+CLOUD = {"cloud": {"points": 60, "outliers": 0.05, "noise": 1e-4}}
+
+
+def base(**kw: Any) -> dict[str, Any]:
+    return {"steps": STEPS, "seeds": 1, "obs_every": (1,), "noise": (1e-4,), **kw}
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory):
+    root = tmp_path_factory.mktemp("recordings")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("IDBENCH_CACHE_DIR", str(root / "cache"))
+        argv = ["simulate", "--mesh", TRUTH, "--scenario", "bend-y", "--steps",
+                str(STEPS), "--noise", "1e-4",
+                "--record", str(root / "markers")]  # fmt: skip
+        assert main(argv) == 0
+        record(
+            CompareConfig(truth_mesh=TRUTH, **base(observe=("cloud",),
+                          observe_settings=CLOUD)),
+            root / "cloud",
+        )  # fmt: skip
+    return root
+
+
+def test_a_recording_round_trips_through_compare_data(recordings, tmp_path):
+    for observe, settings in (("markers", {}), ("cloud", CLOUD)):
+        synthetic, _ = compare(CompareConfig(
+            truth_mesh=TRUTH, meshes=(MESH,), estimators=ESTIMATORS,
+            **base(observe=(observe,), observe_settings=settings),
+        ))  # fmt: skip
+        out = tmp_path / observe
+        argv = ["compare", "--data", str(recordings / observe), "--meshes", MESH,
+                "--estimators", ",".join(ESTIMATORS), "--seeds", "1",
+                "--obs-every", "1", "--out", str(out)]  # fmt: skip
+        assert main(argv) == 0
+        runs = pd.read_parquet(out / "runs.parquet")
+        assert list(runs.status) == ["ok"] * 2, runs.error.tolist()
+        np.testing.assert_allclose(runs.E_final, synthetic.E_final, rtol=1e-9)
+        np.testing.assert_allclose(runs.E_ref, synthetic.E_ref, rtol=1e-9)
+        np.testing.assert_allclose(runs.tre_final_mm, synthetic.tre_final_mm, rtol=1e-9)
+        assert list(runs.n_solves) == list(synthetic.n_solves)
+        assert runs.shape_error_final.isna().all()  # no truth mesh to compare
+        assert (runs.heldout_final_mm > 0).all()
+        traces = pd.read_parquet(out / "traces.parquet")
+        assert traces.heldout_mm.notna().all() and traces.tre_mm.notna().all()
+    write_report(out)  # no shape error anywhere: the report still draws
+    text = (out / "report.md").read_text()
+    assert "TRE, hidden targets (mm)" in text and "held-out markers (mm)" in text
+
+
+def test_the_manifest_reads_back(recordings):
+    rec = recording.read(recordings / "cloud")
+    assert (rec.model, rec.scenario, rec.observe, rec.steps) == (
+        rec.model, "bend-y", "cloud", STEPS,
+    )  # fmt: skip
+    assert [f.step for f in rec.frames] == list(range(1, STEPS + 1))
+    assert rec.held_out["targets"].shape == (STEPS, 1, 3)
+    np.testing.assert_array_equal(rec.load, np.arange(1, STEPS + 1) / STEPS)
+    sizes = {len(f.data["points"]) for f in rec.frames}
+    assert all(n <= 60 for n in sizes)
+
+
+def edited(src: Path, dst: Path, arrays: Any = None, toml: Any = None) -> Path:
+    shutil.copytree(src, dst)
+    if arrays is not None:
+        with np.load(dst / recording.ARRAYS) as npz:
+            data = {k: np.array(npz[k]) for k in npz.files}
+        arrays(data)
+        np.savez(dst / recording.ARRAYS, **data)
+    if toml is not None:
+        path = dst / recording.MANIFEST
+        path.write_text(toml(path.read_text()))
+    return dst
+
+
+def swap_times(d: dict[str, np.ndarray]) -> None:
+    d["time"][[1, 2]] = d["time"][[2, 1]]
+
+
+def nan_point(d: dict[str, np.ndarray]) -> None:
+    d["frame.00002/points"][0, 1] = np.nan
+
+
+def far_cloud(d: dict[str, np.ndarray]) -> None:
+    d["frame.00003/points"] += np.array([5.0, 0.0, 0.0])
+
+
+def millimetres(d: dict[str, np.ndarray]) -> None:
+    for k in d:
+        if k.endswith("markers"):
+            d[k] *= 1000.0
+
+
+BAD = [
+    ("markers", swap_times, None, "frame 3: time 2 s is not after frame 2's 3 s"),
+    ("markers", swap_times, None, "frames out of order"),
+    ("cloud", nan_point, None, "frame 2: the cloud points has 1 of"),
+    ("cloud", far_cloud, None, "frame 3: the cloud points lies"),
+    ("cloud", far_cloud, None, "not registered"),
+    ("markers", None, lambda t: t.replace('units = "m"', 'units = "mm"'),
+     "units = 'mm' cannot be right"),
+    ("markers", millimetres, None, "frame 1: markers moves"),
+    ("markers", millimetres, None, 'units = "m" cannot be right'),
+    ("markers", None, lambda t: t.replace('"bend-y"', '"twist"'),
+     "load 'twist' is not one the body has"),
+    ("markers", None, lambda t: t.replace("markers = 2", "markers = 3"),
+     "frame 1: markers has 6 values; markers = 3 needs 9"),
+    ("cloud", None, lambda t: t.replace('observe = "cloud"', 'observe = "force"'),
+     "frame 1: observe 'force' cannot read it (KeyError"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("which", "arrays", "toml", "words"), BAD)
+def test_a_bad_recording_is_one_line(
+    recordings, tmp_path, capsys, which, arrays, toml, words
+):
+    bad = edited(recordings / which, tmp_path / "bad", arrays, toml)
+    argv = ["compare", "--data", str(bad), "--meshes", MESH, "--estimators", "rls",
+            "--seeds", "1", "--out", str(tmp_path / "out")]  # fmt: skip
+    assert main(argv) != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert words in err, err
+    assert "Traceback" not in err
+
+
+def test_a_missing_frame_is_named(recordings, tmp_path):
+    def drop(d: dict[str, np.ndarray]) -> None:
+        for k in [k for k in d if k.startswith("frame.00003/")]:
+            del d[k]
+
+    bad = edited(recordings / "markers", tmp_path / "bad", drop)
+    with pytest.raises(recording.RecordingError, match="frame 3 has no data"):
+        recording.read(bad)
+
+
+def test_a_recording_written_by_hand_as_the_readme_says(tmp_path, monkeypatch):
+    """Clouds of a different size every frame, no idbench writer, no truth mesh."""
+    from idbench.session import Session
+    from idbench.sweep import runs_of
+    from idbench.truth import simulate_path
+
+    monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    spec = runs_of(CompareConfig(truth_mesh=TRUTH, meshes=(MESH,), **base()))[0]
+    truth = Session().model(spec, TRUTH, role="truth")
+    states = simulate_path(truth, np.array([5000.0]))
+    rng = np.random.default_rng(0)
+    arrays: dict[str, Any] = {
+        "time": np.array([0.0, 0.4, 0.5, 1.0]),
+        "load": np.arange(1, STEPS + 1) / STEPS,
+    }
+    for k, u in enumerate(states, start=1):
+        vertices, triangles = truth.surface(u)
+        seen = np.unique(triangles)
+        pick = rng.choice(seen, size=30 + 10 * k, replace=False)
+        arrays[f"frame.{k:05d}/points"] = vertices[pick]
+        arrays[f"frame.{k:05d}/origin"] = np.array([0.5, -2.0, 2.0])
+        arrays[f"frame.{k:05d}/sigma"] = np.array(1e-4)
+    arrays["held_out/markers"] = np.array([truth.observe(u) for u in states])
+    arrays["held_out/targets"] = np.array([truth.targets(u) for u in states])
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    np.savez(folder / "frames.npz", **arrays)
+    (folder / "recording.toml").write_text(
+        f'format = 1\nunits = "m"\nmodel = "{spec.setup.model}"\n'
+        'scenario = "bend-y"\nobserve = "cloud"\nnoise = 0.0001\nmarkers = 2\n'
+        f'steps = {STEPS}\nheld_out = ["markers", "targets"]\n'
+    )
+    runs, traces = compare(CompareConfig(
+        meshes=(MESH,), estimators=("ro-ukf",), seeds=1, obs_every=(1,),
+        prior=(4000.0, 2000.0), data=str(folder),
+    ))  # fmt: skip
+    assert list(runs.status) == ["ok"], runs.error.tolist()
+    assert runs.E_true.isna().all()  # the manifest gives no [true]
+    markers, _ = compare(CompareConfig(
+        truth_mesh=TRUTH, meshes=(MESH,), estimators=("ro-ukf",),
+        **base(), prior=(4000.0, 2000.0),
+    ))  # fmt: skip
+    # the coarse beam identifies about what it identifies from markers
+    assert abs(runs.E_final.iloc[0] / markers.E_final.iloc[0] - 1) < 0.05
+    assert traces.tre_mm.notna().all() and traces.heldout_mm.notna().all()
