@@ -25,7 +25,7 @@ from typing import Any
 import pandas as pd
 
 from idbench import observe, recording
-from idbench.capabilities import n_nodes_of
+from idbench.capabilities import bounds_of, n_nodes_of
 from idbench.config import CompareConfig, ConfigError
 from idbench.executors import (
     THREAD_ENV,
@@ -170,7 +170,7 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         truth = models[config.truth_mesh]
         check_truth_mesh(truth, config.truth_mesh, models[mesh], mesh)
     if rec is not None:
-        bounds = getattr(models[config.meshes[0]], "bounds", None)
+        bounds = bounds_of(models[config.meshes[0]])
         recording.check_body(rec, bounds, loads)
         obs = observe.build(rec.observe, rec.observe_settings, reg)
         recording.check_frames(rec, obs)

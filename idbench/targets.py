@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from idbench import metrics
+from idbench.capabilities import member
 from idbench.interfaces import FloatArray, ForwardModel, ModelFailure
 from idbench.truth import Truth, simulate_path
 
@@ -58,7 +59,7 @@ def has_targets(model: ForwardModel, truth: Truth) -> bool:
     Both must have them: the model a ``targets`` member, the truth targets
     (T >= 1) probed from its states.
     """
-    return callable(getattr(model, "targets", None)) and truth.targets is not None
+    return member(model, "targets") is not None and truth.targets is not None
 
 
 def step_tre_mm(model: ForwardModel, state: FloatArray, truth_targets: Any) -> float:

@@ -169,7 +169,7 @@ def test_body_targets_parse_a_point_and_a_list_and_refuse_a_bad_one():
 def idbench_examples() -> Any:
     from pathlib import Path
 
-    return Path(__file__).resolve().parent.parent / "examples"
+    return Path(__file__).resolve().parents[2] / "examples"
 
 
 def inside(ellipsoid: Any, p: np.ndarray) -> float:
