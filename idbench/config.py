@@ -85,6 +85,12 @@ class CompareConfig:
     posterior_settings
         Its :class:`~idbench.posterior.PosteriorSettings` fields, e.g.
         ``{"points": 101, "max_solves": 20000}``.
+    calibration
+        :class:`~idbench.discrepancy.CalibrationSettings` fields of the
+        offline calibration that the runs of an estimator with ``correction =
+        "approximation-error"`` use, e.g. ``{"mesh": "40x5x5", "scenarios":
+        ["bend-y", "mixed-30"]}``; the mesh defaults to the truth mesh spec,
+        the scenarios to the run's own.
     """
 
     estimators: tuple[str, ...] | None = None
@@ -106,6 +112,7 @@ class CompareConfig:
     quick: bool = False
     posterior: bool = False
     posterior_settings: dict[str, Any] = field(default_factory=dict)
+    calibration: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for name in ("estimators", "meshes", "scenarios"):
@@ -168,6 +175,10 @@ class CompareConfig:
             raise ConfigError(
                 f"posterior_settings {self.posterior_settings!r}: need a table of "
                 "name = value"
+            )
+        if not isinstance(self.calibration, dict):
+            raise ConfigError(
+                f"calibration {self.calibration!r}: need a table of name = value"
             )
         for what in ("model_settings", "estimator_settings"):
             tables = getattr(self, what)
@@ -265,6 +276,7 @@ class CompareConfig:
         merged["estimator_settings"] = self.estimator_settings
         merged["true"] = self.true
         merged["posterior_settings"] = self.posterior_settings
+        merged["calibration"] = self.calibration
         return CompareConfig(**merged)
 
     def sparsities(self) -> list[Sparsity]:
@@ -558,7 +570,9 @@ def build_config(
     toml = dict(toml or {})
     given = {k: v for k, v in cli.items() if v is not None}
     fields = {**toml, **given}
-    for table in ("estimator_settings", "model_settings", "shorthand_settings", "true"):
+    tables = ("estimator_settings", "model_settings", "shorthand_settings", "true",
+              "calibration")  # fmt: skip
+    for table in tables:
         if table in toml and table in given:
             fields[table] = {**toml[table], **given[table]}
     short = fields.pop("shorthand_settings", {})

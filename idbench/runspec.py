@@ -99,17 +99,21 @@ class RunSpec:
     timeout: float | None = None
     posterior: Items | None = None
     inputs: str = ""
+    calibration: Items | None = None
 
     @property
     def run_id(self) -> str:
         """Deterministic hash of the run description and of its inputs' content.
 
         The timeout, the posterior settings and the execution settings are
-        left out.
+        left out, and so are the calibration settings of an uncorrected run
+        (None).
         """
         fields = dataclasses.asdict(self)
         fields.pop("timeout")
         fields.pop("posterior")
+        if fields["calibration"] is None:
+            fields.pop("calibration")
         fields["setup"].pop("execution")
         return stable_hash(fields)
 
@@ -176,6 +180,7 @@ def expand(config: CompareConfig, setup: Setup) -> list[RunSpec]:
             for sp in config.sparsities():
                 for estimator in config.estimators or ():
                     settings = config.estimator_settings.get(estimator, {})
+                    calibration = calibration_items(config, scenario, settings)
                     for seed in range(config.seeds):
                         runs.append(
                             RunSpec(
@@ -190,6 +195,25 @@ def expand(config: CompareConfig, setup: Setup) -> list[RunSpec]:
                                 noise=float(sp.noise),
                                 timeout=config.timeout,
                                 posterior=posterior,
+                                calibration=calibration,
                             )
                         )
     return runs
+
+
+def calibration_items(
+    config: CompareConfig, scenario: str, settings: dict[str, Any]
+) -> Items | None:
+    """The calibration settings of a run, resolved; None for an uncorrected one.
+
+    A run is corrected when its estimator settings say ``correction`` other
+    than ``"none"``. The calibration mesh defaults to the truth mesh spec, its
+    scenarios to the run's own.
+    """
+    if settings.get("correction", "none") == "none":
+        return None
+    given = dict(config.calibration)
+    given["mesh"] = given.get("mesh") or config.truth_mesh
+    names = given.get("scenarios") or (scenario,)
+    given["scenarios"] = (names,) if isinstance(names, str) else tuple(names)
+    return tuple(sorted(given.items()))

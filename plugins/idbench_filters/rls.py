@@ -15,6 +15,11 @@ differences in xi (p extra solves). With forgetting factor lambda:
 Forgetting applies at observed steps only. With lambda = 1 and a linear model
 this is the exact Gaussian posterior given the prior. The reported state is
 the one the innovation was computed with (the estimate before the update).
+
+With ``correction = "approximation-error"`` (:class:`idbench.Filter`) h is
+the corrected model's (the coarse observation plus the calibrated mean
+discrepancy, J its chain-ruled sensitivity (I + d mu/d z) J_c) and R the
+full R + Sigma(h(u)) of :meth:`idbench.Filter.noise_cov`.
 """
 
 from __future__ import annotations
@@ -70,9 +75,8 @@ class Rls(Filter):
                 model, xi, k, u, u_prev, self.transformation, self.fd_step
             )
             e = np.asarray(observation.values, dtype=float) - model.observe(u)
-            R = self.noise_var(observation)
             Pm = P / self.forgetting
-            S = J @ Pm @ J.T + R * np.eye(J.shape[0])
+            S = J @ Pm @ J.T + self.noise_cov(observation, u)
             K = np.linalg.solve(S, J @ Pm).T  # (p, m); S symmetric
             xi = xi + K @ e
             P = Pm - K @ S @ K.T
