@@ -138,10 +138,11 @@ class Filter(_Conventions):
         forecast and its covariance S = H P H^T + R (m, m); the traces'
         ``nis`` column is then nu^T S^-1 nu.
     correction
-        ``"none"`` (default): the model is trusted, the estimate is the
-        mesh's effective parameter. ``"approximation-error"``: the harness
-        hands the filter the coarse model corrected by an offline
-        calibration against a finer mesh (:mod:`idbench.discrepancy`), whose
+        ``"none"`` (default: the model is trusted, the estimate is the mesh's
+        effective parameter) or ``"approximation-error"`` (the physical
+        parameter, through the model corrected by an offline calibration
+        against a finer mesh of the same body). With the latter the harness
+        hands the filter the corrected model (:mod:`idbench.discrepancy`), whose
         ``observe`` adds the mean discrepancy mu and whose
         ``observation_cov(state)`` is its covariance Sigma: the observation
         model is y = h(x) + mu + e, e ~ N(0, R + Sigma), and the estimate is

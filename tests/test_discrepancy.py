@@ -90,7 +90,7 @@ def _zero(disc: Discrepancy) -> Discrepancy:
                    cov_unit=zero(disc.cov_unit))  # fmt: skip
 
 
-@pytest.mark.parametrize("name", ["ro-ukf", "etkf", "rls", "batch-ls", "enkf"])
+@pytest.mark.parametrize("name", ["ro-ukf", "etkf", "rls", "batch-ls", "enkf", "ukf"])
 def test_a_zero_correction_gives_the_uncorrected_estimate(name):
     """The matrix path (R + Sigma) with Sigma = 0, mu = 0 is the scalar one."""
     cls = REG.estimator(name)
