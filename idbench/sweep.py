@@ -25,6 +25,7 @@ from typing import Any
 import pandas as pd
 
 from idbench.config import CompareConfig, ConfigError, build_settings, suggest
+from idbench.discrepancy import CalibrationSettings
 from idbench.executors import THREAD_ENV, execute_all, start_method, started
 from idbench.files import stable_hash
 from idbench.interfaces import ForwardModel, ModelFailure, ModelSpec
@@ -116,6 +117,7 @@ def plan(config: CompareConfig, session: Session) -> Plan:
     )
     probe = _build(reg, config, config.meshes[0], settings)
     _check_posterior(config, probe.parameters.p)
+    _check_calibration(config, reg)
     check_prior(probe.parameters, config.prior, config.model)  # type: ignore[arg-type]
     setup = Setup(
         model=config.model,
@@ -282,6 +284,16 @@ def _check_posterior(config: CompareConfig, p: int) -> None:
             check_budget(settings, p, config.steps)
         except ValueError as exc:
             raise ConfigError(f"posterior: {exc}") from None
+
+
+def _check_calibration(config: CompareConfig, reg: Registry) -> None:
+    """Calibration settings that exist, are valid and name known scenarios."""
+    given = dict(config.calibration)
+    scenarios = given.pop("scenarios", ())
+    given.pop("mesh", None)
+    build_settings(CalibrationSettings, given, "calibration")
+    names = [scenarios] if isinstance(scenarios, str) else list(scenarios)
+    _known("scenario (in calibration)", names, reg.scenarios, reg)
 
 
 def _known(kind: str, names: Any, table: dict[str, Any], reg: Registry) -> None:

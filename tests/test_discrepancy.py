@@ -126,9 +126,11 @@ def test_bad_settings_are_one_line():
         estimator_settings={"rls": {"correction": "approximation-error"}},
         calibration={"draws": 0},
     )  # fmt: skip
-    runs, _ = compare(config, None)
-    assert runs["status"].tolist() == ["failed"]
-    assert "calibration: draws = 0" in runs["error"].iloc[0]
+    with pytest.raises(ConfigError, match="calibration: draws = 0: need an integer"):
+        compare(config, None)  # refused before any run
+    unknown = replace(config, calibration={"scenarios": ["bend-q"]})
+    with pytest.raises(ConfigError, match="bend-q"):
+        compare(unknown, None)
     with pytest.raises(ConfigError, match="calibration"):
         CompareConfig(calibration=["mesh"])  # type: ignore[arg-type]
 
