@@ -24,7 +24,9 @@ w_i = 1 / (t_i + t_0)), give the covariance of a prediction,
     \Sigma(z) = C \, \big(t(z) + t_0 + h(z)\big), \qquad
     h(z) = \phi(z)^T (\Phi^T W \Phi)^{-1} \phi(z),
 
-the leverage h growing where z leaves the calibrated load states (a load
+C the larger of the in-sample and the leave-one-scenario-out residual
+covariance (see :func:`fit`), the leverage h growing where z leaves the
+calibrated load states (a load
 direction the design did not span): there the correction extrapolates, and
 :meth:`Discrepancy.extrapolates` says so. The corrected observation model an
 estimator uses is
@@ -95,6 +97,10 @@ CORRECTIONS = ("none", "approximation-error")
 
 FLOOR = 1e-4
 """t_0: the residual variance floor, relative to the squared RMS sample |z|."""
+
+FIT_VERSION = 2
+"""Changes when the fit changes (the cache keys on it); 2: C from the
+leave-one-scenario-out residuals where they interpolate."""
 
 SCALING_TOLERANCE = 1e-6
 """Relative difference under which the load scaling counts as holding."""
@@ -443,9 +449,12 @@ def fit(samples: Samples, settings: CalibrationSettings) -> Discrepancy:
     The residual of a sample is modelled as N(0, C (t_i + t_0)), t_i =
     |z_i|^2 / z_s^2 (an error relative to the displacement, with a floor t_0
     = :data:`FLOOR`), so the weights are w_i = 1 / (t_i + t_0) and C is the
-    weighted residual covariance. With two or more scenarios the
-    leave-one-scenario-out residual RMS is reported too (``info["loso_rms"]``:
-    how far the correction transfers to a path it did not see).
+    weighted residual covariance. With two or more scenarios, C is the larger
+    (by trace) of the in-sample one and that of the leave-one-scenario-out
+    residuals where the others' fit interpolates (each scenario predicted by
+    a fit on the others): how far the correction transfers to a path it did
+    not see (``info["covariance"]`` says which; ``info["loso_rms"]`` is the
+    RMS of every held-out residual, extrapolations included).
     """
     z = samples.z
     scale = float(np.sqrt(np.mean(np.sum(z**2, axis=1)))) or 1.0
@@ -464,18 +473,47 @@ def fit(samples: Samples, settings: CalibrationSettings) -> Discrepancy:
         "samples": len(z),
         "residual_rms": float(np.sqrt(np.mean(res**2))),
         "discrepancy_rms": float(np.sqrt(np.mean(samples.d_obs**2))),
+        "covariance": "in-sample",
     }
-    groups = np.unique(samples.group)
-    if groups.size >= 2:
-        out_res = []
-        for g in groups:
-            out = samples.group == g
-            ai = _weighted_fit(phi[~out], w[~out], settings.ridge)
-            wg = ai @ ((phi[~out] * w[~out, None]).T @ samples.d_obs[~out])
-            out_res.append(samples.d_obs[out] - phi[out] @ wg)
-        info["loso_rms"] = float(np.sqrt(np.mean(np.vstack(out_res) ** 2)))
+    transfer = _transfer_residuals(phi, w, samples, settings.ridge)
+    if transfer is not None:
+        r_out, w_out, rms = transfer
+        info["loso_rms"] = rms
+        if len(r_out) > phi.shape[1]:
+            cov_out = _psd((r_out * w_out[:, None]).T @ r_out / len(r_out))
+            if np.trace(cov_out) > np.trace(cov_unit):
+                cov_unit, info["covariance"] = cov_out, "leave-one-scenario-out"
     return Discrepancy(settings.features, scale, w_obs, w_grid, cov_unit, a_inv,
                        FLOOR, float(leverage.max()), 0.0, info)  # fmt: skip
+
+
+def _transfer_residuals(
+    phi: FloatArray, w: FloatArray, samples: Samples, ridge: float
+) -> tuple[FloatArray, FloatArray, float] | None:
+    """Leave-one-scenario-out residuals where the others' fit interpolates.
+
+    Each scenario is predicted by a fit on the others; its samples within
+    that fit's largest training leverage (where the fit would not flag an
+    extrapolation) give the residuals and their weights. Also returns the RMS
+    of every held-out residual. None with fewer than two scenarios.
+    """
+    groups = np.unique(samples.group)
+    if groups.size < 2:
+        return None
+    kept_r, kept_w, every = [], [], []
+    for g in groups:
+        out = samples.group == g
+        ai = _weighted_fit(phi[~out], w[~out], ridge)
+        wg = ai @ ((phi[~out] * w[~out, None]).T @ samples.d_obs[~out])
+        r = samples.d_obs[out] - phi[out] @ wg
+        every.append(r)
+        lev_in = np.einsum("ij,jk,ik->i", phi[~out], ai, phi[~out]).max()
+        lev_out = np.einsum("ij,jk,ik->i", phi[out], ai, phi[out])
+        inside = lev_out <= lev_in
+        kept_r.append(r[inside])
+        kept_w.append(w[out][inside])
+    rms = float(np.sqrt(np.mean(np.vstack(every) ** 2)))
+    return np.vstack(kept_r), np.concatenate(kept_w), rms
 
 
 def discrepancy_key(
@@ -495,7 +533,8 @@ def discrepancy_key(
             descs.append(factory(replace(coarse, mesh=mesh, scenario=sc)).describe())
     return stable_hash(
         {"models": descs, "prior": [list(prior.mean), list(prior.std)],
-         "settings": asdict(settings), "version": __version__},
+         "settings": asdict(settings), "version": __version__,
+         "fit": FIT_VERSION},
         length=24,
     )  # fmt: skip
 
