@@ -77,12 +77,13 @@ from idbench.interfaces import (
     Cost,
     FloatArray,
     ForwardModel,
+    ModelFailure,
     ModelSpec,
     Prior,
 )
 from idbench.scenario import Scenario
 from idbench.transforms import LogTransform
-from idbench.truth import cache_dir, simulate_path, simulate_truth
+from idbench.truth import _load, _save, cache_dir, probe, truth_key
 
 log = logging.getLogger(__name__)
 
@@ -397,8 +398,7 @@ def simulate_samples(
     Returns the samples, the fine path simulations they took (fine steps /
     K) and whether the load scaling was used.
     """
-    probe = factory(coarse)
-    scaled = scaling_holds(probe)
+    scaled = scaling_holds(factory(coarse))
     K = coarse.n_steps
     zs, dos, dgs, groups = [], [], [], []
     fine_steps = 0
@@ -413,18 +413,70 @@ def simulate_samples(
                                n_steps=steps))  # fmt: skip
         crs = factory(replace(coarse, scenario=scenario, n_steps=steps))
         for theta in thetas:
-            path = simulate_truth(fine, theta)  # cached like a truth
-            fine_steps += steps
-            states = simulate_path(crs, theta)
+            path = probe(fine, fine_path(fine, theta))  # cached like a truth
+            fine_steps += len(path.states)
+            states = _reach(crs, theta, len(path.states))
+            n = len(states)
+            if n < steps:
+                log.warning("calibration of %s on %s: load states up to step %d of "
+                            "%d (the models fail beyond)", coarse.mesh,
+                            scenario.name, n, steps)  # fmt: skip
             z = np.array([crs.observe(s) for s in states])
             zg = np.array([np.ravel(crs.grid(s)) for s in states])
             zs.append(z)
-            dos.append(path.observations - z)
-            dgs.append(path.grid.reshape(steps, -1) - zg)
-            groups.append(np.full(steps, g))
+            dos.append(path.observations[:n] - z)
+            dgs.append(path.grid[:n].reshape(n, -1) - zg)
+            groups.append(np.full(n, g))
     samples = Samples(np.vstack(zs), np.vstack(dos), np.vstack(dgs),
                       np.concatenate(groups).astype(float))  # fmt: skip
     return samples, fine_steps / K, scaled
+
+
+def _reach(model: ForwardModel, theta: FloatArray, n: int) -> FloatArray:
+    """States (k, n_state) of steps 1..k <= n, stopping at the first failure."""
+    state = model.reset()
+    states = []
+    for k in range(1, n + 1):
+        try:
+            state = model.step(theta, k, state)
+        except ModelFailure:
+            break
+        if not np.all(np.isfinite(state)):
+            break
+        states.append(state)
+    if not states:
+        raise ModelFailure("the calibration path fails at its first step", step=1)
+    return np.array(states)
+
+
+def fine_path(model: ForwardModel, theta: FloatArray) -> FloatArray:
+    """The fine path's states at ``theta`` as far as the model solves it, cached.
+
+    A complete path is cached as a truth (:func:`idbench.truth.simulate_truth`
+    finds it); one that fails at step k (a load beyond what the mesh bears) is
+    cached with its steps 1..k-1 (``reached-KEY.npz``), so that it is not
+    simulated again.
+    """
+    key = truth_key(model, theta)
+    full = cache_dir() / f"truth-{key}.npz"
+    shape = (model.n_steps, model.reset().size)
+    states = _load(full, key, shape)
+    if states is not None:
+        return states
+    part = cache_dir() / f"reached-{key}.npz"
+    if part.exists():
+        try:
+            with np.load(part, allow_pickle=False) as data:
+                rows = int(np.shape(data["states"])[0])
+        except Exception:  # damaged: _load warns and it is recomputed below
+            rows = 0
+        found = _load(part, key, (rows, shape[1]))
+        if found is not None and 0 < rows < shape[0]:
+            return found
+    log.info("simulating calibration path %s", key)
+    states = _reach(model, theta, model.n_steps)
+    _save(full if len(states) == model.n_steps else part, key, states)
+    return states
 
 
 def _psd(a: FloatArray) -> FloatArray:

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from idbench import ConfigError, ModelSpec, Observation, Prior
+from idbench import ConfigError, ModelFailure, ModelSpec, Observation, Prior
 from idbench.config import CompareConfig
 from idbench.discrepancy import (
     CalibrationSettings,
@@ -155,3 +155,35 @@ def test_compare_with_the_correction_covers_the_true_value():
     np.testing.assert_allclose(fixed["E_ref"], plain["E_ref"])
     assert (fixed["calibration_cost"] == 3.0).all()
     assert set(fixed["run_id"]).isdisjoint(plain["run_id"])
+
+
+def test_a_fine_path_that_fails_at_high_load_keeps_the_states_it_reached(caplog):
+    """Beyond what the fine mesh bears, the calibration uses what it reached."""
+    calls = {"fine": 0}
+
+    def factory(spec: ModelSpec):
+        model = BEAM(spec)
+        if spec.mesh != "9x2x2":
+            return model
+        step = model.step
+
+        def failing(theta, k, state, *, substeps=1):
+            calls["fine"] += 1
+            if k > 8:
+                raise ModelFailure("inverted element", step=k)
+            return step(theta, k, state, substeps=substeps)
+
+        model.step = failing
+        return model
+
+    sc = [REG.scenario("bend-y")]
+    settings = replace(SMALL, quantile=0.1)  # a path no other test cached whole
+    with caplog.at_level("WARNING"):
+        disc = calibrate(factory, _spec(), "9x2x2", sc, PRIOR, settings, cache=False)
+    assert "up to step 8 of 12" in caplog.text
+    assert disc.info["samples"] == 8
+    assert disc.cost == pytest.approx(8 / 4)
+    assert len(list(cache_dir().glob("reached-*.npz"))) == 1
+    before = calls["fine"]
+    calibrate(factory, _spec(), "9x2x2", sc, PRIOR, settings, cache=False)
+    assert calls["fine"] == before  # the reached states came from the cache
