@@ -217,6 +217,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
         prior=prior,
         timeout=args.timeout,
         posterior=args.posterior,
+        calibration=(
+            {"mesh": args.calibration_mesh} if args.calibration_mesh else None
+        ),
         model=args.model,
         shorthand_settings=options or None,
         data=str(args.data) if args.data else None,

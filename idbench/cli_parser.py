@@ -244,6 +244,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     c.add_argument("--truth-mesh", help=f"truth mesh spec (default: {d('truth_mesh')})")
     c.add_argument(
+        "--calibration-mesh",
+        help="finer mesh the runs of an estimator with correction = "
+        '"approximation-error" are calibrated against (default: the truth mesh '
+        "spec; the calibration simulates its own paths; more in a TOML "
+        "[compare] calibration table)",
+    )
+    c.add_argument(
         "--scenarios",
         type=_names,
         help=f"comma list of %(scenarios)s (default: {d('scenarios')})",

@@ -91,6 +91,12 @@ class CompareConfig:
         A recording folder (:mod:`idbench.recording`) to observe instead of a
         simulated truth; it sets the scenario, steps, observation model,
         markers and noise, and there is no truth mesh.
+    calibration
+        :class:`~idbench.discrepancy.CalibrationSettings` fields of the
+        offline calibration that the runs of an estimator with ``correction =
+        "approximation-error"`` use, e.g. ``{"mesh": "40x5x5", "scenarios":
+        ["bend-y", "mixed-30"]}``; the mesh defaults to the truth mesh spec,
+        the scenarios to the run's own.
     """
 
     estimators: tuple[str, ...] | None = None
@@ -115,6 +121,7 @@ class CompareConfig:
     observe: tuple[str, ...] = ("markers",)
     observe_settings: dict[str, dict[str, Any]] = field(default_factory=dict)
     data: str | None = None
+    calibration: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for name in ("estimators", "meshes", "scenarios"):
@@ -178,6 +185,10 @@ class CompareConfig:
             raise ConfigError(
                 f"posterior_settings {self.posterior_settings!r}: need a table of "
                 "name = value"
+            )
+        if not isinstance(self.calibration, dict):
+            raise ConfigError(
+                f"calibration {self.calibration!r}: need a table of name = value"
             )
         for what in ("model_settings", "estimator_settings", "observe_settings"):
             tables = getattr(self, what)
@@ -280,6 +291,7 @@ class CompareConfig:
         merged["true"] = self.true
         merged["posterior_settings"] = self.posterior_settings
         merged["observe_settings"] = self.observe_settings
+        merged["calibration"] = self.calibration
         return CompareConfig(**merged)
 
     def _proposed(self, registry: Any, model: str) -> ModelDefaults | None:
@@ -443,7 +455,7 @@ def build_config(
     given = {k: v for k, v in cli.items() if v is not None}
     fields = {**toml, **given}
     tables = ("estimator_settings", "model_settings", "shorthand_settings", "true",
-              "observe_settings")  # fmt: skip
+              "observe_settings", "calibration")  # fmt: skip
     for table in tables:
         if table in toml and table in given:
             fields[table] = {**toml[table], **given[table]}

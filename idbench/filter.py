@@ -30,6 +30,9 @@ from idbench.interfaces import (
 )
 from idbench.transforms import TRANSFORMS, IdentityTransform
 
+CORRECTIONS = ("none", "approximation-error")
+"""Values of the ``correction`` setting."""
+
 
 @dataclass(frozen=True)
 class Analysis:
@@ -134,10 +137,22 @@ class Filter(_Conventions):
         filter may set ``(nu, S)``, the innovation nu = y - y_hat (m,) of the
         forecast and its covariance S = H P H^T + R (m, m); the traces'
         ``nis`` column is then nu^T S^-1 nu.
+    correction
+        ``"none"`` (default: the model is trusted, the estimate is the mesh's
+        effective parameter) or ``"approximation-error"`` (the physical
+        parameter, through the model corrected by an offline calibration
+        against a finer mesh of the same body). With the latter the harness
+        hands the filter the corrected model (:mod:`idbench.discrepancy`), whose
+        ``observe`` adds the mean discrepancy mu and whose
+        ``observation_cov(state)`` is its covariance Sigma: the observation
+        model is y = h(x) + mu + e, e ~ N(0, R + Sigma), and the estimate is
+        the physical (tissue's) parameter. A filter reads R + Sigma from
+        :meth:`noise_cov`.
     """
 
     transform: str = "log"
     sigma_floor: float = 1e-6
+    correction: str = "none"
     _run: Run | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -150,6 +165,11 @@ class Filter(_Conventions):
         if not (isinstance(floor, int | float) and math.isfinite(floor) and floor > 0):
             raise ValueError(
                 f"sigma_floor = {floor!r} is not allowed; it must be finite > 0"
+            )
+        if self.correction not in CORRECTIONS:
+            raise ValueError(
+                f"correction = {self.correction!r} is not allowed; use one of "
+                + ", ".join(repr(a) for a in CORRECTIONS)
             )
 
     # --- what a subclass writes --------------------------------------------
@@ -169,6 +189,12 @@ class Filter(_Conventions):
 
     def start(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run on ``model`` from ``prior`` (cost counted from here)."""
+        if self.correction != "none" and not hasattr(model, "observation_cov"):
+            raise ValueError(
+                f"correction = {self.correction!r} needs a corrected model (one "
+                "with observation_cov, idbench.discrepancy.CorrectedModel); "
+                "idbench compare provides it"
+            )
         self._run = Run(model, model.cost())
         self.innovation = None
         self.begin(model, prior)
@@ -258,6 +284,30 @@ class Filter(_Conventions):
             return float(max(observation.noise_std, self.sigma_floor)) ** 2
         std = np.asarray(observation.noise_std, dtype=float)
         return np.maximum(std, self.sigma_floor) ** 2
+
+    def extra_cov(self, state: FloatArray) -> FloatArray | None:
+        """Sigma (m, m) of the corrected model at ``state``; None uncorrected.
+
+        None unless ``correction`` is on (the model then has
+        ``observation_cov``, see :meth:`start`).
+        """
+        if self.correction == "none":
+            return None
+        cov = self.model.observation_cov  # type: ignore[attr-defined]
+        return np.asarray(cov(state), dtype=float)
+
+    def noise_cov(
+        self, observation: Observation, state: FloatArray, extra: float = 0.0
+    ) -> FloatArray:
+        """R + Sigma (m, m): (noise_var + extra) I plus :meth:`extra_cov` at ``state``.
+
+        ``extra`` is a further variance on the diagonal (a filter's own
+        model-error setting).
+        """
+        m = np.asarray(observation.values).size
+        r = noise_matrix(self.noise_var(observation) + extra, m)
+        sigma = self.extra_cov(state)
+        return r if sigma is None else r + sigma
 
     def check_estimate(self, xi: FloatArray, k: int, *finite: FloatArray) -> None:
         """Raise :class:`~idbench.Diverged` at step k for a bad estimate.

@@ -317,6 +317,11 @@ def _run_on(
             raise ConfigError(
                 f"estimator {spec.estimator!r}: {exc}; allowed settings: {allowed}"
             ) from None
+    if getattr(estimator, "correction", "none") != "none":
+        # the physical parameter: the coarse model corrected by its calibration
+        model = session.corrected(spec, model)
+        metrics_model = session.corrected(spec, metrics_model)
+        row["calibration_cost"] = model.discrepancy.cost
     truth = session.truth(spec)
     stream = session.observations(spec)
     direct = session.direct(spec)
@@ -353,6 +358,11 @@ def _run_on(
         model.parameters, stream, truth, spec.noise, means[-1],
         np.array([row[f"{n}_ref"] for n in spec.setup.names]),
     )  # fmt: skip
+    beyond = getattr(model, "extrapolated", 0)
+    if beyond:  # a corrected model asked beyond its calibrated load states
+        note = (f"the correction extrapolated ({beyond} predictions beyond the "
+                "calibrated load states)")  # fmt: skip
+        row["warning"] = "; ".join(w for w in (row["warning"], note) if w)
 
 
 def _estimate(

@@ -37,7 +37,11 @@ log = logging.getLogger(__name__)
 RESUMABLE = ("timeout",)
 """Settings that do not change results: a resume may change them."""
 
-ADDED: dict[str, Any] = {"posterior": False, "posterior_settings": {}}
+ADDED: dict[str, Any] = {
+    "posterior": False,
+    "posterior_settings": {},
+    "calibration": {},
+}
 """Settings added in later versions, with the value a manifest without them meant."""
 
 

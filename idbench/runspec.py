@@ -109,17 +109,21 @@ class RunSpec:
     inputs: str = ""
     observe: str = "markers"
     observe_settings: Items = ()
+    calibration: Items | None = None
 
     @property
     def run_id(self) -> str:
         """Deterministic hash of the run description and of its inputs' content.
 
         The timeout, the posterior settings and the execution settings are
-        left out.
+        left out, and so are the calibration settings of an uncorrected run
+        (None).
         """
         fields = dataclasses.asdict(self)
         fields.pop("timeout")
         fields.pop("posterior")
+        if fields["calibration"] is None:
+            fields.pop("calibration")
         fields["setup"].pop("execution")
         fields["setup"].pop("data")
         if self.setup.data:  # its content, not where it lies
@@ -220,6 +224,7 @@ def expand(
             ):
                 for estimator in config.estimators or ():
                     settings = config.estimator_settings.get(estimator, {})
+                    calibration = calibration_items(config, scenario, settings)
                     for seed in range(config.seeds):
                         runs.append(
                             RunSpec(
@@ -236,6 +241,25 @@ def expand(
                                 posterior=posterior,
                                 observe=obs,
                                 observe_settings=observe.get(obs, ()),
+                                calibration=calibration,
                             )
                         )
     return runs
+
+
+def calibration_items(
+    config: CompareConfig, scenario: str, settings: dict[str, Any]
+) -> Items | None:
+    """The calibration settings of a run, resolved; None for an uncorrected one.
+
+    A run is corrected when its estimator settings say ``correction`` other
+    than ``"none"``. The calibration mesh defaults to the truth mesh spec, its
+    scenarios to the run's own.
+    """
+    if settings.get("correction", "none") == "none":
+        return None
+    given = dict(config.calibration)
+    given["mesh"] = given.get("mesh") or config.truth_mesh
+    names = given.get("scenarios") or (scenario,)
+    given["scenarios"] = (names,) if isinstance(names, str) else tuple(names)
+    return tuple(sorted(given.items()))

@@ -115,7 +115,10 @@ def uncertainty_columns(
     Per parameter ``x``: ``x_cover68_true``, ``x_cover95_true`` (1/0: the
     central 68%/95% interval holds the true value; NaN without a std),
     ``x_cover68_ref``, ``x_cover95_ref`` (the same for the reference value),
-    ``x_crps`` (CRPS against the true value); ``nees_true`` and ``nees_ref``.
+    ``x_crps`` (CRPS against the true value); ``nees_true`` and ``nees_ref``;
+    ``x_relerr_true`` and ``x_relerr_ref``, the relative errors mean / value - 1
+    against the true (the tissue's) and the reference (the mesh's effective)
+    value: the two questions an estimate may answer.
     """
     out: dict[str, Any] = {}
     cover = {
@@ -128,6 +131,9 @@ def uncertainty_columns(
         for (level, what), c in cover.items():
             out[f"{n}_cover{level}_{what}"] = float(c[j])
         out[f"{n}_crps"] = float(crps[j])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out[f"{n}_relerr_true"] = float(mean[j] / true[j] - 1)
+            out[f"{n}_relerr_ref"] = float(mean[j] / ref[j] - 1)
     out["nees_true"] = metrics.nees(mean, std, true)
     out["nees_ref"] = metrics.nees(mean, std, ref)
     return out
@@ -219,6 +225,8 @@ def empty_parameter_columns(spec: RunSpec) -> dict[str, Any]:
             out[f"{n}_cover{level}_true"] = np.nan
             out[f"{n}_cover{level}_ref"] = np.nan
         out[f"{n}_crps"] = np.nan
+        out[f"{n}_relerr_true"] = np.nan
+        out[f"{n}_relerr_ref"] = np.nan
     out["nees_true"] = np.nan
     out["nees_ref"] = np.nan
     out.update(empty_posterior_columns(spec))

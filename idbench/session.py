@@ -15,6 +15,12 @@ from typing import Any
 import numpy as np
 
 from idbench import observe, recording
+from idbench.discrepancy import (
+    CalibrationSettings,
+    CorrectedModel,
+    Discrepancy,
+    calibrate,
+)
 from idbench.files import stable_hash
 from idbench.interfaces import (
     ConfigError,
@@ -52,6 +58,7 @@ class Session:
         self._sensed: dict[str, list[dict[str, FloatArray]]] = {}
         self._frames: dict[str, list[observe.Frame]] = {}
         self._own: dict[Any, dict[str, Scenario]] = {}
+        self._discrepancies: dict[str, Discrepancy] = {}
 
     def scenario(self, spec: RunSpec, name: str) -> Scenario:
         """The scenario ``name`` of ``spec``'s comparison.
@@ -84,23 +91,27 @@ class Session:
         # long-lived session must not serve a later sweep an earlier one's
         key = spec.model_key(mesh, scenario, role) + repr(spec.setup.execution)
         if key not in self._models:
-            setup = spec.setup
-            settings = model_settings(
-                self.registry,
-                setup.model,
-                {**dict(setup.model_settings), **dict(setup.execution)},
-            )
-            ms = ModelSpec(
-                mesh=mesh,
-                scenario=self.scenario(spec, scenario),
-                n_steps=setup.steps,
-                markers=spec.obs_points,
-                settings=settings,
-            )
-            model = self.registry.model(setup.model)(ms)
+            ms = self.model_spec(spec, mesh, scenario)
+            model = self.registry.model(spec.setup.model)(ms)
             self._prints[id(model)] = fingerprint(model)
             self._models[key] = model
         return self._models[key]
+
+    def model_spec(self, spec: RunSpec, mesh: str, scenario: str) -> ModelSpec:
+        """What the model factory of ``spec`` gets for ``mesh`` on ``scenario``."""
+        setup = spec.setup
+        settings = model_settings(
+            self.registry,
+            setup.model,
+            {**dict(setup.model_settings), **dict(setup.execution)},
+        )
+        return ModelSpec(
+            mesh=mesh,
+            scenario=self.scenario(spec, scenario),
+            n_steps=setup.steps,
+            markers=spec.obs_points,
+            settings=settings,
+        )
 
     def lend(
         self, spec: RunSpec, mesh: str, scenario: str | None = None, role: str = "est"
@@ -131,6 +142,48 @@ class Session:
                 del self._models[key]
             log.warning("a run changed a shared model (%s): built anew", in_master)
         return sorted(changed)
+
+    def discrepancy(self, spec: RunSpec) -> Discrepancy:
+        """The calibration of the run's mesh against its calibration mesh.
+
+        Computed on first use (fine paths of its own design, never the
+        truth's data) and cached on disk (:func:`idbench.discrepancy.calibrate`).
+
+        Raises
+        ------
+        ConfigError
+            For an uncorrected run or bad calibration settings.
+        """
+        if spec.calibration is None:
+            raise ConfigError(f"run {spec.run_id} has no calibration settings")
+        given = dict(spec.calibration)
+        mesh = str(given.pop("mesh"))
+        names = tuple(given.pop("scenarios"))
+        key = stable_hash([spec.model_key(spec.mesh, spec.scenario, "est"),
+                           list(spec.calibration), list(spec.setup.prior)])  # fmt: skip
+        if key not in self._discrepancies:
+            try:
+                settings = CalibrationSettings(**given)
+            except (TypeError, ValueError) as exc:
+                raise ConfigError(f"calibration: {exc}") from None
+            model = self.model(spec, spec.mesh)
+            prior = self.prior(model, spec)
+            scenarios = [self.scenario(spec, n) for n in names]
+            self._discrepancies[key] = calibrate(
+                self.registry.model(spec.setup.model),
+                self.model_spec(spec, spec.mesh, spec.scenario),
+                mesh, scenarios, prior, settings,
+            )  # fmt: skip
+        return self._discrepancies[key]
+
+    def corrected(self, spec: RunSpec, model: ForwardModel) -> CorrectedModel:
+        """``model`` corrected by the run's calibration (a new wrapper per call).
+
+        The covariance is weighted by the run's number of observed steps (see
+        :mod:`idbench.discrepancy`).
+        """
+        n_obs = sum(spec.sparsity.observed(k) for k in range(1, spec.setup.steps + 1))
+        return CorrectedModel(model, self.discrepancy(spec), n_obs)
 
     def theta_true(self, spec: RunSpec) -> FloatArray:
         """True parameters (p,), in the model's order."""

@@ -27,6 +27,7 @@ import pandas as pd
 from idbench import observe, recording
 from idbench.capabilities import bounds_of, n_nodes_of
 from idbench.config import CompareConfig, ConfigError
+from idbench.discrepancy import CalibrationSettings
 from idbench.executors import (
     THREAD_ENV,
     ClusterLost,
@@ -141,6 +142,7 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         _check_estimator_settings(reg, name, given)
     probe = _build(reg, config, config.meshes[0], settings)
     _check_posterior(config, probe.parameters.p)
+    _check_calibration(config, reg)
     check_prior(probe.parameters, config.prior, config.model)  # type: ignore[arg-type]
     setup = Setup(
         model=config.model,
@@ -327,6 +329,16 @@ def _check_posterior(config: CompareConfig, p: int) -> None:
             check_budget(settings, p, config.steps)
         except ValueError as exc:
             raise ConfigError(f"posterior: {exc}") from None
+
+
+def _check_calibration(config: CompareConfig, reg: Registry) -> None:
+    """Calibration settings that exist, are valid and name known scenarios."""
+    given = dict(config.calibration)
+    scenarios = given.pop("scenarios", ())
+    given.pop("mesh", None)
+    build_settings(CalibrationSettings, given, "calibration")
+    names = [scenarios] if isinstance(scenarios, str) else list(scenarios)
+    _known("scenario (in calibration)", names, reg.scenarios, reg)
 
 
 def _known(kind: str, names: Any, table: dict[str, Any], reg: Registry) -> None:

@@ -19,6 +19,13 @@ keeps the plain draws. Each step:
 The innovation of the last observed step, nu = y - mean_i h(u_i) and its
 forecast covariance S = cov_i h(u_i) + R, is kept in :attr:`innovation` for
 the normalised innovation squared nu^T S^-1 nu.
+
+With ``correction = "approximation-error"`` (:class:`idbench.Filter`) each
+h(u_i) is the corrected model's (plus the calibrated mean discrepancy) and
+the noise is R + Sigma, Sigma at the forecast mean state: the analysis runs
+on observations whitened by the lower Cholesky factor C of R + Sigma
+(y <- C^-1 y, h <- C^-1 h, R <- I), which for a Gaussian update is the same
+as using R + Sigma (for the EnKF the perturbations become N(0, R + Sigma)).
 """
 
 from __future__ import annotations
@@ -152,9 +159,18 @@ class EnsembleFilter(Filter):
             y = np.asarray(observation.values, dtype=float)
             HX = np.stack([model.observe(x) for x in X[:, :nu]]).astype(float)
             r = self.noise_var(observation)
-            s = np.atleast_2d(np.cov(HX, rowvar=False)) + noise_matrix(r, y.size)
-            self.innovation = (y - HX.mean(axis=0), s)
-            X = self.analysis(X, HX, y, r)
+            sigma = self.extra_cov(X[:, :nu].mean(axis=0))
+            cov_hx = np.atleast_2d(np.cov(HX, rowvar=False))
+            R = noise_matrix(r, y.size)
+            if sigma is None:
+                self.innovation = (y - HX.mean(axis=0), cov_hx + R)
+                X = self.analysis(X, HX, y, r)
+            else:  # corrected model: whiten by chol(R + Sigma), then R = I
+                c = np.linalg.cholesky(R + sigma)
+                self.innovation = (y - HX.mean(axis=0), cov_hx + c @ c.T)
+                yw = np.linalg.solve(c, y)
+                hxw = np.linalg.solve(c, HX.T).T
+                X = self.analysis(X, hxw, yw, 1.0)
             if self.inflation > 1:
                 xbar = X.mean(axis=0)
                 X = xbar + self.inflation * (X - xbar)

@@ -17,6 +17,12 @@ differences, each column one more re-simulation. No prior term: the answer is
 the "effective" parameter the harness uses as its reference. The reported std
 is the Gauss-Newton one, sqrt(diag((J^T J)^-1)) at the optimum.
 
+With ``correction = "approximation-error"`` (:class:`idbench.Filter`) h_j is
+the corrected model's and each residual is whitened by the lower Cholesky
+factor C_j of R + Sigma(h_j), r_j = C_j^-1 (y_j - h_j(xi)): Sigma is
+evaluated at the states of the starting point and kept through a fit, then
+once more at the first fit's states for a second fit (two passes).
+
 ``refit="end"`` (default) fits once at the last step K and reports the prior
 before; ``refit="each"`` refits, warm-started, at every observed step.
 """
@@ -27,6 +33,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+from scipy.linalg import solve_triangular
 from scipy.optimize import least_squares
 
 from idbench import Analysis, Diverged, Filter, ForwardModel, Observation, Prior
@@ -97,6 +104,7 @@ class BatchLs(Filter):
         self._xi, self._cov = self._mu.copy(), self._P.copy()
         self._obs: list[tuple[int, FloatArray, float]] = []  # (k, y, sigma)
         self._cache: tuple[bytes, int, list[FloatArray]] | None = None
+        self._chol: list[FloatArray] | None = None
         spec = model.parameters
         lo = self.to_xi(np.asarray(spec.lower, dtype=float))
         hi = self.to_xi(np.asarray(spec.upper, dtype=float))
@@ -120,6 +128,11 @@ class BatchLs(Filter):
     def _residuals(self, xi: FloatArray, n: int) -> FloatArray:
         states = self._simulate(xi, n)
         observe = self.model.observe
+        if self._chol is not None:  # corrected model: whitened by chol(R + Sigma)
+            return np.concatenate([
+                solve_triangular(c, y - observe(states[k - 1]), lower=True)
+                for (k, y, _), c in zip(self._obs, self._chol, strict=True)
+            ])  # fmt: skip
         return np.concatenate(
             [(y - observe(states[k - 1])) / s for k, y, s in self._obs]
         )
@@ -128,6 +141,14 @@ class BatchLs(Filter):
         model = self.model
         states = self._simulate(xi, n)
         theta, scale = self.to_theta(xi), self.dtheta_dxi(xi)
+        if self._chol is not None:
+            return np.vstack([
+                -solve_triangular(
+                    c, np.asarray(model.sensitivity(theta, k, states[k - 1])),  # type: ignore[attr-defined]
+                    lower=True,
+                ) * scale
+                for (k, _, _), c in zip(self._obs, self._chol, strict=True)
+            ])  # fmt: skip
         rows = [
             -np.asarray(model.sensitivity(theta, k, states[k - 1])) * scale  # type: ignore[attr-defined]
             / np.reshape(s, (-1, 1))
@@ -135,25 +156,39 @@ class BatchLs(Filter):
         ]
         return np.vstack(rows)
 
+    def _whitening(self, xi: FloatArray, n: int) -> list[FloatArray]:
+        """Lower Cholesky factors of R + Sigma at each observed step's state at xi."""
+        states = self._simulate(xi, n)
+        out = []
+        for k, y, s in self._obs:
+            cov = s**2 * np.eye(y.size) + self.extra_cov(states[k - 1])  # type: ignore[operator]
+            out.append(np.linalg.cholesky(cov))
+        return out
+
     def _fit(self, k: int) -> FloatArray:
         """Fit xi to all observations so far, simulating steps 1..k."""
         lo, hi = self._bounds
         span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
         x0 = np.clip(self._xi, lo + 1e-9 * span, hi - 1e-9 * span)
         jac = self._jacobian if hasattr(self.model, "sensitivity") else "2-point"
+        passes = 1 if self.correction == "none" else 2
         try:
-            res = least_squares(
-                self._residuals,
-                x0,
-                jac=jac,
-                bounds=(lo, hi),
-                method=self.method,
-                xtol=self.xtol,
-                ftol=self.ftol,
-                gtol=self.gtol,
-                max_nfev=self.max_nfev,
-                args=(k,),
-            )
+            for _ in range(passes):
+                if passes > 1:  # R + Sigma at the current iterate's states, kept
+                    self._chol = self._whitening(x0, k)  # through the fit
+                res = least_squares(
+                    self._residuals,
+                    x0,
+                    jac=jac,
+                    bounds=(lo, hi),
+                    method=self.method,
+                    xtol=self.xtol,
+                    ftol=self.ftol,
+                    gtol=self.gtol,
+                    max_nfev=self.max_nfev,
+                    args=(k,),
+                )
+                x0 = np.clip(res.x, lo + 1e-9 * span, hi - 1e-9 * span)
         except np.linalg.LinAlgError as exc:
             raise Diverged(f"least squares failed: {exc}", step=k) from exc
         xi = np.asarray(res.x, dtype=float)

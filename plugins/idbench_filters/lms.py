@@ -10,7 +10,10 @@ gradient step
 
     \xi \leftarrow \xi + \mu \frac{J^T (y - h)}{\epsilon + \|J\|_F^2},
 
-stable for 0 < mu < 2. LMS carries no covariance: its std is NaN.
+stable for 0 < mu < 2. LMS carries no covariance: its std is NaN. With
+``correction = "approximation-error"`` (:class:`idbench.Filter`) h and J are
+the corrected model's (the mean discrepancy added); having no noise model,
+LMS uses no Sigma.
 """
 
 from __future__ import annotations

@@ -15,6 +15,11 @@ differences in xi (p extra solves). With forgetting factor lambda:
 Forgetting applies at observed steps only. With lambda = 1 and a linear model
 this is the exact Gaussian posterior given the prior. The reported state is
 the one the innovation was computed with (the estimate before the update).
+
+With ``correction = "approximation-error"`` (:class:`idbench.Filter`) h is
+the corrected model's (the coarse observation plus the calibrated mean
+discrepancy, J its chain-ruled sensitivity (I + d mu/d z) J_c) and R the
+full R + Sigma(h(u)) of :meth:`idbench.Filter.noise_cov`.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from idbench import Analysis, Filter, ForwardModel, Observation, Prior, noise_matrix
+from idbench import Analysis, Filter, ForwardModel, Observation, Prior
 from idbench_filters._common import advance_linearised, check_positive
 
 
@@ -65,9 +70,8 @@ class Rls(Filter):
         )
         if linear is not None:
             J, e = linear
-            R = self.noise_var(observation)
             Pm = P / self.forgetting
-            S = J @ Pm @ J.T + noise_matrix(R, J.shape[0])
+            S = J @ Pm @ J.T + self.noise_cov(observation, u)
             K = np.linalg.solve(S, J @ Pm).T  # (p, m); S symmetric
             xi = xi + K @ e
             P = Pm - K @ S @ K.T

@@ -31,6 +31,14 @@ misfit is treated as extra observation noise, R = (max(sigma, floor)^2 + e^2) I,
 with e the RMS coarse-vs-fine marker misfit at the best constant parameters
 (e.g. from a calibration against the truth mesh). It widens the reported
 uncertainty; it cannot remove the bias of the mean.
+
+Corrected variant (``correction = "approximation-error"``, see
+:class:`idbench.Filter` and :mod:`idbench.discrepancy`): the model's
+``observe`` already adds the calibrated mean discrepancy mu(h(x_i)) to each
+sigma point's observation, and R becomes the full matrix
+R = (max(sigma, floor)^2 + e^2) I + Sigma(h(x)) at the forecast mean x, in
+U <- I + G R^-1 G^T and x <- x - L U^-1 G R^-1 zbar. The cost of a step is
+unchanged but for one m x m solve.
 """
 
 from __future__ import annotations
@@ -155,20 +163,28 @@ class RoUkf(Filter):
             G = alpha * I @ Z.T  # (p, m)
             var = self.noise_var(observation) + self.model_error**2
             dz = Z - zbar[:, None]
-            if y.size <= DENSE_INNOVATION:
-                S = alpha * dz @ dz.T + noise_matrix(var, y.size)
-                self.innovation = (zbar, S)
-            else:  # a point cloud: S = R + alpha dz dz^T, never formed
-                diag = np.broadcast_to(np.asarray(var, dtype=float), (y.size,))
-                low = LowRankCovariance(diag.copy(), np.sqrt(alpha) * dz)
-                self.innovation = (zbar, low)
-            rinv = 1.0 / var
-            if np.ndim(rinv) == 0:
-                U = np.eye(I.shape[0]) + rinv * (G @ G.T)
-                x = x - L @ np.linalg.solve(U, rinv * (G @ zbar))
-            else:  # a diagonal R with one variance per value
-                U = np.eye(I.shape[0]) + (G * rinv) @ G.T
-                x = x - L @ np.linalg.solve(U, G @ (rinv * zbar))
+            sigma = self.extra_cov(x[:nu])
+            if sigma is None:
+                if y.size <= DENSE_INNOVATION:
+                    S = alpha * dz @ dz.T + noise_matrix(var, y.size)
+                    self.innovation = (zbar, S)
+                else:  # a point cloud: S = R + alpha dz dz^T, never formed
+                    diag = np.broadcast_to(np.asarray(var, dtype=float), (y.size,))
+                    low = LowRankCovariance(diag.copy(), np.sqrt(alpha) * dz)
+                    self.innovation = (zbar, low)
+                rinv = 1.0 / var
+                if np.ndim(rinv) == 0:
+                    U = np.eye(I.shape[0]) + rinv * (G @ G.T)
+                    x = x - L @ np.linalg.solve(U, rinv * (G @ zbar))
+                else:  # a diagonal R with one variance per value
+                    U = np.eye(I.shape[0]) + (G * rinv) @ G.T
+                    x = x - L @ np.linalg.solve(U, G @ (rinv * zbar))
+            else:  # corrected model: R + Sigma at the forecast mean
+                R = noise_matrix(var, y.size) + sigma
+                self.innovation = (zbar, alpha * dz @ dz.T + R)
+                rg = np.linalg.solve(R, np.column_stack([G.T, zbar]))
+                U = np.eye(I.shape[0]) + G @ rg[:, :-1]
+                x = x - L @ np.linalg.solve(U, G @ rg[:, -1])
             uinv = np.linalg.inv(U)
             uinv = 0.5 * (uinv + uinv.T)
         p_xi = L[nu:] @ uinv @ L[nu:].T

@@ -14,7 +14,9 @@ rank-deficient P (the displacements start exactly known) still samples.
 The process noise is zero: u_k is a function of theta and the warm start.
 The sigma points are advanced in one call of the model's ``step_many`` when it
 has one (shared factorizations; see :class:`idbench.BatchModel`), else one
-``step`` each, as filterpy's own ``fx`` loop would.
+``step`` each, as filterpy's own ``fx`` loop would. With ``correction =
+"approximation-error"`` (:class:`idbench.Filter`) h is the corrected model's
+and R the matrix R + Sigma at the forecast mean.
 """
 
 from __future__ import annotations
@@ -212,9 +214,12 @@ class Ukf(Filter):
         ukf.predict(UT=weighted_transform)
         ukf.P = 0.5 * (ukf.P + ukf.P.T)
         if observation is not None:
-            R = self.noise_var(observation)
+            R: float | FloatArray = self.noise_var(observation)
             z = np.asarray(observation.values, dtype=float)
-            if np.ndim(R):
+            sigma = self.extra_cov(ukf.x[: self._nu])
+            if sigma is not None:  # corrected model: R + Sigma at the forecast mean
+                R = self.noise_cov(observation, ukf.x[: self._nu])
+            elif np.ndim(R):
                 R = noise_matrix(R, z.size)
             ukf.update(z, R=R, UT=weighted_transform)
             ukf.P = 0.5 * (ukf.P + ukf.P.T)

@@ -248,7 +248,9 @@ def test_conventions_are_defaulted_class_attributes() -> None:
     assert est.seed is None and est.innovation is None
     assert est.estimate_solves(100, 2, 7) == 7
     assert estimator_arguments(Scripted, {}, 3) == {}  # no seed field: none given
-    assert public_settings(Scripted) == ["transform", "sigma_floor", "bad_at", "how"]
+    assert public_settings(Scripted) == [
+        "transform", "sigma_floor", "correction", "bad_at", "how"
+    ]
 
 
 @dataclass
