@@ -591,7 +591,7 @@ def discrepancy_key(
     )  # fmt: skip
 
 
-def calibrate(
+def fit_discrepancy(
     factory: Factory,
     coarse: ModelSpec,
     fine_mesh: str,

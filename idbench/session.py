@@ -19,7 +19,7 @@ from idbench.discrepancy import (
     CalibrationSettings,
     CorrectedModel,
     Discrepancy,
-    calibrate,
+    fit_discrepancy,
 )
 from idbench.files import stable_hash
 from idbench.interfaces import (
@@ -147,7 +147,7 @@ class Session:
         """The calibration of the run's mesh against its calibration mesh.
 
         Computed on first use (fine paths of its own design, never the
-        truth's data) and cached on disk (:func:`idbench.discrepancy.calibrate`).
+        truth's data) and cached on disk (:func:`idbench.discrepancy.fit_discrepancy`).
 
         Raises
         ------
@@ -169,7 +169,7 @@ class Session:
             model = self.model(spec, spec.mesh)
             prior = self.prior(model, spec)
             scenarios = [self.scenario(spec, n) for n in names]
-            self._discrepancies[key] = calibrate(
+            self._discrepancies[key] = fit_discrepancy(
                 self.registry.model(spec.setup.model),
                 self.model_spec(spec, spec.mesh, spec.scenario),
                 mesh, scenarios, prior, settings,

@@ -14,7 +14,7 @@ from idbench.discrepancy import (
     CorrectedModel,
     Discrepancy,
     cache_dir,
-    calibrate,
+    fit_discrepancy,
     scaling_holds,
 )
 from idbench.plugins import build_registry
@@ -33,7 +33,7 @@ def _spec(mesh: str = "6x2x2", scenario: str = "bend-y", steps: int = 4) -> Mode
 
 def _calibration(scenarios: tuple[str, ...] = ("bend-y",)) -> Discrepancy:
     sc = [REG.scenario(n) for n in scenarios]
-    return calibrate(BEAM, _spec(), "9x2x2", sc, PRIOR, SMALL)
+    return fit_discrepancy(BEAM, _spec(), "9x2x2", sc, PRIOR, SMALL)
 
 
 def test_load_scaling_detected_on_the_beam_and_refused_when_declared_false():
@@ -179,11 +179,13 @@ def test_a_fine_path_that_fails_at_high_load_keeps_the_states_it_reached(caplog)
     sc = [REG.scenario("bend-y")]
     settings = replace(SMALL, quantile=0.1)  # a path no other test cached whole
     with caplog.at_level("WARNING"):
-        disc = calibrate(factory, _spec(), "9x2x2", sc, PRIOR, settings, cache=False)
+        disc = fit_discrepancy(
+            factory, _spec(), "9x2x2", sc, PRIOR, settings, cache=False
+        )
     assert "up to step 8 of 12" in caplog.text
     assert disc.info["samples"] == 8
     assert disc.cost == pytest.approx(8 / 4)
     assert len(list(cache_dir().glob("reached-*.npz"))) == 1
     before = calls["fine"]
-    calibrate(factory, _spec(), "9x2x2", sc, PRIOR, settings, cache=False)
+    fit_discrepancy(factory, _spec(), "9x2x2", sc, PRIOR, settings, cache=False)
     assert calls["fine"] == before  # the reached states came from the cache
