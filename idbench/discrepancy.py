@@ -72,6 +72,7 @@ from typing import Any
 
 import numpy as np
 
+from idbench.capabilities import member
 from idbench.files import atomic_write, digest, stable_hash
 from idbench.interfaces import (
     Cost,
@@ -677,7 +678,7 @@ class CorrectedModel:
         self.parameters = model.parameters
         self.n_steps = model.n_steps
         self.extrapolated = 0
-        if hasattr(model, "sensitivity"):
+        if member(model, "sensitivity") is not None:
             self.sensitivity = self._sensitivity
 
     def __getattr__(self, name: str) -> Any:

@@ -165,6 +165,6 @@ def test_info_shows_settings_not_private_fields(capsys):
     assert main(["info", "ro-ukf", "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
     assert [s["name"] for s in info["settings"]] == [
-        "transform", "sigma_floor", "sigma_points", "param_noise",
+        "transform", "sigma_floor", "correction", "sigma_points", "param_noise",
         "model_error"]  # fmt: skip
     assert main(["info", "no-such-thing"]) == 2
