@@ -24,6 +24,7 @@ from idbench.summary import (
     SEED_COLUMNS,
     format_cell,
     headers,
+    parameter_names,
     sweep_axes,
     text_blocks,
     with_metrics,
@@ -103,7 +104,11 @@ def paired_differences(
         df = df[df["status"] == "ok"]
     cols = list(runs.columns)
     described = cols[: cols.index("status")] if "status" in cols else []
-    described += [c for c in cols if c.endswith("_true") and c not in described]
+    described += [  # the true values (E_true), not metrics against them (nees_true)
+        c
+        for c in (f"{n}_true" for n in parameter_names(runs))
+        if c in cols and c not in described
+    ]
     apart = {by, *BY[by], "run_id"}
     paired_on = [c for c in described if c not in apart and c not in metrics]
     df = df.assign(
