@@ -27,13 +27,13 @@ distributed = pytest.importorskip("distributed")
 pytestmark = pytest.mark.dask  # run last (tests/conftest.py)
 
 TIMING = {"wall_s", "wall_s_step"}
-LOOSE = {"E_ref": 1e-8, "nees_ref": 1e-3, "E_relerr_ref": 1e-5}
+LOOSE = {"E_ref": 1e-8, "nees_ref": 1e-3, "E_relerr_ref": 1e-4}
 """Columns compared more loosely. E_ref: the reference fit of a data set can
 come out 1.2e-9 apart between a serial sweep and a fresh worker (seed 1 of
 ``tiny()``; a fresh Session in this process gives the worker's value), within
 the Newton tolerance that DESIGN.md allows. NEES against the reference squares
 (E_final - E_ref) / std, a difference of two nearly equal values; so is
-E_relerr_ref = E_final / E_ref - 1 (1e-4 here: E_ref's 1e-9 is 1e-5 of it)."""
+E_relerr_ref = E_final / E_ref - 1 (about 1e-4 here: E_ref's 1e-8 is 1e-4 of it)."""
 
 
 def tiny(seeds: int = 2) -> CompareConfig:
