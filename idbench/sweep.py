@@ -179,6 +179,7 @@ def plan(config: CompareConfig, session: Session) -> Plan:
     if config.observe != ("markers",) or config.observe_settings:
         built = list(models.values())
         runs = expand(config, setup, resolve_observations(config, reg, built))
+    _check_corrected(runs, config)
     runs, inputs = model_inputs(runs, session, config, settings, reg)
     solves, work = 0, {}
     for spec in runs:
@@ -339,6 +340,30 @@ def _check_calibration(config: CompareConfig, reg: Registry) -> None:
     build_settings(CalibrationSettings, given, "calibration")
     names = [scenarios] if isinstance(scenarios, str) else list(scenarios)
     _known("scenario (in calibration)", names, reg.scenarios, reg)
+
+
+def _check_corrected(runs: list[RunSpec], config: CompareConfig) -> None:
+    """Refuse a correction the runs cannot use.
+
+    The approximation-error correction (:mod:`idbench.discrepancy`) is calibrated
+    on the markers and the shape grid: an observation model other than plain
+    markers would see the uncorrected model (or a marker-sized covariance), and
+    a recording has no truth mesh to take the calibration mesh from.
+    """
+    for spec in runs:
+        if dict(spec.settings).get("correction", "none") == "none":
+            continue
+        if spec.observed_otherwise():
+            raise ConfigError(
+                f"estimator {spec.estimator!r}: correction = "
+                f"{dict(spec.settings)['correction']!r} needs observe = 'markers', "
+                f"got {spec.observe!r}; the calibration covers markers only"
+            )
+        if config.data is not None and not config.calibration.get("mesh"):
+            raise ConfigError(
+                f"estimator {spec.estimator!r}: a correction on a recording needs "
+                "a calibration mesh (--calibration-mesh): a recording has no truth mesh"
+            )
 
 
 def _known(kind: str, names: Any, table: dict[str, Any], reg: Registry) -> None:

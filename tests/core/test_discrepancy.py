@@ -189,3 +189,17 @@ def test_a_fine_path_that_fails_at_high_load_keeps_the_states_it_reached(caplog)
     before = calls["fine"]
     fit_discrepancy(factory, _spec(), "9x2x2", sc, PRIOR, settings, cache=False)
     assert calls["fine"] == before  # the reached states came from the cache
+
+
+def test_a_correction_with_another_observation_model_is_refused(tmp_path, capsys):
+    from idbench.cli import main
+
+    toml = tmp_path / "c.toml"
+    toml.write_text('[estimators.ro-ukf]\ncorrection = "approximation-error"\n')
+    argv = ["compare", "--truth-mesh", "12x3x3", "--meshes", "4x1x1", "--steps", "3",
+            "--seeds", "1", "--estimators", "ro-ukf", "--observe", "cloud",
+            "--config", str(toml), "--dry-run"]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "needs observe = 'markers'" in err and "'cloud'" in err
+    assert len(err.strip().splitlines()) == 1
