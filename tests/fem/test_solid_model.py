@@ -333,3 +333,13 @@ def test_describe_keys_on_contents_not_on_folders(tmp_path):
     a, b = solid(body).describe(), solid(other / body.name).describe()
     assert a == b and a["mesh_sha256"] and str(tmp_path) not in str(a)
     assert solid(body, nu=0.3).describe() != a
+
+
+def test_path_reuse_is_true_false_or_unset():
+    from idbench_fem.models.solid_settings import SolidSettings
+
+    assert SolidSettings(path_reuse=False).path_reuse is False
+    assert SolidSettings().identity() == SolidSettings(path_reuse=None).identity()
+    assert SolidSettings(path_reuse=True).identity() != SolidSettings().identity()
+    with pytest.raises(ValueError, match="path_reuse 'yes': need true or false"):
+        SolidSettings(path_reuse="yes")  # type: ignore[arg-type]

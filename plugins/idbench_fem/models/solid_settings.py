@@ -129,6 +129,9 @@ class SolidSettings:
         r = self.sensitivity_refine
         if r is not None and not isinstance(r, bool):
             raise ValueError(f"sensitivity_refine {r!r}: need true or false")
+        reuse = self.path_reuse
+        if reuse is not None and not isinstance(reuse, bool):
+            raise ValueError(f"path_reuse {reuse!r}: need true or false")
 
     def proposed_scenarios(self) -> list[Scenario]:
         """The body's manipulations as scenarios (their loads name ``body``).
