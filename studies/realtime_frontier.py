@@ -24,7 +24,12 @@ to 4,000 nodes against the 16,000-node truth, for every estimator (the full
 UKF only where it fits its budget), with the identified moduli at the last
 step (``E_final``, mean over seeds; the kidney's parenchyma) in the table.
 
-Run ``python studies/realtime_frontier.py [--quick] [--out DIR] [--organ NAME]``.
+Run ``python studies/realtime_frontier.py [--quick] [--out DIR] [--organ NAME]``;
+it prints the table and writes it to ``<out>/realtime_frontier.csv`` (all
+columns) and ``<out>/realtime_frontier.md`` (the docs' table: rate, shape
+error in mm per point, E_final / E_true with ``--organ``, the budgets met),
+with the figure ``<out>/realtime_frontier.png`` (``<out>`` is ``DIR/NAME``
+with ``--organ``).
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ import _cli
 import pandas as pd
 
 from idbench import CompareConfig, compare
+from idbench.files import atomic_write, atomic_write_bytes
 from idbench.report import frontier, frontier_figure
 
 # Parameters (full size: about 90, 240, 525, 1100, 2000 nodes)
@@ -144,6 +150,40 @@ def plot(table: pd.DataFrame, path: Path, scenario: str = SCENARIO) -> None:
     fig.savefig(path, dpi=110)
 
 
+def markdown(table: pd.DataFrame) -> str:
+    """The docs' table: one row per (nodes, estimator), by nodes and rate.
+
+    Columns: model nodes, estimator, rate (Hz), shape error at the last step
+    (mm per grid point, mean over seeds), ``E_final / E_true`` where the table
+    has moduli (organs), and whether the step fits 30 and 60 Hz.
+    """
+    rows = table.sort_values(["model_nodes", "rate_hz"], ascending=[True, False])
+    moduli = "E_final" in rows.columns
+    head = ["nodes", "estimator", "rate (Hz)", "shape error (mm/pt)"]
+    head += ["E_final / E_true"] if moduli else []
+    head += ["30 Hz", "60 Hz"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows.itertuples(index=False):
+        cells = [
+            f"{int(r.model_nodes):,}",
+            str(r.estimator),
+            f"{r.rate_hz:.3g}",
+            f"{1000.0 * r.shape_error_mean_final:.3g}",
+        ]
+        if moduli:
+            cells.append(f"{r.E_final / r.E_true:.3f}")
+        cells += ["yes" if r.within_30hz else "no", "yes" if r.within_60hz else "no"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def save(table: pd.DataFrame, out: Path) -> None:
+    """Write ``realtime_frontier.csv`` (all columns) and ``.md`` into ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write(out / "realtime_frontier.csv", lambda t: table.to_csv(t, index=False))
+    atomic_write_bytes(out / "realtime_frontier.md", markdown(table).encode())
+
+
 def show(table: pd.DataFrame) -> None:
     """Print the table, numbers to 4 significant digits."""
     fmt = "{:.4g}".format
@@ -162,4 +202,5 @@ if __name__ == "__main__":
     else:
         out, table, scenario = args.out, compute(args.quick, args.out), SCENARIO
     show(table)
+    save(table, out)
     plot(table, out / "realtime_frontier.png", scenario)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 
@@ -19,8 +20,9 @@ def test_full_ukf_costs_more_than_ro_ukf_on_the_same_mesh(study, tmp_path):
     # UKF costs a few RO-UKF steps here, no longer tens
     ratio = ukf["wall_s_step"].iloc[0] / ro["wall_s_step"].iloc[0]
     assert ratio > 1, ratio
-    # the frontier answers the budget question: one best row per budget
-    assert table["best_30hz"].sum() == 1
+    # the frontier answers the budget question: one best row per budget, if
+    # any row fits it (none may on a loaded machine: no rate is asserted)
+    assert table["best_30hz"].sum() == int(table["within_30hz"].any())
     assert np.all(table.loc[table["best_30hz"], "within_30hz"])
     module.plot(table, tmp_path / "realtime_frontier.png")
     assert (tmp_path / "realtime_frontier.png").stat().st_size > 1000
@@ -40,6 +42,20 @@ def test_organ_frontier_quick_has_rates_shape_errors_and_moduli(study, tmp_path)
     ratio = table["E_final"] / table["E_true"]
     assert np.all((ratio > 0.3) & (ratio < 3)), ratio.tolist()
     module.plot(table, tmp_path / "f.png", "liver grasp-lift")
+    # the docs' table and the CSV are written by the study itself
+    module.save(table, tmp_path / "saved")
+    csv = pd.read_csv(tmp_path / "saved" / "realtime_frontier.csv")
+    assert list(csv.columns) == list(table.columns) and len(csv) == len(table)
+    md = (tmp_path / "saved" / "realtime_frontier.md").read_text().splitlines()
+    assert "E_final / E_true" in md[0] and "30 Hz" in md[0]
+    assert len(md) == 2 + len(table)  # header, rule, one line a row
+    first = table.sort_values(["model_nodes", "rate_hz"], ascending=[True, False])
+    first = first.iloc[0]
+    cells = [c.strip() for c in md[2].strip("|").split("|")]
+    assert cells[1] == first["estimator"]
+    assert float(cells[2]) == pytest.approx(first["rate_hz"], rel=5e-3)
+    assert float(cells[4]) == pytest.approx(ratio[first.name], abs=5e-4)
+    assert cells[5] == ("yes" if first["within_30hz"] else "no")
     assert (tmp_path / "f.png").stat().st_size > 1000
     with pytest.raises(ValueError, match="organ 'heart': allowed are liver, kidney"):
         module.compute_organ("heart", quick=True)
