@@ -59,3 +59,37 @@ def test_organ_frontier_quick_has_rates_shape_errors_and_moduli(study, tmp_path)
     assert (tmp_path / "f.png").stat().st_size > 1000
     with pytest.raises(ValueError, match="organ 'heart': allowed are liver, kidney"):
         module.compute_organ("heart", quick=True)
+
+
+def test_organ_moduli_and_markdown_name_every_region(study):
+    # the kidney has two moduli (E_parenchyma, E_inclusion), no E_final column
+    module = study("realtime_frontier")
+    runs = pd.DataFrame(
+        {
+            "model_nodes": [506, 506, 506],
+            "estimator": ["ro-ukf", "ro-ukf", "rls"],
+            "status": ["ok", "ok", "failed"],
+            "E_parenchyma_final": [2000.0, 3000.0, np.nan],
+            "E_parenchyma_std_final": [1.0, 1.0, np.nan],
+            "E_parenchyma_true": [5000.0] * 3,
+            "E_inclusion_final": [9000.0, 11000.0, np.nan],
+            "E_inclusion_true": [20000.0] * 3,
+            "shape_error_final": [0.1, 0.1, np.nan],
+        }
+    )
+    E = module.moduli(runs)
+    assert len(E) == 1  # the failed run counts nowhere
+    row = E.iloc[0]
+    assert row["E_parenchyma_final"] == 2500.0 and row["E_inclusion_final"] == 10000.0
+    assert row["E_inclusion_true"] == 20000.0
+    assert "E_parenchyma_std_final" not in E.columns
+    table = E.assign(
+        rate_hz=[42.0],
+        shape_error_mean_final=[0.00051],
+        within_30hz=[True],
+        within_60hz=[False],
+    )
+    head, _, line = module.markdown(table).splitlines()
+    assert "E_parenchyma_final / E_parenchyma_true" in head
+    assert "E_inclusion_final / E_inclusion_true" in head
+    assert line == "| 506 | ro-ukf | 42 | 0.51 | 0.500 | 0.500 | yes | no |"
