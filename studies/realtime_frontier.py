@@ -24,7 +24,12 @@ to 4,000 nodes against the 16,000-node truth, for every estimator (the full
 UKF only where it fits its budget), with the identified moduli at the last
 step (``E_final``, mean over seeds; the kidney's parenchyma) in the table.
 
-Run ``python studies/realtime_frontier.py [--quick] [--out DIR] [--organ NAME]``.
+Run ``python studies/realtime_frontier.py [--quick] [--out DIR] [--organ NAME]``;
+it prints the table and writes it to ``<out>/realtime_frontier.csv`` (all
+columns) and ``<out>/realtime_frontier.md`` (the docs' table: rate, shape
+error in mm per point, E_final / E_true with ``--organ``, the budgets met),
+with the figure ``<out>/realtime_frontier.png`` (``<out>`` is ``DIR/NAME``
+with ``--organ``).
 """
 
 from __future__ import annotations
@@ -35,7 +40,8 @@ import _cli
 import pandas as pd
 
 from idbench import CompareConfig, compare
-from idbench.report import frontier, frontier_figure
+from idbench.files import atomic_write, atomic_write_bytes
+from idbench.report import frontier, frontier_figure, parameter_names
 
 # Parameters (full size: about 90, 240, 525, 1100, 2000 nodes)
 MESHES = ("9x2x2", "14x3x3", "20x4x4", "30x5x5", "40x6x6")
@@ -130,11 +136,23 @@ def compute_organ(
     runs, traces = compare(CompareConfig(**settings), out, jobs=1)  # type: ignore[arg-type]
     table = frontier(runs, traces)
     table = table[[c for c in COLUMNS if c in table.columns]]
+    return table.merge(moduli(runs), on=["model_nodes", "estimator"], how="left")
+
+
+def moduli(runs: pd.DataFrame) -> pd.DataFrame:
+    """Identified and true moduli per (model nodes, estimator), ok runs only.
+
+    Every parameter ``x`` of the runs (``E`` for one modulus; ``E_parenchyma``
+    and ``E_inclusion`` for the kidney's regions) gives ``x_final`` (mean over
+    seeds) and ``x_true``.
+    """
+    names = [n for n in parameter_names(runs) if f"{n}_true" in runs.columns]
     ok = runs[runs["status"] == "ok"]
-    E = ok.groupby(["model_nodes", "estimator"], as_index=False).agg(
-        E_final=("E_final", "mean"), E_true=("E_true", "first")
-    )
-    return table.merge(E, on=["model_nodes", "estimator"], how="left")
+    agg = {}
+    for name in names:
+        agg[f"{name}_final"] = (f"{name}_final", "mean")
+        agg[f"{name}_true"] = (f"{name}_true", "first")
+    return ok.groupby(["model_nodes", "estimator"], as_index=False).agg(**agg)
 
 
 def plot(table: pd.DataFrame, path: Path, scenario: str = SCENARIO) -> None:
@@ -142,6 +160,44 @@ def plot(table: pd.DataFrame, path: Path, scenario: str = SCENARIO) -> None:
     fig.axes[0].set_title(f"Real-time frontier ({scenario}, this machine)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+
+
+def markdown(table: pd.DataFrame) -> str:
+    """The docs' table: one row per (nodes, estimator), by nodes and rate.
+
+    Columns: model nodes, estimator, rate (Hz), shape error at the last step
+    (mm per grid point, mean over seeds), ``E_final / E_true`` where the table
+    has moduli (organs; one column a parameter: the kidney's parenchyma and
+    inclusion), and whether the step fits 30 and 60 Hz.
+    """
+    rows = table.sort_values(["model_nodes", "rate_hz"], ascending=[True, False])
+    names = [
+        c[: -len("_final")]
+        for c in rows.columns
+        if c.endswith("_final") and f"{c[: -len('_final')]}_true" in rows.columns
+    ]
+    head = ["nodes", "estimator", "rate (Hz)", "shape error (mm/pt)"]
+    head += [f"{n}_final / {n}_true" for n in names]
+    head += ["30 Hz", "60 Hz"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for _, r in rows.iterrows():
+        cells = [
+            f"{int(r['model_nodes']):,}",
+            str(r["estimator"]),
+            f"{r['rate_hz']:.3g}",
+            f"{1000.0 * r['shape_error_mean_final']:.3g}",
+        ]
+        cells += [f"{r[f'{n}_final'] / r[f'{n}_true']:.3f}" for n in names]
+        cells += ["yes" if r[f"within_{hz}hz"] else "no" for hz in (30, 60)]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def save(table: pd.DataFrame, out: Path) -> None:
+    """Write ``realtime_frontier.csv`` (all columns) and ``.md`` into ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write(out / "realtime_frontier.csv", lambda t: table.to_csv(t, index=False))
+    atomic_write_bytes(out / "realtime_frontier.md", markdown(table).encode())
 
 
 def show(table: pd.DataFrame) -> None:
@@ -162,4 +218,5 @@ if __name__ == "__main__":
     else:
         out, table, scenario = args.out, compute(args.quick, args.out), SCENARIO
     show(table)
+    save(table, out)
     plot(table, out / "realtime_frontier.png", scenario)
