@@ -95,7 +95,7 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -168,7 +168,9 @@ class Manipulation:
     vector: Vec | None = None
     pressure: float | None = None
     transfer: str = ""
-    displacement: Vec | None = None
+    displacement: Vec | None = field(default=None, repr=False)
+    """(Not in the repr, which keys the truths of bodies built in memory: a
+    force-controlled manipulation's is as before the field existed.)"""
 
     @property
     def driven(self) -> bool:

@@ -611,7 +611,10 @@ def _body_digest(body: Body) -> str:
     if path.is_file():
         return _digest(path)
     states = replace(body, markers=Markers(), shape_error=ShapeError(), probes=())
-    return hashlib.sha256(repr(states).encode()).hexdigest()
+    text = repr(states) + "".join(  # a driven grasp's displacement is no repr
+        f"|{m.name}:{m.displacement}" for m in body.manipulations if m.driven
+    )
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def _mesh_digest(mesh: SolidMesh) -> str:
