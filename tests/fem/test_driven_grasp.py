@@ -246,3 +246,37 @@ def test_ro_ukf_identifies_E_from_the_tool_force(box, tmp_path, capsys):
     rows = json.loads(capsys.readouterr().out)
     assert [r["status"] for r in rows] == ["ok"]
     assert rows[0]["E_final"] == pytest.approx(5000.0, rel=0.03)
+
+
+EXAMPLES = __import__("pathlib").Path(__file__).resolve().parents[2] / "examples"
+
+
+@pytest.mark.parametrize("organ", ["liver", "kidney"])
+def test_the_organ_grasp_examples_run_with_cloud_force_and_targets(
+    organ, tmp_path, capsys
+):
+    """examples/ORGAN/grasp.toml shrunk: 200-node meshes, 4 steps."""
+    pytest.importorskip("gmsh")  # the organs' meshes are generated on first use
+    import pandas as pd
+
+    out = tmp_path / organ
+    argv = ["compare", "--config", str(EXAMPLES / organ / "grasp.toml"),
+            "--meshes", "200", "--truth-mesh", "200", "--model-option",
+            "reference=200", "--steps", "4", "--obs-every", "1",
+            "--observe", "markers+force,cloud+force",
+            "--observe-option", "cloud.points=200", "--out", str(out),
+            "-q"]  # fmt: skip
+    assert main(argv) == 0, capsys.readouterr().err
+    runs = pd.read_parquet(out / "runs.parquet")
+    assert sorted(runs["observe"]) == ["cloud+force", "markers+force"]
+    assert set(runs["status"]) == {"ok"}, runs[["status", "error"]]
+    assert runs["tre_final_mm"].notna().all() and (runs["tre_final_mm"] >= 0).all()
+    traces = pd.read_parquet(out / "traces.parquet")
+    assert traces["tre_mm"].notna().any()
+    # the same example with markers alone is refused, naming its scenario
+    argv = [*argv[:argv.index("--observe")], "--observe", "markers",
+            "--out", str(tmp_path / "refused"), "-q"]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    scenario = tomllib.loads((EXAMPLES / organ / "grasp.toml").read_text())
+    assert repr(scenario["compare"]["scenarios"][0]) in err

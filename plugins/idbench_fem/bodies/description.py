@@ -582,7 +582,7 @@ def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
         raise c.error(
             f"kind = {kind!r}: not a kind; a displacement-controlled manipulation is "
             "a grasp with displacement = [dx, dy, dz] instead of force (observe its "
-            "force: with displacements only, a homogeneous E is not identifiable)"
+            "force: from displacements alone, a homogeneous E cannot be identified)"
         )
     if kind not in KINDS:
         raise c.error(f"kind = {kind!r}: allowed are {', '.join(KINDS)}")
@@ -605,7 +605,8 @@ def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
         raise c.error(f"transfer = {transfer!r}: need a manipulation name")
     for key in needs:
         if key not in raw:
-            raise c.error(f"needs {key} (a {kind} has {', '.join(needs)})")
+            also = "; or displacement instead of force" if kind == "grasp" else ""
+            raise c.error(f"needs {key} (a {kind} has {', '.join(needs)}{also})")
     if kind == "traction":
         return Manipulation(
             name,
