@@ -184,6 +184,26 @@ def test_batched_steps_and_path_reuse_meet_the_tolerance(box):
     assert reuse.factorizations < plain.factorizations
 
 
+def test_a_helper_process_sets_the_step_prescribed_displacement(box):
+    """helper_solve (what a helper of option processes runs) on a fresh model."""
+    from idbench_fem.fem.batched import PendingPairs, helper_solve
+
+    thetas = np.array([[3000.0], [8000.0]])
+    here = _model(box)
+    states = np.zeros((2, here.n_state))
+    for k in (1, 2):
+        states = here.step_many(thetas, k, states)
+    helper = _model(box)  # as built in a helper: nothing prescribed yet
+    x = states[:, helper._asm.unknown]
+    got, _ = helper_solve(helper, 3, PendingPairs(thetas, x, x))
+    want = here.step_many(thetas, 3, states)
+    for i, theta in enumerate(thetas):
+        full = helper._asm.embed(got[i])
+        assert np.linalg.norm(here.residual(theta, 3, full)) <= here.atol
+        scale = np.abs(want).max()
+        np.testing.assert_allclose(full, want[i], rtol=0, atol=1e-6 * scale)
+
+
 def test_sensitivity_of_the_markers_is_zero_with_one_E(box):
     model = _model(box)
     theta = np.array([5000.0])
