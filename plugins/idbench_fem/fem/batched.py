@@ -310,7 +310,8 @@ class BatchedSteps(NewtonSolve):
         starts from the extrapolation of the path's last states (quadratic,
         :data:`PATH_ORDER`, or a secant after one step; from ``state`` if the
         prediction inverts an element or has a residual above the load
-        increment, which is the residual at ``state``) and iterates
+        increment, which is the residual at ``state``; evaluated there when
+        the model prescribes displacements, :meth:`_path_reference`) and iterates
         chords with that factorization (refactoring after as many chords as
         paid on the step before, if one there raised |r|), scaled to
         ``theta`` as in :func:`step_many`; a chord that cuts |r| by less than

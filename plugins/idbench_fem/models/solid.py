@@ -21,6 +21,16 @@ belongs to). The internal force is linear in theta,
 :math:`\partial u / \partial \theta_r = -K^{-1} g_r(u)`: one back-substitution
 per parameter with the last factorization.
 
+A displacement-controlled grasp (``displacement`` instead of ``force``)
+prescribes every component of its patch's nodes, ramped as
+:math:`u_p(k) = (k/K) d`: the state keeps those dofs (set to u_p(k) by each
+step, so markers and shape errors see them) but Newton solves only for the
+others, through :class:`~idbench_fem.fem.prescribed.PrescribedAssembler`;
+f_ext is zero, and Newton's floor is rtol times the load the first step
+puts on the unknowns. :meth:`reaction` is then the tool's force, and the
+model declares ``needs_observed = ("reaction",)``: its displacements do not
+depend on a homogeneous E.
+
 Newton (:mod:`idbench_fem.fem.newton`): converged
 when :math:`\|r\| \le \max(\mathrm{rtol} \|f_{ext}(k)\|, \mathrm{atol})`
 with rtol = 1e-8 and atol = 1e-12 times the end force; each update is halved
