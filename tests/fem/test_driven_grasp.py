@@ -300,3 +300,18 @@ def test_the_organ_grasp_examples_run_with_cloud_force_and_targets(
     err = capsys.readouterr().err
     scenario = tomllib.loads((EXAMPLES / organ / "grasp.toml").read_text())
     assert repr(scenario["compare"]["scenarios"][0]) in err
+
+
+def test_a_driven_patch_on_the_fixed_region_is_refused_in_one_line(box):
+    from idbench_fem.bodies import resolve
+
+    raw = tomllib.loads(box.read_text())
+    raw["manipulation"][0]["point"] = [0.0, 0.01, 0.01]  # on the clamped face
+    body = parse_body(raw, str(box), box.parent)
+    mesh = read_mesh(box.parent / "box.vtu")
+    for check in (lambda: resolve.check(body, [mesh]),
+                  lambda: SolidModel(body, mesh, "pull-end", mesh, 4, 3)):  # fmt: skip
+        with pytest.raises(ValueError) as exc:
+            check()
+        text = str(exc.value)
+        assert "'pull-end'" in text and "[fixed]" in text and "\n" not in text

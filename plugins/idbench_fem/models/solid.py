@@ -71,7 +71,7 @@ from idbench import ConfigError, Cost, ModelSpec, ParameterSpec, Scenario
 from idbench_fem.bodies import resolve
 from idbench_fem.bodies.catalog import body_path, get_body, get_mesh, mesh_file
 from idbench_fem.bodies.description import Body, Markers, ShapeError
-from idbench_fem.bodies.loads import driven_nodes, nodal_forces, traction_weights
+from idbench_fem.bodies.loads import nodal_forces, traction_weights
 from idbench_fem.bodies.mesh import (
     SolidMesh,
     extent,
@@ -186,7 +186,7 @@ class SolidModel(Observables, BatchedSteps):
         self.n_state = int(self._asm.n_free)
         self._driven: IntArray | None = None
         if self.manipulation.driven:  # the state keeps them, Newton does not
-            self._init_driven(body, mesh, fixed, float(s.load_scale))
+            self._init_driven(body, mesh, float(s.load_scale))
 
         # parameters: E per region; c_e = true modulus / its region's true value
         self._regions = resolve.element_regions(body, mesh)
@@ -268,19 +268,10 @@ class SolidModel(Observables, BatchedSteps):
         if self._driven is not None:
             freeze(self._asm.inner, keep=ASSEMBLY_BUFFERS)
 
-    def _init_driven(
-        self, body: Body, mesh: SolidMesh, fixed: IntArray, scale: float
-    ) -> None:
+    def _init_driven(self, body: Body, mesh: SolidMesh, scale: float) -> None:
         """A displacement-controlled grasp: its nodes' dofs leave the unknowns."""
         m = self.manipulation
-        nodes = driven_nodes(m, mesh)
-        both = np.intersect1d(nodes, fixed)
-        if len(both):
-            raise ValueError(
-                f"{body.source}: [[manipulation]] {m.name!r}: its patch shares "
-                f"{len(both)} node(s) with the [fixed] region in {mesh.path!r}; move "
-                "the grasp point or shrink its radius"
-            )
+        nodes = resolve.driven_nodes(body, m.name, mesh)
         dofs = self._asm.full_to_free[(3 * nodes[:, None] + np.arange(3)).ravel()]
         self._asm = PrescribedAssembler(self._asm, dofs)
         self._driven = nodes
