@@ -21,6 +21,7 @@ from idbench.interfaces import (
     FieldModel,
     FloatArray,
     NodeCountModel,
+    ObservationNeedsModel,
     ProbedModel,
     ReactionModel,
     SensitiveModel,
@@ -42,6 +43,7 @@ OPTIONAL: dict[str, type] = {
     "surface": SurfaceModel,
     "reaction": ReactionModel,
     "targets": TargetModel,
+    "needs_observed": ObservationNeedsModel,
 }
 """Each optional member of a forward model and the protocol that declares it."""
 
@@ -91,6 +93,15 @@ def present(model: Any) -> dict[str, Any]:
     """The optional members ``model`` has (usable: methods callable), by name."""
     found = {name: member(model, name) for name in OPTIONAL}
     return {name: value for name, value in found.items() if value is not None}
+
+
+def needs_observed_of(model: Any) -> tuple[str, ...]:
+    """Members an observation of ``model`` must use one of (empty: none needed).
+
+    See :class:`~idbench.interfaces.ObservationNeedsModel`.
+    """
+    value = member(model, "needs_observed")
+    return tuple(str(v) for v in value) if value else ()
 
 
 def n_nodes_of(model: Any) -> int | None:

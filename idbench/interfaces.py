@@ -338,6 +338,24 @@ class ReactionModel(ForwardModel, Protocol):
 
 
 @runtime_checkable
+class ObservationNeedsModel(ForwardModel, Protocol):
+    """A forward model whose parameters are identifiable only from some observations.
+
+    Optional: ``needs_observed`` names model members (``("reaction",)``) of
+    which some observation block of every run must use one (require it, see
+    :class:`~idbench.observe.ObservationModel`); a comparison that observes
+    none of them is refused at plan time. A solid whose tool moves by a
+    prescribed displacement declares ``("reaction",)``: its displacements do
+    not depend on a homogeneous E, only the tool's force does.
+    """
+
+    @property
+    def needs_observed(self) -> tuple[str, ...]:
+        """Members of which an observation must use at least one (non-empty)."""
+        ...
+
+
+@runtime_checkable
 class TargetModel(ForwardModel, Protocol):
     """A forward model with hidden targets (a tumour, points on a vessel).
 

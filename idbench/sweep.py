@@ -25,7 +25,7 @@ from typing import Any
 import pandas as pd
 
 from idbench import observe, recording
-from idbench.capabilities import bounds_of, n_nodes_of
+from idbench.capabilities import bounds_of, n_nodes_of, needs_observed_of
 from idbench.config import CompareConfig, ConfigError
 from idbench.discrepancy import CalibrationSettings
 from idbench.executors import (
@@ -184,6 +184,7 @@ def plan(config: CompareConfig, session: Session) -> Plan:
     solves, work = 0, {}
     for spec in runs:
         model = session.model(spec, spec.mesh)
+        _check_observed(spec, model, session)
         n_state = model.reset().size
         guess = _guess_solves(reg, spec, n_state, model.parameters.p)
         work[spec.run_id] = float(guess) * n_state
@@ -197,6 +198,45 @@ def plan(config: CompareConfig, session: Session) -> Plan:
         ("scenarios", sorted(n for n in scenarios if n)),
     )
     return Plan(config, runs, nodes, solves, work, inputs, plugins)
+
+
+def _check_observed(spec: RunSpec, model: ForwardModel, session: Session) -> None:
+    """Refuse a run whose observation uses none of the members its model needs.
+
+    See :class:`~idbench.interfaces.ObservationNeedsModel` (a solid whose tool
+    moves by a prescribed displacement needs its ``reaction``: the force).
+
+    Raises
+    ------
+    ConfigError
+        One line naming the scenario and the observations that would do.
+    """
+    needs = needs_observed_of(model)
+    if not needs:
+        return
+    used = {m for _, b in observe.leaves(session.observation_model(spec))
+            for m in b.requires}  # fmt: skip
+    if used & set(needs):
+        return
+    would = []
+    for kind in sorted(observe.kinds(session.registry)):
+        try:
+            block = observe.build(kind, {}, session.registry)
+        except (ConfigError, TypeError, ValueError):  # a kind with required settings
+            continue
+        if set(block.requires) & set(needs):
+            would.append(kind)
+    fix = (
+        f"add --observe {would[0]} or markers+{would[0]}"
+        if would
+        else "use an observation model that does"
+    )
+    raise ConfigError(
+        f"scenario {spec.scenario!r}: its parameters are identifiable only if an "
+        f"observation uses the model's {' or '.join(f'{n}()' for n in needs)} "
+        f"(observe {spec.observe!r} does not: displacements alone do not depend "
+        f"on them); {fix}"
+    )
 
 
 def model_inputs(

@@ -397,7 +397,12 @@ def test_example_bodies_resolve_on_small_meshes(tmp_path, geometry, size):
     resolve.check(b, [mesh])  # every name and selector resolves
     for m in b.manipulations:
         total = nodal_forces(m, mesh, b.material.density).sum(0)
-        if m.kind == "grasp":
+        if m.driven:  # no load: the patch's nodes move, none of them fixed
+            np.testing.assert_array_equal(total, 0.0)
+            nodes = resolve.driven_nodes(b, m.name, mesh)
+            assert len(nodes) >= 3
+            assert not np.intersect1d(nodes, resolve.fixed_nodes(b, mesh)).size
+        elif m.kind == "grasp":
             np.testing.assert_allclose(total, m.vector, rtol=1e-12)
         if m.kind == "gravity":
             expect = b.material.density * mesh.volumes.sum() * np.array(m.vector)

@@ -27,6 +27,13 @@ manipulated, what is observed and what is identified::
     transfer = "lateral-push"          # optional: the transfer target scenario
 
     [[manipulation]]
+    name = "grasp-pull"
+    kind = "grasp"         # displacement-controlled: the patch moves by
+    point = [0.04, 0.045, -0.03]       # displacement (all its nodes, all
+    radius = 0.01                      # components), the tool's force is
+    displacement = [0.0, 0.004, 0.0]   # measured (m at the end of the ramp)
+
+    [[manipulation]]
     name = "lateral-push"
     kind = "traction"      # or "pressure" (dead, Pa, positive into the body)
     region = "anterior"    # a name or a selector table
@@ -67,10 +74,16 @@ points to), ``{ patch = { point = [...], radius = r } }`` (the surface around
 the surface point nearest to ``point``), ``{ slab = { index = i, count = n } }``
 (slab i of n equal slabs along x of the mesh's bounding box).
 
-A prescribed displacement is refused: with displacements imposed and only
-displacements observed, the solution of a body with one homogeneous E does
-not depend on E at all (f_int = E g(u) = 0 away from the loads), so E is not
-identifiable unless a force is also observed.
+A grasp has either ``force`` (force-controlled: a dead load) or
+``displacement`` (displacement-controlled: the patch's nodes move by it,
+ramped like a load, and the tool's force is what the model's ``reaction``
+gives). With displacements imposed and only displacements observed, the
+solution of a body with one homogeneous E does not depend on E at all
+(f_int = E g(u) = 0 away from the tool), so E is identifiable only if the
+tool's force is observed: the model declares it (``needs_observed =
+("reaction",)``) and a comparison whose observation has no ``force`` block is
+refused before it runs. A ``kind = "displacement"`` is refused, pointing to
+the grasp's ``displacement``.
 
 Errors are one-line ``ValueError``s naming the file, the bad value and what is
 allowed. Mesh-dependent checks (names, empty regions, markers off the body)
@@ -82,7 +95,7 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -137,12 +150,16 @@ class Manipulation:
     region
         Loaded surface (traction, pressure) or the grasp patch.
     vector
-        Traction (Pa), gravity acceleration (m/s2) or grasp force (N) at t = 1.
+        Traction (Pa), gravity acceleration (m/s2) or grasp force (N) at t = 1
+        (None for a displacement-controlled grasp).
     pressure
         Dead pressure (Pa) at t = 1, positive into the body.
     transfer
         The manipulation its identified values are tested on (the transfer
         error); empty: the next one of the body.
+    displacement
+        A displacement-controlled grasp's displacement (m) at t = 1: every
+        node of the patch moves by it (None: force-controlled).
     """
 
     name: str
@@ -151,6 +168,14 @@ class Manipulation:
     vector: Vec | None = None
     pressure: float | None = None
     transfer: str = ""
+    displacement: Vec | None = field(default=None, repr=False)
+    """(Not in the repr, which keys the truths of bodies built in memory: a
+    force-controlled manipulation's is as before the field existed.)"""
+
+    @property
+    def driven(self) -> bool:
+        """Whether it prescribes a displacement (the tool moves; its force is read)."""
+        return self.displacement is not None
 
 
 PLACEMENTS = ("surface", "volume")
@@ -555,10 +580,9 @@ def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
     kind = raw.get("kind")
     if kind in _REFUSED:
         raise c.error(
-            "kind = 'displacement': refused: with displacements prescribed and only "
-            "displacements observed, a homogeneous E cannot be identified (the "
-            "solution does not depend on E); load it by a force (grasp, traction, "
-            "pressure, gravity) instead"
+            f"kind = {kind!r}: not a kind; a displacement-controlled manipulation is "
+            "a grasp with displacement = [dx, dy, dz] instead of force (observe its "
+            "force: from displacements alone, a homogeneous E cannot be identified)"
         )
     if kind not in KINDS:
         raise c.error(f"kind = {kind!r}: allowed are {', '.join(KINDS)}")
@@ -568,13 +592,21 @@ def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
         "gravity": ("acceleration",),
         "grasp": ("point", "radius", "force"),
     }[kind]
+    if kind == "grasp" and "displacement" in raw:
+        if "force" in raw:
+            raise c.error(
+                "has force and displacement: a grasp is force-controlled (force) "
+                "or displacement-controlled (displacement), not both"
+            )
+        needs = ("point", "radius", "displacement")
     c.keys(raw, ("name", "kind", "transfer", *needs))
     transfer = raw.get("transfer", "")
     if not isinstance(transfer, str):
         raise c.error(f"transfer = {transfer!r}: need a manipulation name")
     for key in needs:
         if key not in raw:
-            raise c.error(f"needs {key} (a {kind} has {', '.join(needs)})")
+            also = "; or displacement instead of force" if kind == "grasp" else ""
+            raise c.error(f"needs {key} (a {kind} has {', '.join(needs)}{also})")
     if kind == "traction":
         return Manipulation(
             name,
@@ -599,6 +631,14 @@ def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
             transfer=transfer,
         )
     patch = (c.vector("point", raw["point"]), c.number("radius", raw["radius"], True))
+    if "displacement" in raw:
+        return Manipulation(
+            name,
+            kind,
+            Region(patch=patch),
+            transfer=transfer,
+            displacement=c.vector("displacement", raw["displacement"]),
+        )
     return Manipulation(
         name,
         kind,

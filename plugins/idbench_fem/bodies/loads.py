@@ -16,6 +16,10 @@ Each manipulation is a dead load proportional to the load fraction t in [0, 1]
   traction F / A_patch on the boundary facets around the surface point
   nearest to ``point`` (:func:`~idbench_fem.bodies.mesh.patch_facets`).
 
+A displacement-controlled grasp (``displacement`` instead of ``force``) has
+no external force: it prescribes the displacement of its patch's nodes
+(:func:`driven_nodes`), and :func:`nodal_forces` gives zeros for it.
+
 A traction or pressure needs a surface: a region name that is only a volume
 group of the mesh is refused (its facet set is the volume's whole boundary,
 the fixed face included).
@@ -136,6 +140,24 @@ def nodal_forces(
         return t * traction_forces(mesh, facets, np.asarray(m.vector))
     if m.kind == "pressure":
         return t * pressure_forces(mesh, facets, float(m.pressure or 0.0))
+    if m.kind == "grasp" and m.driven:
+        return np.zeros((len(mesh.points), 3))
     if m.kind == "grasp":
         return t * patch_forces(mesh, facets, np.asarray(m.vector))
     raise ValueError(f"{what}: unknown kind {m.kind!r}")
+
+
+def driven_nodes(manipulation: Manipulation, mesh: SolidMesh) -> IntArray:
+    """The nodes a displacement-controlled grasp moves (its patch's), sorted.
+
+    Raises
+    ------
+    ValueError
+        If the manipulation is not displacement-controlled, or its patch is
+        off the surface.
+    """
+    m = manipulation
+    if not m.driven or m.region is None:
+        raise ValueError(f"manipulation {m.name!r} prescribes no displacement")
+    facets = region_facets(mesh, m.region, what=f"manipulation {m.name!r}: region")
+    return np.unique(mesh.facets[facets].ravel()).astype(np.int64)

@@ -54,6 +54,29 @@ def fixed_nodes(body: Body, mesh: SolidMesh) -> IntArray:
     return nodes
 
 
+def driven_nodes(body: Body, name: str, mesh: SolidMesh) -> IntArray:
+    """The nodes manipulation ``name`` (a displacement-controlled grasp) moves.
+
+    Raises
+    ------
+    ValueError
+        A patch off the surface, or one sharing nodes with the fixed region
+        (a node cannot be held still and moved).
+    """
+    from idbench_fem.bodies.loads import driven_nodes as patch_nodes
+
+    m = body.manipulation(name)
+    nodes = patch_nodes(m, mesh)
+    both = np.intersect1d(nodes, fixed_nodes(body, mesh))
+    if len(both):
+        raise ValueError(
+            f"{body.source}: [[manipulation]] {m.name!r}: its patch shares "
+            f"{len(both)} node(s) with the [fixed] region in {mesh.path!r}; move "
+            "the grasp point or shrink its radius"
+        )
+    return nodes
+
+
 def marker_points(body: Body, mesh: SolidMesh) -> FloatArray:
     """Marker coordinates (M, 3) on the surface of ``mesh``.
 
@@ -207,4 +230,6 @@ def check(body: Body, meshes: list[SolidMesh] | None = None) -> None:
         element_moduli(body, mesh)
         for m in body.manipulations:
             nodal_forces(m, mesh, body.material.density)
+            if m.driven:
+                driven_nodes(body, m.name, mesh)
     shape_error_points(body, meshes[-1])

@@ -239,6 +239,18 @@ class BatchedSteps(NewtonSolve):
     ) -> FloatArray:
         raise NotImplementedError
 
+    def _path_reference(
+        self, k: int, u: FloatArray, modulus: FloatArray, f_ext: FloatArray
+    ) -> float:
+        """|r| at ``u`` (converged at step k - 1) for step k: the load increment.
+
+        A model that prescribes displacements (no load increment) evaluates it.
+        """
+        return float(np.linalg.norm(f_ext - self.external_force(k - 1)))
+
+    def _prescribe(self, k: int, fraction: float = 1.0) -> None:
+        """Set any prescribed displacements to step k's (none here)."""
+
     def _init_batched(self, processes: Any, recipe: Callable[[], Any]) -> None:
         """Check ``processes`` and keep the recipe that rebuilds the model.
 
@@ -298,7 +310,8 @@ class BatchedSteps(NewtonSolve):
         starts from the extrapolation of the path's last states (quadratic,
         :data:`PATH_ORDER`, or a secant after one step; from ``state`` if the
         prediction inverts an element or has a residual above the load
-        increment, which is the residual at ``state``) and iterates
+        increment, which is the residual at ``state``; evaluated there when
+        the model prescribes displacements, :meth:`_path_reference`) and iterates
         chords with that factorization (refactoring after as many chords as
         paid on the step before, if one there raised |r|), scaled to
         ``theta`` as in :func:`step_many`; a chord that cuts |r| by less than
@@ -328,7 +341,7 @@ class BatchedSteps(NewtonSolve):
             res = asm.forces(kin) - f_ext
             # the residual at ``state`` (converged at step k - 1) is the load
             # increment to the tolerance: evaluated only if the guess is worse
-            step_load = float(np.linalg.norm(f_ext - self.external_force(k - 1)))
+            step_load = self._path_reference(k, u, modulus, f_ext)
             if np.all(kin.det > 0) and np.linalg.norm(res) < step_load:
                 u = guess
             else:
@@ -443,7 +456,7 @@ def step_many(
     """
     th = np.asarray(thetas, dtype=np.float64)
     X = np.asarray(states, dtype=np.float64)
-    p, n = model.parameters.p, model.n_state
+    p, n = model.parameters.p, model._asm.n_free  # the unknowns
     if th.ndim != 2 or th.shape[1] != p:
         raise ValueError(f"thetas has shape {th.shape}, expected (r, {p})")
     if X.shape != (len(th), n):
@@ -676,6 +689,7 @@ def helper_solve(
     Returns the states and the work done, which the caller adds to its model's
     counters (:func:`_add_work`).
     """
+    model._prescribe(k)
     stats = model.batch_stats
     cost, fac = list(model._cost), model.factorizations
     mod, settled = stats.modified, stats.converged_at_prediction

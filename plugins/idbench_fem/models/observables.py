@@ -66,14 +66,25 @@ class Observables:
     def reaction(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
         """Reaction force (3,): the internal forces at the constrained nodes, summed.
 
-        The force the support exerts on the body, f_int(state; theta) summed
-        over the nodes with prescribed displacement (model force unit, N).
+        Force-controlled manipulations: the force the support exerts on the
+        body, f_int(state; theta) summed over the fixed nodes (it balances
+        the applied load, so it says nothing of E). A displacement-controlled
+        grasp: the force the tool exerts on the body, f_int summed over the
+        nodes whose displacement it prescribes (the fixed ones left out).
+        Model force unit, N.
         """
-        asm = self._asm
+        asm = self._state_asm()
         modulus = self._modulus(np.asarray(theta, float), None)  # type: ignore[attr-defined]
         kin = asm.kinematics(np.asarray(state, dtype=float), modulus)
         fe = np.asarray(asm.element_forces(kin)).reshape(-1, 4, 3)
         _, tets = self.mesh()  # type: ignore[attr-defined]
-        fixed = np.asarray(asm.full_to_free).reshape(-1, 3)[:, 0] < 0
-        on_fixed = fixed[tets]  # (T, 4)
-        return np.asarray((fe * on_fixed[:, :, None]).sum(axis=(0, 1)), dtype=float)
+        on_nodes = self._reaction_nodes()[tets]  # (T, 4)
+        return np.asarray((fe * on_nodes[:, :, None]).sum(axis=(0, 1)), dtype=float)
+
+    def _state_asm(self) -> Any:
+        """The assembler of the state's dofs."""
+        return self._asm
+
+    def _reaction_nodes(self) -> NDArray[np.bool_]:
+        """The nodes whose internal forces :meth:`reaction` sums: the fixed ones."""
+        return np.asarray(self._state_asm().full_to_free).reshape(-1, 3)[:, 0] < 0

@@ -21,6 +21,16 @@ belongs to). The internal force is linear in theta,
 :math:`\partial u / \partial \theta_r = -K^{-1} g_r(u)`: one back-substitution
 per parameter with the last factorization.
 
+A displacement-controlled grasp (``displacement`` instead of ``force``)
+prescribes every component of its patch's nodes, ramped as
+:math:`u_p(k) = (k/K) d`: the state keeps those dofs (set to u_p(k) by each
+step, so markers and shape errors see them) but Newton solves only for the
+others, through :class:`~idbench_fem.fem.prescribed.PrescribedAssembler`;
+f_ext is zero, and Newton's floor is rtol times the load the first step
+puts on the unknowns. :meth:`reaction` is then the tool's force, and the
+model declares ``needs_observed = ("reaction",)``: its displacements do not
+depend on a homogeneous E.
+
 Newton (:mod:`idbench_fem.fem.newton`): converged
 when :math:`\|r\| \le \max(\mathrm{rtol} \|f_{ext}(k)\|, \mathrm{atol})`
 with rtol = 1e-8 and atol = 1e-12 times the end force; each update is halved
@@ -76,6 +86,7 @@ from idbench_fem.fem.interpolation import (
 )
 from idbench_fem.fem.law_assembly import LawAssembler
 from idbench_fem.fem.newton import ASSEMBLY_BUFFERS, CHORD_RATIO, freeze
+from idbench_fem.fem.prescribed import PrescribedAssembler
 from idbench_fem.fem.solver import resolve_backend
 from idbench_fem.fem.svk_assembly import Assembler
 from idbench_fem.models.observables import Observables
@@ -173,6 +184,9 @@ class SolidModel(Observables, BatchedSteps):
         else:
             self._asm = LawAssembler(mesh.points, mesh.tets, free, law)
         self.n_state = int(self._asm.n_free)
+        self._driven: IntArray | None = None
+        if self.manipulation.driven:  # the state keeps them, Newton does not
+            self._init_driven(body, mesh, float(s.load_scale))
 
         # parameters: E per region; c_e = true modulus / its region's true value
         self._regions = resolve.element_regions(body, mesh)
@@ -191,7 +205,9 @@ class SolidModel(Observables, BatchedSteps):
         f1 = nodal_forces(
             self.manipulation, mesh, body.material.density, t=float(s.load_scale)
         )
-        self._f_end = f1.ravel()[self._asm.free_dofs]
+        self._f_end = f1.ravel()[self._state_asm().free_dofs]
+        if self._driven is not None:  # zeros: no load but the tool's
+            self._f_end = self._f_end[self._asm.unknown]
         self._load_weights: FloatArray | None = None
         if self.manipulation.kind == "traction":  # f(k) = w (k/K) t, per component
             assert self.manipulation.region is not None
@@ -208,8 +224,12 @@ class SolidModel(Observables, BatchedSteps):
             if absolute_atol is None
             else float(absolute_atol)
         )
+        if self._driven is not None and absolute_atol is None:
+            # no f_ext: the floor is the tolerance (rtol, or settings.atol, of
+            # the load the grasp's first step puts on the unknowns
+            self.atol = float(s.atol or self.rtol) * self._driven_force_scale()
 
-        f2f = self._asm.full_to_free
+        f2f = self._state_asm().full_to_free
         pts = _reference_markers(body, reference)
         if markers > len(pts):
             raise ValueError(
@@ -245,6 +265,19 @@ class SolidModel(Observables, BatchedSteps):
         self.last_residuals: list[float] = []
         freeze(self)  # shared by the copies runs get (see NewtonSolve.__copy__)
         freeze(self._asm, keep=ASSEMBLY_BUFFERS)
+        if self._driven is not None:
+            freeze(self._asm.inner, keep=ASSEMBLY_BUFFERS)
+
+    def _init_driven(self, body: Body, mesh: SolidMesh, scale: float) -> None:
+        """A displacement-controlled grasp: its nodes' dofs leave the unknowns."""
+        m = self.manipulation
+        nodes = resolve.driven_nodes(body, m.name, mesh)
+        dofs = self._asm.full_to_free[(3 * nodes[:, None] + np.arange(3)).ravel()]
+        self._asm = PrescribedAssembler(self._asm, dofs)
+        self._driven = nodes
+        assert m.displacement is not None
+        self._u_end = scale * np.tile(np.asarray(m.displacement, float), len(nodes))
+        self.needs_observed = ("reaction",)
 
     # -- the ForwardModel protocol -------------------------------------------
 
@@ -273,6 +306,8 @@ class SolidModel(Observables, BatchedSteps):
             raise ValueError(f"state has shape {u.shape}, expected ({self.n_state},)")
         self._cost[0] += 1
         self._factored_key = None
+        if self._driven is not None:
+            return self._driven_step(theta, k, u, modulus, substeps)
         if substeps == 1 and self.settings.path_reuse is not False:
             # along a path: reuses the last step's factorization
             u = self._path_step(theta, k, u, modulus)
@@ -283,6 +318,50 @@ class SolidModel(Observables, BatchedSteps):
             u, _ = self._newton(modulus, self._load(k, j / substeps), u, k)
         self._remember_factorization(theta, u)
         return u
+
+    def _driven_step(
+        self, theta: FloatArray, k: int, u: FloatArray, modulus: FloatArray,
+        substeps: int,
+    ) -> FloatArray:  # fmt: skip
+        """:meth:`step` of a displacement-controlled grasp, on the unknowns."""
+        asm = self._asm
+        x = u[asm.unknown]
+        if substeps == 1 and self.settings.path_reuse is not False:
+            self._prescribe(k)
+            x = self._path_step(theta, k, x, modulus)
+        else:
+            self._last_path_step = None
+            for j in range(1, substeps + 1):
+                self._prescribe(k, j / substeps)
+                x, _ = self._newton(modulus, self._load(k, j / substeps), x, k)
+        self._remember_factorization(theta, x)
+        return np.asarray(asm.embed(x))
+
+    def step_many(self, thetas: FloatArray, k: int, states: FloatArray) -> FloatArray:
+        """Solve load step ``k`` for r parameter/state pairs, sharing factorizations.
+
+        ``thetas`` (r, p), ``states`` (r, n) -> states (r, n); row i equals
+        ``step(thetas[i], k, states[i])`` to the Newton tolerance (see
+        :mod:`idbench_fem.fem.batched`; a displacement-controlled grasp's
+        prescribed dofs are set to step k's values).
+
+        Raises
+        ------
+        ModelFailure
+            If any pair fails (the caller may retry pairs with ``step``).
+        """
+        if self._driven is None:
+            return super().step_many(thetas, k, states)
+        X = np.asarray(states, dtype=np.float64)
+        if X.ndim != 2 or X.shape[1] != self.n_state:
+            raise ValueError(
+                f"states has shape {X.shape}, expected (r, {self.n_state})"
+            )
+        if not 1 <= k <= self.n_steps:
+            raise ValueError(f"load step k = {k}: must be in 1..{self.n_steps}")
+        self._prescribe(k)
+        out = super().step_many(thetas, k, X[:, self._asm.unknown])
+        return np.asarray(self._asm.embed(out))
 
     def observe(self, state: FloatArray) -> FloatArray:
         """Marker displacements, shape (3M,), ``[p0x, p0y, p0z, p1x, ...]``."""
@@ -327,10 +406,17 @@ class SolidModel(Observables, BatchedSteps):
         """
         modulus = self._modulus(theta, k)
         u = np.asarray(state, dtype=np.float64)
+        if self._driven is not None:  # on the unknowns; the tool's dofs do not move
+            self._asm.values = u[self._asm.prescribed]
+            u = u[self._asm.unknown]
         g = self._asm.region_forces(
             self._asm.kinematics(u, self._factors), self._regions, self.parameters.p
         )
         du = self._state_sensitivity(theta, k, u, modulus, g, self.sensitivity_refine)
+        if self._driven is not None:
+            full = np.zeros((self.n_state, du.reshape(len(u), -1).shape[1]))
+            full[self._asm.unknown] = du.reshape(len(u), -1)
+            du = full
         return np.asarray(self._obs @ du.reshape(self.n_state, -1))
 
     def cost(self) -> Cost:
@@ -365,6 +451,8 @@ class SolidModel(Observables, BatchedSteps):
         for name in ("chord_ratio", "sensitivity_refine", "path_reuse"):
             if getattr(self.settings, name) is not None:
                 out[name] = getattr(self.settings, name)
+        if m.displacement is not None:
+            out["scenario"]["displacement"] = list(m.displacement)
         return out
 
     # -- extras: idbench simulate, tests ------------------------------------------
@@ -380,7 +468,7 @@ class SolidModel(Observables, BatchedSteps):
     def displacement_field(self, state: FloatArray) -> FloatArray:
         """Displacement of every node (N, 3), zeros on the fixed ones."""
         full = np.zeros(3 * self.n_nodes)
-        full[self._asm.free_dofs] = state
+        full[self._state_asm().free_dofs] = state
         return full.reshape(-1, 3)
 
     def external_force(self, k: int) -> FloatArray:
@@ -390,27 +478,99 @@ class SolidModel(Observables, BatchedSteps):
         return self._spread((k / self.n_steps) * self._traction)
 
     def internal_force(self, theta: FloatArray, state: FloatArray) -> FloatArray:
-        """Internal force f_int(state; theta) on the free dofs, (n_state,)."""
+        """Internal force f_int(state; theta) on the free dofs, (n_state,).
+
+        The state's dofs: with a displacement-controlled grasp its prescribed
+        ones too (where the tool's force is).
+        """
         modulus = self._modulus(theta, None)
         u = np.asarray(state, dtype=np.float64)
-        return np.asarray(self._asm.forces(self._asm.kinematics(u, modulus)))
+        asm = self._state_asm()
+        return np.asarray(asm.forces(asm.kinematics(u, modulus)))
 
     def residual(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
-        """Newton residual f_int(state; theta) - f_ext(k), shape (n_state,)."""
-        return self.internal_force(theta, state) - self.external_force(k)
+        """Newton residual f_int(state; theta) - f_ext(k), shape (n_state,).
+
+        With a displacement-controlled grasp, on the unknowns only (the
+        state's prescribed dofs as they are), shape (n_unknowns,).
+        """
+        if self._driven is None:
+            return self.internal_force(theta, state) - self.external_force(k)
+        f = self.internal_force(theta, state)[self._asm.unknown]
+        return np.asarray(f - self.external_force(k))
 
     def tangent(self, theta: FloatArray, state: FloatArray) -> Any:
-        """The free-free tangent at ``state`` (scipy CSR)."""
+        """The free-free tangent at ``state`` (scipy CSR; of the unknowns if driven)."""
         modulus = self._modulus(theta, None)
-        kin = self._asm.kinematics(np.asarray(state, dtype=np.float64), modulus)
+        u = np.asarray(state, dtype=np.float64)
+        if self._driven is not None:
+            self._asm.values = u[self._asm.prescribed]
+            u = u[self._asm.unknown]
+        kin = self._asm.kinematics(u, modulus)
         return self._pattern.matrix(self._asm.tangent_data(kin, modulus, self._pattern))
 
     @property
     def fixed_nodes(self) -> IntArray:
         """Indices of the fixed nodes (all displacement components zero)."""
-        return np.flatnonzero(self._asm.full_to_free.reshape(-1, 3)[:, 0] < 0)
+        f2f = self._state_asm().full_to_free
+        return np.flatnonzero(f2f.reshape(-1, 3)[:, 0] < 0)
+
+    @property
+    def driven_nodes(self) -> IntArray:
+        """The nodes a displacement-controlled grasp moves (empty if none)."""
+        if self._driven is None:
+            return np.zeros(0, dtype=np.int64)
+        return self._driven
+
+    def prescribed_displacement(self, k: int) -> FloatArray:
+        """The driven nodes' displacements (D, 3) at load step ``k`` (D = 0 if none)."""
+        if self._driven is None:
+            return np.zeros((0, 3))
+        return np.asarray((k / self.n_steps) * self._u_end).reshape(-1, 3)
 
     # -- internals -------------------------------------------------------------
+
+    def _state_asm(self) -> Any:
+        """The assembler of the state's dofs (a driven grasp's included)."""
+        return self._asm if self._driven is None else self._asm.inner
+
+    def _reaction_nodes(self) -> NDArray[np.bool_]:
+        """The nodes whose internal forces :meth:`reaction` sums (N,)."""
+        if self._driven is None:
+            return super()._reaction_nodes()
+        mask = np.zeros(self.n_nodes, dtype=bool)
+        mask[self._driven] = True
+        return mask
+
+    def _prescribe(self, k: int, fraction: float = 1.0) -> None:
+        """Set the prescribed dofs to their values ``fraction`` into step k."""
+        if self._driven is not None:
+            t = (k - 1 + fraction) / self.n_steps
+            self._asm.values = t * self._u_end
+
+    def _path_reference(
+        self, k: int, u: FloatArray, modulus: FloatArray, f_ext: FloatArray
+    ) -> float:
+        """|r| at the given state: the load increment, or (driven) evaluated."""
+        if self._driven is None:
+            return super()._path_reference(k, u, modulus, f_ext)
+        kin = self._asm.kinematics(u, modulus)
+        if not np.all(kin.det > 0):
+            return float("inf")
+        return float(np.linalg.norm(self._asm.forces(kin) - f_ext))
+
+    def _driven_force_scale(self) -> float:
+        """The load the first step of a driven grasp puts on the unknowns (N).
+
+        The internal force on the unknowns with the grasp's end displacement
+        over K on its patch and the rest at rest, at the true moduli (f_ext
+        is 0, so Newton's floor is a fraction of this).
+        """
+        asm = self._asm
+        true = np.asarray(self.parameters.default, dtype=float)
+        u = asm.embed(np.zeros(asm.n_free), self._u_end / self.n_steps)
+        kin = asm.inner.kinematics(u, self._modulus(true, None))
+        return float(np.linalg.norm(asm.inner.forces(kin)[asm.unknown]))
 
     def _load(self, k: int, fraction: float) -> FloatArray:
         """The load ``fraction`` of the way from step k - 1's to step k's."""
@@ -452,7 +612,10 @@ def _body_digest(body: Body) -> str:
     if path.is_file():
         return _digest(path)
     states = replace(body, markers=Markers(), shape_error=ShapeError(), probes=())
-    return hashlib.sha256(repr(states).encode()).hexdigest()
+    text = repr(states) + "".join(  # a driven grasp's displacement is no repr
+        f"|{m.name}:{m.displacement}" for m in body.manipulations if m.driven
+    )
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def _mesh_digest(mesh: SolidMesh) -> str:

@@ -206,6 +206,9 @@ def describe_manipulation(body: Body, name: str) -> str:
     m = body.manipulation(name)
     if m.kind == "pressure":
         return f"dead pressure {m.pressure:g} Pa"
+    if m.displacement is not None:
+        size = math.sqrt(sum(v * v for v in m.displacement))
+        return f"grasp moved {1000 * size:.3g} mm (displacement-controlled)"
     assert m.vector is not None
     size = math.sqrt(sum(v * v for v in m.vector))
     unit = {"traction": "Pa", "gravity": "m/s2", "grasp": "N"}[m.kind]
