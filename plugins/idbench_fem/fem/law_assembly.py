@@ -52,10 +52,8 @@ class LawAssembler(TetAssembly):
 
     Parameters
     ----------
-    points, tets
-        Nodes (N, 3) and positively oriented tets (T, 4).
-    free
-        Boolean mask of the nodes whose displacements are unknowns (N,).
+    points, tets, free
+        As for :class:`~.svk_assembly.TetAssembly`.
     law
         A :class:`idbench_fem.fem.materials.Material` with
         ``linear_in_modulus``; it is evaluated at unit modulus.
@@ -77,7 +75,7 @@ class LawAssembler(TetAssembly):
     ) -> None:
         if not law.linear_in_modulus:
             raise ValueError(f"law {law.name!r}: need a law linear in the modulus")
-        super().__init__(points, tets, free, *lame(1.0, law.nu))
+        super().__init__(points, tets, free, lame(1.0, law.nu))
         self.law = law.with_modulus(1.0)  # type: ignore[attr-defined]
         self._code = law_kernels.LAW_CODES.get(law.name, -1)
         if compiled is None:

@@ -143,10 +143,10 @@ class TetAssembly:
         The mesh, (N, 3) and (T, 4), tets positively oriented.
     free
         Boolean mask (N,) of the unconstrained nodes.
-    lam, mu
-        The law's Lamé parameters at unit Young's modulus (the compiled
-        kernels read them here, with ``element_dofs``, ``grads``, ``volumes``
-        and ``n_free``).
+    lame
+        The law's Lamé parameters (lambda, mu) at unit Young's modulus,
+        attributes ``lam`` and ``mu`` (the compiled kernels read them, with
+        ``element_dofs``, ``grads``, ``volumes`` and ``n_free``).
     """
 
     def __init__(
@@ -154,14 +154,13 @@ class TetAssembly:
         points: FloatArray,
         tets: NDArray[np.int64],
         free: NDArray[np.bool_],
-        lam: float,
-        mu: float,
+        lame: tuple[float, float],
     ) -> None:
         self.tets = np.asarray(tets, dtype=np.int64)
         self.n_nodes = len(points)
         self.n_elements = len(tets)
         self.grads, self.volumes = shape_gradients(points, self.tets)
-        self.lam, self.mu = lam, mu
+        self.lam, self.mu = lame
         node_dof = np.full(self.n_nodes, -1, dtype=np.int64)
         node_dof[free] = 3 * np.arange(int(free.sum()))
         self.n_free = 3 * int(free.sum())
@@ -211,10 +210,8 @@ class Assembler(TetAssembly):
 
     Parameters
     ----------
-    points, tets
-        The mesh, (N, 3) and (T, 4), tets positively oriented.
-    free
-        Boolean mask (N,) of the unconstrained nodes.
+    points, tets, free
+        As for :class:`TetAssembly`.
     nu
         Poisson's ratio.
     compiled
@@ -234,7 +231,7 @@ class Assembler(TetAssembly):
         nu: float,
         compiled: bool | None = None,
     ) -> None:
-        super().__init__(points, tets, free, *lame_unit(nu))
+        super().__init__(points, tets, free, lame_unit(nu))
         self.compiled = kernels.available() if compiled is None else bool(compiled)
         # V G_a . G_b of the node pairs a <= b (T, 10): constant, computed once
         self._pair_a, self._pair_b = np.triu_indices(4)
