@@ -20,17 +20,21 @@ import _cli
 import numpy as np
 import pandas as pd
 
-from idbench import compare, metrics, simulate_path
+from idbench import metrics, simulate_path
 from idbench.runspec import RunSpec
 from idbench.session import Session
 from idbench.sweep import runs_of as expand
 
-# Parameters (full size: the paper's 239- and 510-node models, truth 11,700)
-SOURCES = ("bend-y", "bend-z", "mixed-30", "mixed-60", "stretch-x")
-MESHES = ("14x3x3", "20x4x4")
-TRUTH = "80x11x11"
 ESTIMATOR = "ro-ukf"
-SEEDS = 3
+FULL = {
+    "scenarios": ("bend-y", "bend-z", "mixed-30", "mixed-60", "stretch-x"),
+    "meshes": ("14x3x3", "20x4x4"),
+    "truth_mesh": "80x11x11",
+    "estimators": (ESTIMATOR,),
+    "seeds": 3,
+}
+"""The comparison at full size (the sources: its scenarios): the paper's 239-
+and 510-node models, truth 11,700 nodes."""
 BARS = {
     "transfer_error": "E fitted on source (transfer)",
     "fit_on_target": "E fitted on target",
@@ -62,18 +66,10 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     a mean over seeds with ``*_sd``; ``E_source`` and ``E_target`` the mean
     identified moduli; ``transfer_vs_fit`` the ratio of the first two errors.
     """
-    config = _cli.config(
-        quick,
-        QUICK,
-        scenarios=SOURCES,
-        meshes=MESHES,
-        truth_mesh=TRUTH,
-        estimators=(ESTIMATOR,),
-        seeds=SEEDS,
-    )
-    runs, _ = compare(config, out)
+    config = _cli.config(quick, FULL, QUICK)
+    runs, ok, _ = _cli.runs(config, out)
     specs = {s.run_id: s for s in expand(config)}
-    ok = runs[runs["status"] == "ok"].set_index(["scenario", "mesh", "seed"])
+    ok = ok.set_index(["scenario", "mesh", "seed"])
     session = Session()
     rows = []
     for (source, mesh, seed), run in ok.iterrows():
