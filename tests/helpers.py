@@ -1,4 +1,5 @@
-"""Small pieces several test files share: a tiny comparison, linear-toy data."""
+"""Small pieces several test files share: a tiny comparison, linear-toy data, a
+registry with test plugins."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from typing import Any
 import numpy as np
 from toymodels import LinearToy
 
+import idbench
 from idbench import CompareConfig, Observation, Prior
 
 TRUTH, MODEL, STEPS = "12x3x3", "4x1x1", 5
@@ -23,6 +25,18 @@ def tiny(**overrides: Any) -> CompareConfig:
         "estimators": ("rls",),
     }
     return CompareConfig(**{**base, **overrides})
+
+
+def registry_with(plugins: dict[str, object]) -> idbench.Registry:
+    """The built-in plugins' registry with ``plugins`` (name: plugin object) added.
+
+    Third-party entry points are not loaded; each call has a fresh plugin
+    manager, so nothing needs unregistering.
+    """
+    pm = idbench.get_plugin_manager(autoload=False)
+    for name, plugin in plugins.items():
+        pm.register(plugin, name=name)
+    return idbench.build_registry(pm)
 
 
 def linear_data(
