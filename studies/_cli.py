@@ -63,6 +63,47 @@ def runs(
     return table, table[table["status"] == "ok"], traces
 
 
+def over_seeds(
+    frame: pd.DataFrame,
+    by: list[str],
+    *,
+    sd: tuple[str, ...] = (),
+    first: tuple[str, ...] = (),
+    count: str | None = None,
+    sort: bool = True,
+    **columns: str,
+) -> pd.DataFrame:
+    """A study's table: one row per group of ``by`` (a setting and its seeds).
+
+    Parameters
+    ----------
+    frame
+        Runs (or traces), one row per seed of each setting.
+    by
+        The columns that make a setting; they lead the table.
+    sd
+        The names in ``columns`` that also get ``NAME_sd``, the standard
+        deviation over the group.
+    first
+        Columns constant in a group, kept as they are.
+    count
+        If given, the name of a column with the group's size.
+    sort
+        Sort the groups (else in order of appearance).
+    **columns
+        ``NAME=COLUMN``: the mean of ``COLUMN`` over the group, as ``NAME``.
+    """
+    agg: dict[str, tuple[str, str]] = {}
+    for name, column in columns.items():
+        agg[name] = (column, "mean")
+        if name in sd:
+            agg[f"{name}_sd"] = (column, "std")
+    agg.update({column: (column, "first") for column in first})
+    if count is not None:
+        agg[count] = (by[0], "size")
+    return frame.groupby(by, sort=sort).agg(**agg).reset_index()
+
+
 def show(table: pd.DataFrame) -> None:
     """Print the study's table, all rows, no index."""
     print(table.to_string(index=False))

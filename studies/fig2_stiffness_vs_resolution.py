@@ -29,15 +29,9 @@ QUICK = _cli.QUICK
 def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     """Identified E per (model nodes, estimator), mean and std over seeds."""
     _, ok, _ = _cli.runs(_cli.config(quick, FULL, QUICK), out)
-    table = (
-        ok.groupby(["model_nodes", "estimator"])
-        .agg(
-            E=("E_final", "mean"),
-            E_sd=("E_final", "std"),
-            E_ref=("E_ref", "mean"),
-            E_true=("E_true", "first"),
-        )
-        .reset_index()
+    by = ["model_nodes", "estimator"]
+    table = _cli.over_seeds(
+        ok, by, sd=("E",), first=("E_true",), E="E_final", E_ref="E_ref"
     )
     table["ratio"] = table["E"] / table["E_true"]
     return table

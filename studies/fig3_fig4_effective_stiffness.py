@@ -59,18 +59,14 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     config = _cli.config(quick, FULL, QUICK)
     _, ok, traces = _cli.runs(config, out)
     traces = traces.merge(ok[["run_id", "scenario", "E_ref"]], on="run_id")
-    ukf = (
-        traces.groupby(["scenario", "step"])
-        .agg(
-            E_ukf=("E", "mean"),
-            E_ukf_sd=("E", "std"),
-            E_ref=("E_ref", "mean"),
-            load=("load", "first"),
-            tip_x=("tip_x", "first"),
-            tip_y=("tip_y", "first"),
-            tip_z=("tip_z", "first"),
-        )
-        .reset_index()
+    truth = ("load", "tip_x", "tip_y", "tip_z")  # the same for every seed
+    ukf = _cli.over_seeds(
+        traces,
+        ["scenario", "step"],
+        sd=("E_ukf",),
+        first=truth,
+        E_ukf="E",
+        E_ref="E_ref",
     )
     eff = _effective(config)
     table = ukf.merge(eff, on=["scenario", "step"])

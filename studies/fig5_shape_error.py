@@ -40,17 +40,14 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     grid point (m), ``vs_direct`` the ratio to the direct error on that mesh.
     """
     runs, ok, _ = _cli.runs(_cli.config(quick, FULL, QUICK), out)
-    assimilated = (
-        ok.groupby(["model_nodes", "mesh", "estimator"])
-        .agg(
-            shape_error=("shape_error_final", "mean"),
-            shape_error_sd=("shape_error_final", "std"),
-            shape_error_mean=("shape_error_mean_final", "mean"),
-            E=("E_final", "mean"),
-            n_runs=("run_id", "size"),
-        )
-        .reset_index()
-        .rename(columns={"estimator": "method"})
+    assimilated = _cli.over_seeds(
+        ok.rename(columns={"estimator": "method"}),
+        ["model_nodes", "mesh", "method"],
+        sd=("shape_error",),
+        count="n_runs",
+        shape_error="shape_error_final",
+        shape_error_mean="shape_error_mean_final",
+        E="E_final",
     )
     # The direct run has no noise and no estimator: one value per mesh.
     direct = (

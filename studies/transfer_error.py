@@ -93,19 +93,14 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
             }
         )
     per_seed = pd.DataFrame(rows)
-    table = (
-        per_seed.groupby(["source", "target", "mesh", "model_nodes"], sort=False)
-        .agg(
-            E_source=("E_source", "mean"),
-            E_target=("E_target", "mean"),
-            transfer_error=("transfer_error", "mean"),
-            transfer_error_sd=("transfer_error", "std"),
-            fit_on_target=("fit_on_target", "mean"),
-            fit_on_target_sd=("fit_on_target", "std"),
-            direct=("direct", "mean"),
-            n_seeds=("seed", "size"),
-        )
-        .reset_index()
+    columns = ("E_source", "E_target", "transfer_error", "fit_on_target", "direct")
+    table = _cli.over_seeds(
+        per_seed,
+        ["source", "target", "mesh", "model_nodes"],
+        sd=("transfer_error", "fit_on_target"),
+        count="n_seeds",
+        sort=False,
+        **{c: c for c in columns},
     )
     table["transfer_vs_fit"] = table["transfer_error"] / table["fit_on_target"]
     table["E_true"] = float(runs["E_true"].iloc[0])
