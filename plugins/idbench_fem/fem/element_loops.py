@@ -2,9 +2,10 @@ r"""The compiled element loops (numba), and the per-element steps they share.
 
 Imported only where numba works (:func:`idbench_fem.fem.kernels.loops`), so
 numba stays optional. Three loops over P1 tets, each calling the same small
-compiled steps, which numba inlines (no fast-math: every step does the same
-floating-point operations in the same order as when it was written out in
-each loop, so the results are unchanged to the bit):
+compiled steps, which numba inlines into them (``inline="always"``: as fast
+as the steps written out in each loop; no fast-math, so every step does the
+same floating-point operations in the same order as written out, and the
+results are unchanged to the bit):
 
 - :func:`svk_kinematics` (:func:`idbench_fem.fem.kernels.svk_kinematics`):
   F, S, det F and the force of a stack of states, St Venant-Kirchhoff with the
@@ -35,19 +36,24 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 
-def _jit(fn: Callable[..., Any]) -> Callable[..., Any]:
+def _jit(fn: Callable[..., Any], inline: str = "never") -> Callable[..., Any]:
     """``fn`` compiled with numba, cached on disk where a folder is writable."""
     try:
-        return numba.njit(cache=True, nogil=True)(fn)  # type: ignore[no-any-return]
+        return numba.njit(cache=True, nogil=True, inline=inline)(fn)  # type: ignore[no-any-return]
     except RuntimeError as exc:  # nowhere writable to cache: compile each process
         log.warning("numba cannot cache %s (%s); compiling it here", fn.__name__, exc)
-        return numba.njit(nogil=True)(fn)  # type: ignore[no-any-return]
+        return numba.njit(nogil=True, inline=inline)(fn)  # type: ignore[no-any-return]
+
+
+def _step(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """A per-element step: compiled, and inlined into the loops that call it."""
+    return _jit(fn, inline="always")
 
 
 # --- the steps of one element ----------------------------------------------------
 
 
-@_jit
+@_step
 def gather(u, dofs, e, ue):  # type: ignore[no-untyped-def]
     """Element ``e``'s 12 nodal values of the free ``u`` into ``ue`` (0 if fixed)."""
     for c in range(12):
@@ -55,7 +61,7 @@ def gather(u, dofs, e, ue):  # type: ignore[no-untyped-def]
         ue[c] = u[d] if d >= 0 else 0.0
 
 
-@_jit
+@_step
 def gradient(ue, grads, e, diag):  # type: ignore[no-untyped-def]
     """``diag`` I + sum_a u_a G_a^T, row-major: H (``diag`` 0) or F (``diag`` 1)."""
     g00 = g11 = g22 = diag
@@ -75,7 +81,7 @@ def gradient(ue, grads, e, diag):  # type: ignore[no-untyped-def]
     return g00, g01, g02, g10, g11, g12, g20, g21, g22
 
 
-@_jit
+@_step
 def svk_stress(strain, m, lam, mu):  # type: ignore[no-untyped-def]
     """S = m (lambda tr(E) I + 2 mu E) of a symmetric E (00, 11, 22, 01, 02, 12)."""
     e00, e11, e22, e01, e02, e12 = strain
@@ -90,7 +96,7 @@ def svk_stress(strain, m, lam, mu):  # type: ignore[no-untyped-def]
     )
 
 
-@_jit
+@_step
 def store(Fe, Se, f, s):  # type: ignore[no-untyped-def]
     """Write F (row-major tuple) and the symmetric S into the 3 x 3 ``Fe``, ``Se``."""
     f00, f01, f02, f10, f11, f12, f20, f21, f22 = f
@@ -103,7 +109,7 @@ def store(Fe, Se, f, s):  # type: ignore[no-untyped-def]
     Se[2, 0], Se[2, 1], Se[2, 2] = s02, s12, s22
 
 
-@_jit
+@_step
 def add_force(force, dofs, grads, e, v, f, s):  # type: ignore[no-untyped-def]
     """Add element ``e``'s internal force f_ai = P_iJ G_aJ, P = v F S, to ``force``."""
     f00, f01, f02, f10, f11, f12, f20, f21, f22 = f
@@ -130,7 +136,7 @@ def add_force(force, dofs, grads, e, v, f, s):  # type: ignore[no-untyped-def]
             force[d] += p20 * g0 + p21 * g1 + p22 * g2
 
 
-@_jit
+@_step
 def cofactors(f):  # type: ignore[no-untyped-def]
     """adj(F), row-major, so that F^-1 = adj(F) / det F."""
     f00, f01, f02, f10, f11, f12, f20, f21, f22 = f
@@ -147,7 +153,7 @@ def cofactors(f):  # type: ignore[no-untyped-def]
     )
 
 
-@_jit
+@_step
 def inverse(adj, J):  # type: ignore[no-untyped-def]
     """F^-1 = adj(F) / J, row-major (iF[I, i])."""
     a00, a01, a02, a10, a11, a12, a20, a21, a22 = adj
@@ -156,7 +162,7 @@ def inverse(adj, J):  # type: ignore[no-untyped-def]
             a20 * r, a21 * r, a22 * r)  # fmt: skip
 
 
-@_jit
+@_step
 def gram(i):  # type: ignore[no-untyped-def]
     """The symmetric A A^T (00, 11, 22, 01, 02, 12) of a row-major A: C^-1 of F^-1."""
     i00, i01, i02, i10, i11, i12, i20, i21, i22 = i
@@ -185,8 +191,9 @@ def svk_kinematics(  # type: ignore[no-untyped-def]
     r, T = modulus.shape
     ue = np.empty(12)
     for q in range(r):
+        uq, fq = u[q], force[q]
         for e in range(T):
-            gather(u[q], dofs, e, ue)
+            gather(uq, dofs, e, ue)
             h00, h01, h02, h10, h11, h12, h20, h21, h22 = gradient(ue, grads, e, 0.0)
             # Green-Lagrange strain E = (H + H^T + H^T H) / 2
             strain = (
@@ -206,7 +213,7 @@ def svk_kinematics(  # type: ignore[no-untyped-def]
                 - h01 * (h10 * f22 - h12 * h20)
                 + h02 * (h10 * h21 - f11 * h20)
             )
-            add_force(force[q], dofs, grads, e, volumes[e], f, s)
+            add_force(fq, dofs, grads, e, volumes[e], f, s)
 
 
 @_jit
