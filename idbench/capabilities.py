@@ -116,22 +116,18 @@ def probes_of(model: Any) -> Callable[[FloatArray], dict[str, float]] | None:
     return value
 
 
-def sensitivity_of(
-    model: Any,
-) -> Callable[[FloatArray, int, FloatArray], FloatArray] | None:
+StepLike = Callable[[FloatArray, int, FloatArray], FloatArray]
+"""The call of ``sensitivity`` and ``step_many``: (theta(s), k, state(s)) -> array."""
+
+
+def sensitivity_of(model: Any) -> StepLike | None:
     """The model's ``sensitivity`` (:class:`~idbench.interfaces.SensitiveModel`)."""
-    value: Callable[[FloatArray, int, FloatArray], FloatArray] | None
-    value = member(model, "sensitivity")
-    return value
+    return cast("StepLike | None", member(model, "sensitivity"))
 
 
-def step_many_of(
-    model: Any,
-) -> Callable[[FloatArray, int, FloatArray], FloatArray] | None:
+def step_many_of(model: Any) -> StepLike | None:
     """The model's ``step_many`` (:class:`~idbench.interfaces.BatchModel`)."""
-    value: Callable[[FloatArray, int, FloatArray], FloatArray] | None
-    value = member(model, "step_many")
-    return value
+    return cast("StepLike | None", member(model, "step_many"))
 
 
 def bounds_of(model: Any) -> Any:

@@ -126,6 +126,17 @@ def _assignments(name: str) -> Any:
     return parse
 
 
+def _add_option_argument(parser: argparse.ArgumentParser, what: str, help: str) -> None:
+    """``--WHAT-option NAME=VALUE[,...]``, repeatable, into ``WHAT_options``."""
+    parser.add_argument(
+        f"--{what}-option",
+        dest=f"{what}_options",
+        type=_assignments(f"{what}-option"),
+        action="append",
+        help=help,
+    )
+
+
 def _split_top_level(text: str) -> list[str]:
     """Split at commas that are not inside brackets (``grid=[20,4,4],nu=0.3``)."""
     parts, depth, cur = [], 0, ""
@@ -278,12 +289,10 @@ def build_parser() -> argparse.ArgumentParser:
         "a [observe.NAME] table's NAME, or blocks joined by + (cloud+force) "
         f"(default: {d('observe')})",
     )
-    c.add_argument(
-        "--observe-option",
-        dest="observe_options",
-        type=_assignments("observe-option"),
-        action="append",
-        help="a setting of an observation model, NAME.SETTING=VALUE (repeatable; "
+    _add_option_argument(
+        c,
+        "observe",
+        "a setting of an observation model, NAME.SETTING=VALUE (repeatable; "
         "e.g. cloud.points=2048, cloud.outliers=0.05)",
     )
     c.add_argument(
@@ -425,12 +434,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--observe", help="observation model of the recording (default: markers)"
     )
-    s.add_argument(
-        "--observe-option",
-        dest="observe_options",
-        type=_assignments("observe-option"),
-        action="append",
-        help="a setting of the observation model, NAME.SETTING=VALUE (repeatable)",
+    _add_option_argument(
+        s,
+        "observe",
+        "a setting of the observation model, NAME.SETTING=VALUE (repeatable)",
     )
     s.add_argument(
         "--noise", type=_number("noise"), help="the markers' noise sigma (m)"
@@ -476,12 +483,10 @@ def _add_model_arguments(parser: argparse.ArgumentParser) -> None:
         help="registered model, one of %(models)s "
         f"(default: {_config_default('model')})",
     )
-    parser.add_argument(
-        "--model-option",
-        dest="model_options",
-        type=_assignments("model-option"),
-        action="append",
-        help="a setting of the model, NAME=VALUE (repeatable; 'idbench info MODEL' "
+    _add_option_argument(
+        parser,
+        "model",
+        "a setting of the model, NAME=VALUE (repeatable; 'idbench info MODEL' "
         "lists them)",
     )
     parser.add_argument(

@@ -242,6 +242,12 @@ def _add(table: dict[str, Entry], kind: str, name: Any, obj: Any, plugin: str) -
     table[name] = Entry(name, obj, plugin)
 
 
+def _check_dataclass(obj: Any, plugin: str, what: str) -> None:
+    """Raise :class:`PluginError` unless ``obj`` is a dataclass type."""
+    if not (isinstance(obj, type) and dataclasses.is_dataclass(obj)):
+        raise PluginError(f"plugin {plugin!r}: {what} must be a dataclass type")
+
+
 def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
     """Call every plugin's ``register_*`` hooks and collect the results.
 
@@ -264,13 +270,8 @@ def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
         ) -> None:
             if not callable(factory):
                 raise PluginError(f"plugin {plugin!r}: model {name!r} is not callable")
-            if settings is not None and not (
-                isinstance(settings, type) and dataclasses.is_dataclass(settings)
-            ):
-                raise PluginError(
-                    f"plugin {plugin!r}: settings of model {name!r} must be a "
-                    "dataclass type"
-                )
+            if settings is not None:
+                _check_dataclass(settings, plugin, f"settings of model {name!r}")
             if defaults is not None and not isinstance(defaults, ModelDefaults):
                 raise PluginError(
                     f"plugin {plugin!r}: defaults of model {name!r} must be an "
@@ -294,21 +295,14 @@ def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
 
     def estimator_cb(plugin: str) -> Callable[[str, type], None]:
         def register(name: str, cls: type) -> None:
-            if not (isinstance(cls, type) and dataclasses.is_dataclass(cls)):
-                raise PluginError(
-                    f"plugin {plugin!r}: estimator {name!r} must be a dataclass type"
-                )
+            _check_dataclass(cls, plugin, f"estimator {name!r}")
             _add(reg.estimators, "estimator", name, cls, plugin)
 
         return register
 
     def observation_cb(plugin: str) -> Callable[[str, type], None]:
         def register(name: str, cls: type) -> None:
-            if not (isinstance(cls, type) and dataclasses.is_dataclass(cls)):
-                raise PluginError(
-                    f"plugin {plugin!r}: observation model {name!r} must be a "
-                    "dataclass type"
-                )
+            _check_dataclass(cls, plugin, f"observation model {name!r}")
             if name in ("markers", "cloud", "force"):
                 raise PluginError(
                     f"plugin {plugin!r}: observation model {name!r} is idbench's own"

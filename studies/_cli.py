@@ -1,5 +1,6 @@
 """What the study scripts share: the command line (``--quick``, ``--out``,
-progress), the study's comparison with its quick overrides, the main block."""
+progress), the study's comparison with its quick overrides and its runs, the
+main block."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from typing import Any
 
 import pandas as pd
 
-from idbench import CompareConfig
+from idbench import CompareConfig, compare
 
 
 def parser(doc: str, out: str) -> argparse.ArgumentParser:
@@ -31,9 +32,76 @@ def parser(doc: str, out: str) -> argparse.ArgumentParser:
     return p
 
 
-def config(quick: bool, small: dict[str, Any], **settings: Any) -> CompareConfig:
-    """The study's comparison: ``settings``, with ``small``'s on top if ``quick``."""
-    return CompareConfig(**{**settings, **(small if quick else {})})
+QUICK: dict[str, Any] = {
+    "meshes": ("4x1x1", "8x2x2", "12x3x3"),
+    "truth_mesh": "24x4x4",
+    "seeds": 1,
+    "steps": 6,
+}
+"""The quick size of a beam study over resolutions: three small meshes, a
+small truth, one seed, six load steps (seconds)."""
+
+
+def config(
+    quick: bool, full: dict[str, Any], small: dict[str, Any], **settings: Any
+) -> CompareConfig:
+    """The comparison ``full`` + ``settings``, with ``small`` on top if ``quick``."""
+    return CompareConfig(**{**full, **settings, **(small if quick else {})})
+
+
+def runs(
+    config: CompareConfig, out: str | Path | None, **options: Any
+) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+    """Run the comparison (:func:`idbench.compare` with ``options``).
+
+    Returns
+    -------
+    tuple
+        All runs, the runs with status ``ok``, and the per-step traces.
+    """
+    table, traces = compare(config, out, **options)
+    return table, table[table["status"] == "ok"], traces
+
+
+def over_seeds(
+    frame: pd.DataFrame,
+    by: list[str],
+    *,
+    sd: tuple[str, ...] = (),
+    first: tuple[str, ...] = (),
+    count: str | None = None,
+    sort: bool = True,
+    **columns: str,
+) -> pd.DataFrame:
+    """A study's table: one row per group of ``by`` (a setting and its seeds).
+
+    Parameters
+    ----------
+    frame
+        Runs (or traces), one row per seed of each setting.
+    by
+        The columns that make a setting; they lead the table.
+    sd
+        The names in ``columns`` that also get ``NAME_sd``, the standard
+        deviation over the group.
+    first
+        Columns constant in a group, kept as they are.
+    count
+        If given, the name of a column with the group's size.
+    sort
+        Sort the groups (else in order of appearance).
+    **columns
+        ``NAME=COLUMN``: the mean of ``COLUMN`` over the group, as ``NAME``.
+    """
+    agg: dict[str, tuple[str, str]] = {}
+    for name, column in columns.items():
+        agg[name] = (column, "mean")
+        if name in sd:
+            agg[f"{name}_sd"] = (column, "std")
+    agg.update({column: (column, "first") for column in first})
+    if count is not None:
+        agg[count] = (by[0], "size")
+    return frame.groupby(by, sort=sort).agg(**agg).reset_index()
 
 
 def show(table: pd.DataFrame) -> None:

@@ -14,45 +14,24 @@ from pathlib import Path
 import _cli
 import pandas as pd
 
-from idbench import compare
-
-# Parameters (full size: the study's resolutions, truth about 11,000 nodes)
-MESHES = ("9x2x2", "14x3x3", "20x4x4", "30x5x5", "40x6x6", "60x8x8")
-TRUTH = "80x11x11"
-ESTIMATORS = ("ro-ukf", "rls", "batch-ls")
 SCENARIO = "bend-y"
-SEEDS = 3
-
-QUICK = {
-    "meshes": ("4x1x1", "8x2x2", "12x3x3"),
-    "truth_mesh": "24x4x4",
-    "seeds": 1,
-    "steps": 6,
+FULL = {
+    "meshes": ("9x2x2", "14x3x3", "20x4x4", "30x5x5", "40x6x6", "60x8x8"),
+    "truth_mesh": "80x11x11",
+    "estimators": ("ro-ukf", "rls", "batch-ls"),
+    "scenarios": (SCENARIO,),
+    "seeds": 3,
 }
+"""The comparison at full size: the study's resolutions, truth about 11,000 nodes."""
+QUICK = _cli.QUICK
 
 
 def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     """Identified E per (model nodes, estimator), mean and std over seeds."""
-    config = _cli.config(
-        quick,
-        QUICK,
-        meshes=MESHES,
-        truth_mesh=TRUTH,
-        estimators=ESTIMATORS,
-        scenarios=(SCENARIO,),
-        seeds=SEEDS,
-    )
-    runs, _ = compare(config, out)
-    ok = runs[runs["status"] == "ok"]
-    table = (
-        ok.groupby(["model_nodes", "estimator"])
-        .agg(
-            E=("E_final", "mean"),
-            E_sd=("E_final", "std"),
-            E_ref=("E_ref", "mean"),
-            E_true=("E_true", "first"),
-        )
-        .reset_index()
+    _, ok, _ = _cli.runs(_cli.config(quick, FULL, QUICK), out)
+    by = ["model_nodes", "estimator"]
+    table = _cli.over_seeds(
+        ok, by, sd=("E",), first=("E_true",), E="E_final", E_ref="E_ref"
     )
     table["ratio"] = table["E"] / table["E_true"]
     return table

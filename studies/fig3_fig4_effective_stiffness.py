@@ -25,17 +25,19 @@ import _cli
 import numpy as np
 import pandas as pd
 
-from idbench import CompareConfig, compare, effective_path
+from idbench import CompareConfig, effective_path
 from idbench.session import Session
 from idbench.sweep import plan
 
-# Parameters (full size: the study's 510-node model, truth about 11,700 nodes)
-MESH = "20x4x4"
-TRUTH = "80x11x11"
-SCENARIOS = ("stretch-x", "mixed-30", "mixed-60", "bend-y", "bend-z")
-SEEDS = 3
-OBS_EVERY = 1  # the filter sees every load step, as in the study's Fig. 3
-
+FULL = {
+    "meshes": ("20x4x4",),
+    "truth_mesh": "80x11x11",
+    "estimators": ("ro-ukf",),
+    "scenarios": ("stretch-x", "mixed-30", "mixed-60", "bend-y", "bend-z"),
+    "seeds": 3,
+    "obs_every": (1,),  # the filter sees every load step, as in the study's Fig. 3
+}
+"""The comparison at full size: the study's 510-node model, truth about 11,700."""
 QUICK = {
     "meshes": ("8x2x2",),
     "truth_mesh": "24x4x4",
@@ -54,31 +56,17 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     E_ref (batch least squares over the whole path), E_true, and the ratios
     ``eff_ratio = E_eff / E_true`` and ``ukf_ratio = E_ukf / E_true``.
     """
-    config = _cli.config(
-        quick,
-        QUICK,
-        meshes=(MESH,),
-        truth_mesh=TRUTH,
-        estimators=("ro-ukf",),
-        scenarios=SCENARIOS,
-        seeds=SEEDS,
-        obs_every=(OBS_EVERY,),
-    )
-    runs, traces = compare(config, out)
-    ok = runs[runs["status"] == "ok"]
+    config = _cli.config(quick, FULL, QUICK)
+    _, ok, traces = _cli.runs(config, out)
     traces = traces.merge(ok[["run_id", "scenario", "E_ref"]], on="run_id")
-    ukf = (
-        traces.groupby(["scenario", "step"])
-        .agg(
-            E_ukf=("E", "mean"),
-            E_ukf_sd=("E", "std"),
-            E_ref=("E_ref", "mean"),
-            load=("load", "first"),
-            tip_x=("tip_x", "first"),
-            tip_y=("tip_y", "first"),
-            tip_z=("tip_z", "first"),
-        )
-        .reset_index()
+    truth = ("load", "tip_x", "tip_y", "tip_z")  # the same for every seed
+    ukf = _cli.over_seeds(
+        traces,
+        ["scenario", "step"],
+        sd=("E_ukf",),
+        first=truth,
+        E_ukf="E",
+        E_ref="E_ref",
     )
     eff = _effective(config)
     table = ukf.merge(eff, on=["scenario", "step"])

@@ -19,22 +19,17 @@ from pathlib import Path
 import _cli
 import pandas as pd
 
-from idbench import compare
-
-# Parameters (full size: about 90 to 2,000 model nodes, truth about 11,700)
-MESHES = ("9x2x2", "14x3x3", "20x4x4", "30x5x5", "40x6x6")
-TRUTH = "80x11x11"
-ESTIMATORS = ("ro-ukf", "rls")
 SCENARIO = "bend-y"
-SEEDS = 3
-DIRECT = "direct (E_true)"
-
-QUICK = {
-    "meshes": ("4x1x1", "8x2x2", "12x3x3"),
-    "truth_mesh": "24x4x4",
-    "seeds": 1,
-    "steps": 6,
+FULL = {
+    "meshes": ("9x2x2", "14x3x3", "20x4x4", "30x5x5", "40x6x6"),
+    "truth_mesh": "80x11x11",
+    "estimators": ("ro-ukf", "rls"),
+    "scenarios": (SCENARIO,),
+    "seeds": 3,
 }
+"""The comparison at full size: about 90 to 2,000 model nodes, truth about 11,700."""
+QUICK = _cli.QUICK
+DIRECT = "direct (E_true)"
 
 
 def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
@@ -44,28 +39,15 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     is the paper's sum over the grid (m), ``shape_error_mean`` the mean per
     grid point (m), ``vs_direct`` the ratio to the direct error on that mesh.
     """
-    config = _cli.config(
-        quick,
-        QUICK,
-        meshes=MESHES,
-        truth_mesh=TRUTH,
-        estimators=ESTIMATORS,
-        scenarios=(SCENARIO,),
-        seeds=SEEDS,
-    )
-    runs, _ = compare(config, out)
-    ok = runs[runs["status"] == "ok"]
-    assimilated = (
-        ok.groupby(["model_nodes", "mesh", "estimator"])
-        .agg(
-            shape_error=("shape_error_final", "mean"),
-            shape_error_sd=("shape_error_final", "std"),
-            shape_error_mean=("shape_error_mean_final", "mean"),
-            E=("E_final", "mean"),
-            n_runs=("run_id", "size"),
-        )
-        .reset_index()
-        .rename(columns={"estimator": "method"})
+    runs, ok, _ = _cli.runs(_cli.config(quick, FULL, QUICK), out)
+    assimilated = _cli.over_seeds(
+        ok.rename(columns={"estimator": "method"}),
+        ["model_nodes", "mesh", "method"],
+        sd=("shape_error",),
+        count="n_runs",
+        shape_error="shape_error_final",
+        shape_error_mean="shape_error_mean_final",
+        E="E_final",
     )
     # The direct run has no noise and no estimator: one value per mesh.
     direct = (

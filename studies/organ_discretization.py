@@ -106,19 +106,16 @@ def compute(
         folder = None if out is None else Path(out) / law
         runs, _ = compare(config, folder, registry=registry)
         ok = runs[runs["status"] == "ok"]
-        table = (
-            ok.groupby(["scenario", "mesh", "model_nodes"], sort=False)
-            .agg(
-                E=("E_final", "mean"),
-                E_true=("E_true", "first"),
-                shape_error=("shape_error_final", "mean"),
-                shape_error_direct=("shape_error_direct", "first"),
-                transfer_scenario=("transfer_scenario", "first"),
-                transfer_error=("transfer_error", "mean"),
-                transfer_error_direct=("transfer_error_direct", "first"),
-                n_runs=("run_id", "size"),
-            )
-            .reset_index()
+        direct = ("shape_error_direct", "transfer_scenario", "transfer_error_direct")
+        table = _cli.over_seeds(
+            ok,
+            ["scenario", "mesh", "model_nodes"],
+            first=("E_true", *direct),
+            count="n_runs",
+            sort=False,
+            E="E_final",
+            shape_error="shape_error_final",
+            transfer_error="transfer_error",
         )
         table.insert(0, "law", law)
         table.insert(1, "load_scale", LOAD_SCALE.get(law, 1.0))

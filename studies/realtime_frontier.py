@@ -39,32 +39,35 @@ from pathlib import Path
 import _cli
 import pandas as pd
 
-from idbench import CompareConfig, compare
 from idbench.files import atomic_write, atomic_write_bytes
 from idbench.report import frontier, frontier_figure, parameter_names
 
-# Parameters (full size: about 90, 240, 525, 1100, 2000 nodes)
-MESHES = ("9x2x2", "14x3x3", "20x4x4", "30x5x5", "40x6x6")
-TRUTH = "80x11x11"
-ESTIMATORS = ("ro-ukf", "ukf", "rls", "lms", "batch-ls")
 SCENARIO = "bend-y"
-SEEDS = 2
-SETTINGS: dict[str, dict[str, object]] = {}  # ukf keeps max_solves = 1500
-
+FULL = {
+    "meshes": ("9x2x2", "14x3x3", "20x4x4", "30x5x5", "40x6x6"),
+    "truth_mesh": "80x11x11",
+    "estimators": ("ro-ukf", "ukf", "rls", "lms", "batch-ls"),
+    "scenarios": (SCENARIO,),
+    "seeds": 2,
+    "estimator_settings": {},  # ukf keeps max_solves = 1500
+}
+"""The comparison at full size: about 90, 240, 525, 1100, 2000 nodes."""
 QUICK = {
-    "meshes": ("4x1x1", "8x2x2", "12x3x3"),
-    "truth_mesh": "24x4x4",
-    "seeds": 1,
-    "steps": 6,
+    **_cli.QUICK,
     "estimator_settings": {"ukf": {"max_solves": 200}},  # 4x1x1 only
 }
 
 ORGANS = {"liver": "grasp-lift", "kidney": "grasp-pole"}
 """The shipped organs and the manipulation each frontier runs."""
-ORGAN_MESHES = ("500", "1000", "2000", "4000")
-ORGAN_TRUTH = "16000"
-ORGAN_ESTIMATORS = ("ro-ukf", "ukf", "enkf", "etkf", "rls", "lms", "batch-ls")
-ORGAN_SEEDS = 1
+ORGAN_FULL = {
+    "model": "solid",
+    "meshes": ("500", "1000", "2000", "4000"),
+    "truth_mesh": "16000",
+    "estimators": ("ro-ukf", "ukf", "enkf", "etkf", "rls", "lms", "batch-ls"),
+    "seeds": 1,
+    "estimator_settings": {},
+}
+"""An organ's comparison at full size (its manipulation: :data:`ORGANS`)."""
 ORGAN_QUICK = {
     "meshes": ("150", "300"),
     "truth_mesh": "600",
@@ -92,17 +95,7 @@ COLUMNS = [
 
 def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     """The frontier table: one row per (model nodes, estimator) that ran."""
-    config = _cli.config(
-        quick,
-        QUICK,
-        meshes=MESHES,
-        truth_mesh=TRUTH,
-        estimators=ESTIMATORS,
-        scenarios=(SCENARIO,),
-        seeds=SEEDS,
-        estimator_settings=SETTINGS,
-    )
-    runs, traces = compare(config, out, jobs=1)
+    runs, _, traces = _cli.runs(_cli.config(quick, FULL, QUICK), out, jobs=1)
     table = frontier(runs, traces)
     return table[[c for c in COLUMNS if c in table.columns]]
 
@@ -119,21 +112,15 @@ def compute_organ(
     """
     if organ not in ORGANS:
         raise ValueError(f"organ {organ!r}: allowed are {', '.join(ORGANS)}")
-    settings: dict[str, object] = {
-        "model": "solid",
-        "meshes": ORGAN_MESHES,
-        "truth_mesh": ORGAN_TRUTH,
-        "estimators": ORGAN_ESTIMATORS,
-        "scenarios": (ORGANS[organ],),
-        "seeds": ORGAN_SEEDS,
-        "estimator_settings": SETTINGS,
-    }
-    if quick:
-        settings.update(ORGAN_QUICK)
-    settings["model_settings"] = {
-        "solid": {"body": organ, "reference": settings["truth_mesh"]}
-    }
-    runs, traces = compare(CompareConfig(**settings), out, jobs=1)  # type: ignore[arg-type]
+    truth = (ORGAN_QUICK if quick else ORGAN_FULL)["truth_mesh"]
+    config = _cli.config(
+        quick,
+        ORGAN_FULL,
+        ORGAN_QUICK,
+        scenarios=(ORGANS[organ],),
+        model_settings={"solid": {"body": organ, "reference": truth}},
+    )
+    runs, _, traces = _cli.runs(config, out, jobs=1)
     table = frontier(runs, traces)
     table = table[[c for c in COLUMNS if c in table.columns]]
     return table.merge(moduli(runs), on=["model_nodes", "estimator"], how="left")

@@ -20,17 +20,21 @@ import _cli
 import numpy as np
 import pandas as pd
 
-from idbench import compare, metrics, simulate_path
+from idbench import metrics, simulate_path
 from idbench.runspec import RunSpec
 from idbench.session import Session
 from idbench.sweep import runs_of as expand
 
-# Parameters (full size: the paper's 239- and 510-node models, truth 11,700)
-SOURCES = ("bend-y", "bend-z", "mixed-30", "mixed-60", "stretch-x")
-MESHES = ("14x3x3", "20x4x4")
-TRUTH = "80x11x11"
 ESTIMATOR = "ro-ukf"
-SEEDS = 3
+FULL = {
+    "scenarios": ("bend-y", "bend-z", "mixed-30", "mixed-60", "stretch-x"),
+    "meshes": ("14x3x3", "20x4x4"),
+    "truth_mesh": "80x11x11",
+    "estimators": (ESTIMATOR,),
+    "seeds": 3,
+}
+"""The comparison at full size (the sources: its scenarios): the paper's 239-
+and 510-node models, truth 11,700 nodes."""
 BARS = {
     "transfer_error": "E fitted on source (transfer)",
     "fit_on_target": "E fitted on target",
@@ -62,18 +66,10 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     a mean over seeds with ``*_sd``; ``E_source`` and ``E_target`` the mean
     identified moduli; ``transfer_vs_fit`` the ratio of the first two errors.
     """
-    config = _cli.config(
-        quick,
-        QUICK,
-        scenarios=SOURCES,
-        meshes=MESHES,
-        truth_mesh=TRUTH,
-        estimators=(ESTIMATOR,),
-        seeds=SEEDS,
-    )
-    runs, _ = compare(config, out)
+    config = _cli.config(quick, FULL, QUICK)
+    runs, ok, _ = _cli.runs(config, out)
     specs = {s.run_id: s for s in expand(config)}
-    ok = runs[runs["status"] == "ok"].set_index(["scenario", "mesh", "seed"])
+    ok = ok.set_index(["scenario", "mesh", "seed"])
     session = Session()
     rows = []
     for (source, mesh, seed), run in ok.iterrows():
@@ -97,19 +93,14 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
             }
         )
     per_seed = pd.DataFrame(rows)
-    table = (
-        per_seed.groupby(["source", "target", "mesh", "model_nodes"], sort=False)
-        .agg(
-            E_source=("E_source", "mean"),
-            E_target=("E_target", "mean"),
-            transfer_error=("transfer_error", "mean"),
-            transfer_error_sd=("transfer_error", "std"),
-            fit_on_target=("fit_on_target", "mean"),
-            fit_on_target_sd=("fit_on_target", "std"),
-            direct=("direct", "mean"),
-            n_seeds=("seed", "size"),
-        )
-        .reset_index()
+    columns = ("E_source", "E_target", "transfer_error", "fit_on_target", "direct")
+    table = _cli.over_seeds(
+        per_seed,
+        ["source", "target", "mesh", "model_nodes"],
+        sd=("transfer_error", "fit_on_target"),
+        count="n_seeds",
+        sort=False,
+        **{c: c for c in columns},
     )
     table["transfer_vs_fit"] = table["transfer_error"] / table["fit_on_target"]
     table["E_true"] = float(runs["E_true"].iloc[0])

@@ -1,13 +1,18 @@
-"""Small pieces several test files share: a tiny comparison, linear-toy data."""
+"""Small pieces several test files share: a tiny comparison, linear-toy data, a
+registry with test plugins."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 from toymodels import LinearToy
 
+import idbench
 from idbench import CompareConfig, Observation, Prior
+from idbench.cli import main
 
 TRUTH, MODEL, STEPS = "12x3x3", "4x1x1", 5
 """The tiny comparison's truth mesh, model mesh and load steps."""
@@ -23,6 +28,31 @@ def tiny(**overrides: Any) -> CompareConfig:
         "estimators": ("rls",),
     }
     return CompareConfig(**{**base, **overrides})
+
+
+def registry_with(plugins: dict[str, object]) -> idbench.Registry:
+    """The built-in plugins' registry with ``plugins`` (name: plugin object) added.
+
+    Third-party entry points are not loaded; each call has a fresh plugin
+    manager, so nothing needs unregistering.
+    """
+    pm = idbench.get_plugin_manager(autoload=False)
+    for name, plugin in plugins.items():
+        pm.register(plugin, name=name)
+    return idbench.build_registry(pm)
+
+
+def compare_into(folder: Path, *args: str) -> Path:
+    """Run ``idbench compare ARGS -q`` into ``folder/out``; that folder.
+
+    With its own truth cache ``folder/cache``: for module-scoped fixtures,
+    which cannot use the per-test cache of conftest.
+    """
+    out = folder / "out"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("IDBENCH_CACHE_DIR", str(folder / "cache"))
+        assert main(["compare", *args, "--out", str(out), "-q"]) == 0
+    return out
 
 
 def linear_data(

@@ -32,8 +32,8 @@ from idbench_filters._ensemble import EnsembleFilter
 class Enkf(EnsembleFilter):
     """Stochastic EnKF with perturbed, centred observations on [state; xi].
 
-    No settings of its own: those of the ensemble filters' base (``members``,
-    ``inflation``, ``init``, ``seed``) and of :class:`idbench.Filter`.
+    Its settings are the ensemble base's (:class:`~._ensemble.EnsembleFilter`);
+    ``seed`` also draws the observation perturbations of every analysis.
     """
 
     def analysis(

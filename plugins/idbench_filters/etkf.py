@@ -34,8 +34,8 @@ from idbench_filters._ensemble import EnsembleFilter
 class Etkf(EnsembleFilter):
     """Deterministic square-root ensemble filter (ETKF) on [state; xi].
 
-    No settings of its own: those of the ensemble filters' base (``members``,
-    ``inflation``, ``init``, ``seed``) and of :class:`idbench.Filter`.
+    Settings: :class:`~._ensemble.EnsembleFilter`'s; ``seed`` seeds the initial
+    draw only (the analysis is deterministic).
     """
 
     def analysis(

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from helpers import registry_with
 from toymodels import SensitiveLinearToy
 
 import idbench
@@ -79,10 +80,7 @@ class ToyPlugin:
 
 @pytest.fixture
 def registry() -> idbench.Registry:
-    pm = idbench.get_plugin_manager(autoload=False)
-    pm.register(ToyPlugin(), name="toys")
-    pm.register(readme_estimator_module(), name="readme")
-    return idbench.build_registry(pm)
+    return registry_with({"toys": ToyPlugin(), "readme": readme_estimator_module()})
 
 
 def toy_config(**kw: Any) -> idbench.CompareConfig:

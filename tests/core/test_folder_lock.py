@@ -54,21 +54,31 @@ def _python(code: str, *args: str, **kw) -> subprocess.Popen:
 
 
 @pytest.fixture
-def holder(tmp_path):
-    """A process that opened ``tmp_path/out`` and holds it until released."""
+def spawn():
+    """Start ``python -c CODE ARGS...`` (:func:`_python`); killed and reaped after."""
     procs = []
 
-    def start(folder: Path) -> subprocess.Popen:
-        proc = _python(HOLDER, str(folder))
-        procs.append(proc)
-        assert proc.stdout.readline() == "held\n", proc.stderr.read()
-        return proc
+    def start(code: str, *args: str) -> subprocess.Popen:
+        procs.append(_python(code, *args))
+        return procs[-1]
 
     yield start
     for proc in procs:
         if proc.poll() is None:
             proc.kill()
         proc.wait()
+
+
+@pytest.fixture
+def holder(spawn):
+    """A process that opened a folder and holds it until released."""
+
+    def start(folder: Path) -> subprocess.Popen:
+        proc = spawn(HOLDER, str(folder))
+        assert proc.stdout.readline() == "held\n", proc.stderr.read()
+        return proc
+
+    return start
 
 
 def _release(proc: subprocess.Popen) -> None:
@@ -99,29 +109,25 @@ def test_a_second_compare_is_refused_in_one_line(tmp_path, holder, capsys):
     _release(proc)
 
 
-def test_report_is_refused_while_a_compare_writes(tmp_path, holder, capsys):
+def test_report_is_refused_while_a_compare_writes(tmp_path, spawn, capsys):
     out = tmp_path / "out"
     assert main(["compare", *TINY, "--out", str(out), "-q"]) == 0
-    writer = _python(
+    writer = spawn(
         "import sys; from idbench.lock import acquire; acquire(sys.argv[1]);"
         "print('held', flush=True); sys.stdin.read()",
         str(out),
     )
-    try:
-        assert writer.stdout.readline() == "held\n", writer.stderr.read()
-        assert main(["report", str(out)]) == 2
-        err = capsys.readouterr().err
-        assert f"in use by pid {writer.pid}" in err and err.count("\n") == 1
-        assert not (out / "report.md").exists()
-        _release(writer)
-        assert main(["report", str(out)]) == 0
-        assert (out / "report.md").exists()
-    finally:
-        writer.kill()
-        writer.wait()
+    assert writer.stdout.readline() == "held\n", writer.stderr.read()
+    assert main(["report", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"in use by pid {writer.pid}" in err and err.count("\n") == 1
+    assert not (out / "report.md").exists()
+    _release(writer)
+    assert main(["report", str(out)]) == 0
+    assert (out / "report.md").exists()
 
 
-def test_wait_waits_until_the_holder_is_done(tmp_path, holder):
+def test_wait_waits_until_the_holder_is_done(tmp_path, holder, spawn):
     out = tmp_path / "out"
     proc = holder(out)
     code = (
@@ -129,18 +135,14 @@ def test_wait_waits_until_the_holder_is_done(tmp_path, holder):
         "sys.exit(main(['compare', *sys.argv[2:], '--out', sys.argv[1], '--wait',"
         " '-q']))"
     )
-    waiter = _python(code, str(out), *TINY)
-    try:
-        line = waiter.stderr.readline()  # said before it blocks
-        assert "in use by" in line and f"pid {proc.pid}" in line and "waiting" in line
-        assert waiter.poll() is None  # blocked: the holder still holds
-        assert not (out / "runs.parquet").exists()
-        _release(proc)
-        assert waiter.wait() == 0, waiter.stderr.read()
-        assert (out / "runs.parquet").exists()
-    finally:
-        waiter.kill()
-        waiter.wait()
+    waiter = spawn(code, str(out), *TINY)
+    line = waiter.stderr.readline()  # said before it blocks
+    assert "in use by" in line and f"pid {proc.pid}" in line and "waiting" in line
+    assert waiter.poll() is None  # blocked: the holder still holds
+    assert not (out / "runs.parquet").exists()
+    _release(proc)
+    assert waiter.wait() == 0, waiter.stderr.read()
+    assert (out / "runs.parquet").exists()
 
 
 def test_the_lock_goes_with_a_killed_holder(tmp_path, holder):

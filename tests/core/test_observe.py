@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from helpers import registry_with
 from toymodels import SensitiveLinearToy
 
 import idbench
@@ -341,9 +342,7 @@ class DrivenPlugin:
 
 @pytest.fixture
 def driven() -> idbench.Registry:
-    pm = idbench.get_plugin_manager(autoload=False)
-    pm.register(DrivenPlugin(), name="driven")
-    return idbench.build_registry(pm)
+    return registry_with({"driven": DrivenPlugin()})
 
 
 def test_force_identifies_E_of_a_displacement_controlled_body(driven, tmp_path):

@@ -24,7 +24,7 @@ import meshio
 import numpy as np
 import pandas as pd
 import pytest
-from helpers import MODEL, STEPS, TRUTH, tiny
+from helpers import MODEL, STEPS, TRUTH, registry_with, tiny
 
 import idbench
 from idbench.cli import main
@@ -39,6 +39,23 @@ BUILTIN_ESTIMATORS = {"ro-ukf", "ukf", "enkf", "etkf", "rls", "lms", "batch-ls"}
 def by_estimator(runs: pd.DataFrame) -> pd.DataFrame:
     assert runs["estimator"].is_unique
     return runs.set_index("estimator")
+
+
+def diverged_at(
+    runs: pd.DataFrame, traces: pd.DataFrame, estimator: str, step: int, why: str
+) -> pd.DataFrame:
+    """Assert ``estimator``'s run diverged at ``step`` for ``why``; its traces.
+
+    The run is ``diverged`` with ``failed_step`` and an error "step N: ...why...",
+    and its traces hold the steps before, not the failed one.
+    """
+    row = by_estimator(runs).loc[estimator]
+    assert row["status"] == "diverged", row["error"]
+    assert row["failed_step"] == step
+    assert row["error"].startswith(f"step {step}: ") and why in row["error"]
+    steps = traces.loc[traces["run_id"] == row["run_id"]]
+    assert sorted(steps["step"]) == list(range(1, step))
+    return steps
 
 
 # --- bad mesh files ------------------------------------------------------------
@@ -314,9 +331,7 @@ class FaultyPlugin:
 @pytest.fixture
 def registry() -> idbench.Registry:
     """Built-ins plus the faulty plugin, registered on a fresh manager."""
-    pm = idbench.get_plugin_manager(autoload=False)
-    pm.register(FaultyPlugin(), name="faulty-plug")
-    reg = idbench.build_registry(pm)
+    reg = registry_with({"faulty-plug": FaultyPlugin()})
     assert reg.errors == {}
     return reg
 
@@ -332,13 +347,8 @@ def test_newton_failure_is_a_diverged_run_at_its_step(registry, tmp_path):
         estimator_settings={"fixed-e": {"E": 40.0}},
     )
     runs, traces = compare(cfg, tmp_path / "out", registry=registry)
+    diverged_at(runs, traces, "fixed-e", 3, "inverted element")
     by = by_estimator(runs)
-    assert by.loc["fixed-e", "status"] == "diverged"
-    assert by.loc["fixed-e", "failed_step"] == 3
-    assert by.loc["fixed-e", "error"].startswith("step 3: ")
-    assert "inverted element" in by.loc["fixed-e", "error"]
-    bad_id = by.loc["fixed-e", "run_id"]
-    assert sorted(traces.loc[traces["run_id"] == bad_id, "step"]) == [1, 2]
     for ok in ("rls", "batch-ls"):
         assert by.loc[ok, "status"] == "ok" and by.loc[ok, "error"] == ""
         assert np.isfinite(by.loc[ok, "E_final"])
@@ -370,16 +380,9 @@ def test_non_finite_estimate_is_caught_at_its_step(registry, tmp_path, value):
         estimator_settings={"nan-at": {"at": 4, "value": value}},
     )
     runs, traces = compare(cfg, tmp_path / "out", registry=registry)
-    by = by_estimator(runs)
-    assert by.loc["nan-at", "status"] == "diverged"
-    assert by.loc["nan-at", "failed_step"] == 4
-    assert by.loc["nan-at", "error"].startswith("step 4: ")
-    assert "non-finite" in by.loc["nan-at", "error"]
-    bad_id = by.loc["nan-at", "run_id"]
-    steps = traces.loc[traces["run_id"] == bad_id]
-    assert sorted(steps["step"]) == [1, 2, 3]
+    steps = diverged_at(runs, traces, "nan-at", 4, "non-finite")
     assert np.isfinite(steps["E"]).all()  # nothing non-finite was recorded
-    assert by.loc["rls", "status"] == "ok"
+    assert by_estimator(runs).loc["rls", "status"] == "ok"
 
 
 # --- crashing plugins ----------------------------------------------------------
@@ -529,9 +532,7 @@ class BrokenModelPlugin:
 
 
 def test_a_model_plugin_bug_is_one_clean_line_naming_the_plugin(tmp_path):
-    pm = idbench.get_plugin_manager(autoload=False)
-    pm.register(BrokenModelPlugin(), name="broken-plug")
-    reg = idbench.build_registry(pm)
+    reg = registry_with({"broken-plug": BrokenModelPlugin()})
     with pytest.raises(ConfigError) as info:
         cfg = tiny(model="broken-model", scenarios=("bend-y",), prior=(1e3, 1e3))
         compare(cfg, tmp_path, registry=reg)
@@ -560,9 +561,7 @@ class HangingPlugin:
 
 
 def test_a_hanging_estimator_is_stopped_by_the_timeout_mid_step(tmp_path):
-    pm = idbench.get_plugin_manager(autoload=False)
-    pm.register(HangingPlugin(), name="hang-plug")
-    reg = idbench.build_registry(pm)
+    reg = registry_with({"hang-plug": HangingPlugin()})
     cfg = tiny(estimators=("hangs", "rls"), timeout=1.5)
     start = time.perf_counter()
     runs, _ = compare(cfg, tmp_path, registry=reg)
@@ -594,9 +593,7 @@ class FlakyPlugin:
 
 
 def test_resume_retries_failed_runs_and_keeps_the_others(tmp_path, monkeypatch):
-    pm = idbench.get_plugin_manager(autoload=False)
-    pm.register(FlakyPlugin(), name="flaky-plug")
-    reg = idbench.build_registry(pm)
+    reg = registry_with({"flaky-plug": FlakyPlugin()})
     cfg = tiny(estimators=("flaky", "rls"))
     monkeypatch.setattr(Flaky, "broken", True)
     first, _ = compare(cfg, tmp_path, registry=reg)

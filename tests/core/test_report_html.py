@@ -11,8 +11,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-
-from idbench.cli import main
+from helpers import compare_into
 
 CHROMIUM_ARGS = [
     "--headless",
@@ -47,15 +46,11 @@ def browser():
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("html")
-    out = tmp / "out"
-    argv = ["compare", "--truth-mesh", "12x3x3", "--meshes", "4x1x1,6x2x2",
-            "--steps", "4", "--seeds", "1", "--estimators", "rls,lms",
-            "--noise", "0,1e-3", "--out", str(out), "--plot", "-q"]  # fmt: skip
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("IDBENCH_CACHE_DIR", str(tmp / "cache"))
-        assert main(argv) == 0
-    return out
+    return compare_into(
+        tmp_path_factory.mktemp("html"), "--truth-mesh", "12x3x3", "--meshes",
+        "4x1x1,6x2x2", "--steps", "4", "--seeds", "1", "--estimators", "rls,lms",
+        "--noise", "0,1e-3", "--plot",
+    )  # fmt: skip
 
 
 @pytest.fixture

@@ -7,6 +7,7 @@ import io
 import numpy as np
 import pandas as pd
 import pytest
+from helpers import compare_into
 from scipy import stats
 
 from idbench.cli import main
@@ -151,18 +152,10 @@ def test_pairs_need_the_same_seed_and_every_other_axis():
 
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("versus")
-    out = tmp / "out"
-    argv = ["compare", "--truth-mesh", "12x3x3", "--meshes", "4x1x1,6x2x2",
-            "--steps", "4", "--seeds", "3", "--estimators", "ro-ukf,rls",
-            "--out", str(out), "-q"]  # fmt: skip
-    mp = pytest.MonkeyPatch()
-    mp.setenv("IDBENCH_CACHE_DIR", str(tmp / "cache"))
-    try:
-        assert main(argv) == 0
-    finally:
-        mp.undo()
-    return out
+    return compare_into(
+        tmp_path_factory.mktemp("versus"), "--truth-mesh", "12x3x3", "--meshes",
+        "4x1x1,6x2x2", "--steps", "4", "--seeds", "3", "--estimators", "ro-ukf,rls",
+    )  # fmt: skip
 
 
 def test_report_versus_prints_and_writes_the_paired_table(small, capsys):

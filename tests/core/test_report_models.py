@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
+from helpers import registry_with
 
 import idbench
 from idbench.config import CompareConfig
@@ -120,10 +121,7 @@ class SpringPlugin:
 
 @pytest.fixture
 def registry():
-    pm = idbench.get_plugin_manager(autoload=False)
-    pm.register(SpringPlugin(), name="springs")
-    yield idbench.build_registry(pm)
-    pm.unregister(name="springs")
+    return registry_with({"springs": SpringPlugin()})
 
 
 def run(registry, tmp_path, **kw):

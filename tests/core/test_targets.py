@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from helpers import registry_with
 
 import idbench
 from idbench import metrics, targets
@@ -137,9 +138,7 @@ class SpringPlugin:
 
 
 def test_a_model_without_targets_gives_no_tre_columns(tmp_path):
-    pm = idbench.get_plugin_manager(autoload=False)
-    pm.register(SpringPlugin(), name="spring")
-    registry = idbench.build_registry(pm)
+    registry = registry_with({"spring": SpringPlugin()})
     config = CompareConfig(
         model="spring", truth_mesh="t", meshes=("m",), scenarios=("bend-y",),
         estimators=("rls", "enkf"), steps=4, seeds=1, prior=(200.0, 100.0),

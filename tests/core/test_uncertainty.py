@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import registry_with
 from test_report_models import SpringPlugin
 
-import idbench
 from idbench.config import CompareConfig
 from idbench.session import Session
 from idbench.sweep import compare, runs_of
@@ -17,10 +17,7 @@ from idbench.sweep import compare, runs_of
 
 @pytest.fixture
 def registry():
-    pm = idbench.get_plugin_manager(autoload=False)
-    pm.register(SpringPlugin(), name="springs")
-    yield idbench.build_registry(pm)
-    pm.unregister(name="springs")
+    return registry_with({"springs": SpringPlugin()})
 
 
 def chain(**kw) -> CompareConfig:
@@ -106,16 +103,13 @@ def test_run_seed_reaches_the_ensemble_filter(registry, tmp_path):
 
 @pytest.fixture(scope="module")
 def scored(tmp_path_factory):
-    pm = idbench.get_plugin_manager(autoload=False)
-    pm.register(SpringPlugin(), name="springs")
-    reg = idbench.build_registry(pm)
+    reg = registry_with({"springs": SpringPlugin()})
     config = chain(
         meshes=("5", "40"), estimators=("rls", "ro-ukf", "etkf", "batch-ls"),
         seeds=2, obs_every=(2,), noise=(1e-3,), posterior=True,
         posterior_settings={"points": 61},
     )  # fmt: skip
     runs, traces = compare(config, tmp_path_factory.mktemp("u"), registry=reg)
-    pm.unregister(name="springs")
     assert (runs["status"] == "ok").all(), runs["error"].tolist()
     return runs, traces
 

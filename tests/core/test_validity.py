@@ -13,6 +13,7 @@ from typing import Any
 import meshio
 import numpy as np
 import pytest
+from helpers import registry_with
 from test_report_models import SpringChain, SpringPlugin
 
 import idbench
@@ -72,12 +73,7 @@ class ExtraPlugin:
 
 @pytest.fixture
 def registry():
-    pm = idbench.get_plugin_manager(autoload=False)
-    pm.register(SpringPlugin(), name="springs")
-    pm.register(ExtraPlugin(), name="extra")
-    yield idbench.build_registry(pm)
-    pm.unregister(name="springs")
-    pm.unregister(name="extra")
+    return registry_with({"springs": SpringPlugin(), "extra": ExtraPlugin()})
 
 
 def chain(**kw: Any) -> CompareConfig:

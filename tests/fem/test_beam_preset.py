@@ -20,31 +20,10 @@ from idbench_fem.models.beam_settings import BeamSettings
 
 def _oracle_solution(points, tets, fixed, traction, n_steps, E, nu):
     """Displacements (N, 3) after each step by Newton on the scikit-fem forms."""
-    from skfem import (
-        Basis,
-        ElementTetP1,
-        ElementVector,
-        FacetBasis,
-        LinearForm,
-        MeshTet,
-    )
-    from skfem import asm as assemble
-
     from tests.oracles import svk_forms
 
-    mesh = MeshTet(np.ascontiguousarray(points.T), np.ascontiguousarray(tets.T))
-    element = ElementVector(ElementTetP1())
-    end = mesh.facets_satisfying(lambda x: x[0] > points[:, 0].max() - 1e-9)
-    t = np.asarray(traction)
-
-    @LinearForm
-    def load(v, w):  # type: ignore[no-untyped-def]
-        return t[0] * v[0] + t[1] * v[1] + t[2] * v[2]
-
-    f_full = assemble(load, FacetBasis(mesh, element, facets=end))
-    dofs = Basis(mesh, element).nodal_dofs  # (3, N)
     free = np.setdiff1d(np.arange(len(points)), fixed)
-    f = f_full[dofs[:, free].T.ravel()]
+    f = svk_forms.end_traction(points, tets, traction)[free].ravel()
     u = np.zeros((len(points), 3))
     fields = []
     for k in range(1, n_steps + 1):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import sys
 
 import numpy as np
@@ -115,7 +116,9 @@ def test_numba_that_does_not_import_means_numpy(tmp_path, monkeypatch):
         kernels._numba_works.cache_clear()
 
 
-def test_nowhere_to_cache_compiles_without_a_cache(monkeypatch):
+def test_nowhere_to_cache_compiles_without_a_cache(monkeypatch, caplog):
+    from idbench_fem.fem import element_loops
+
     real = numba.njit
 
     def njit(*args, **kwargs):
@@ -126,8 +129,10 @@ def test_nowhere_to_cache_compiles_without_a_cache(monkeypatch):
         return real(*args, **kwargs)
 
     monkeypatch.setattr(numba, "njit", njit)
-    kernels._compiled.cache_clear()
     try:
+        with caplog.at_level("WARNING"):
+            importlib.reload(element_loops)  # the loops, compiled without a cache
+        assert "numba cannot cache svk_kinematics" in caplog.text
         fast, slow = _pair("4x1x1")
         X = np.full(fast.n_free, 1e-3)
         mod = np.ones(fast.n_elements)
@@ -135,4 +140,45 @@ def test_nowhere_to_cache_compiles_without_a_cache(monkeypatch):
             fast.forces(fast.kinematics(X, mod)), slow.forces(slow.kinematics(X, mod))
         )
     finally:
-        kernels._compiled.cache_clear()
+        monkeypatch.undo()
+        importlib.reload(element_loops)
+
+
+def test_shared_element_steps_equal_their_numpy_forms():
+    """The compiled steps both kernels use (element_loops) match numpy on one tet."""
+    from idbench_fem.fem import element_loops as el
+
+    rng = np.random.default_rng(3)
+    grads = rng.standard_normal((1, 4, 3))
+    dofs = np.array([[0, 1, 2, -1, -1, -1, 3, 4, 5, 6, 7, 8]])
+    u = rng.standard_normal(9)
+    ue = np.empty(12)
+    el.gather(u, dofs, 0, ue)
+    np.testing.assert_array_equal(ue, np.where(dofs[0] >= 0, u[dofs[0]], 0.0))
+    H = ue.reshape(4, 3).T @ grads[0]
+    F = np.array(el.gradient(ue, grads, 0, 1.0)).reshape(3, 3)
+    np.testing.assert_allclose(el.gradient(ue, grads, 0, 0.0), H.ravel(), atol=1e-14)
+    np.testing.assert_allclose(F, np.eye(3) + H, atol=1e-14)
+    J = np.linalg.det(F)
+    inv = np.array(el.inverse(el.cofactors(tuple(F.ravel())), J)).reshape(3, 3)
+    np.testing.assert_allclose(inv, np.linalg.inv(F), rtol=1e-12, atol=1e-12)
+    sym = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
+    C_inv = inv @ inv.T
+    np.testing.assert_allclose(
+        el.gram(tuple(inv.ravel())), [C_inv[i, j] for i, j in sym]
+    )
+    E = 0.5 * (F.T @ F - np.eye(3))
+    lam, mu, m = 0.8, 0.3, 2.5
+    S = m * (lam * np.trace(E) * np.eye(3) + 2 * mu * E)
+    s = el.svk_stress(tuple(E[i, j] for i, j in sym), m, lam, mu)
+    np.testing.assert_allclose(s, [S[i, j] for i, j in sym], atol=1e-14)
+    Fe, Se = np.empty((3, 3)), np.empty((3, 3))
+    el.store(Fe, Se, tuple(F.ravel()), s)
+    np.testing.assert_array_equal(Fe, F)
+    np.testing.assert_allclose(Se, S, atol=1e-14)
+    force = np.zeros(9)
+    el.add_force(force, dofs, grads, 0, 0.7, tuple(F.ravel()), s)
+    fe = (grads[0] @ (0.7 * F @ S).T).ravel()  # f_ai = V (F S)_iJ G_aJ
+    expected = np.zeros(9)
+    np.add.at(expected, dofs[0][dofs[0] >= 0], fe[dofs[0] >= 0])
+    np.testing.assert_allclose(force, expected, atol=1e-13)

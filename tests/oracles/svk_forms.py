@@ -94,6 +94,24 @@ def residual_and_tangent(
     return r[dofs], K[dofs][:, dofs].tocsr()
 
 
+def end_traction(
+    points: FloatArray, tets: NDArray[np.int64], traction: FloatArray
+) -> FloatArray:
+    """Nodal forces (N, 3) of a uniform ``traction`` on the end face x = max x."""
+    from skfem import FacetBasis, LinearForm, asm
+
+    basis = _basis(points, tets)
+    end = basis.mesh.facets_satisfying(lambda x: x[0] > points[:, 0].max() - 1e-9)
+    t = np.asarray(traction)
+
+    @LinearForm
+    def load(v, w):  # type: ignore[no-untyped-def]
+        return t[0] * v[0] + t[1] * v[1] + t[2] * v[2]
+
+    f = asm(load, FacetBasis(basis.mesh, basis.elem, facets=end))
+    return np.asarray(f[basis.nodal_dofs.T.ravel()].reshape(-1, 3))
+
+
 def linear_solution(
     points: FloatArray,
     tets: NDArray[np.int64],

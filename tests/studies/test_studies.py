@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
+import pytest
 
 
 def test_fig2_identified_E_rises_with_resolution_and_stays_below_truth(study, tmp_path):
@@ -59,3 +61,28 @@ def test_uncertainty_coarse_meshes_are_confidently_wrong_the_control_is_not(
     assert by.loc["ro-ukf+me", "E_std"] > 1.2 * by.loc["ro-ukf", "E_std"]
     module.plot(table, tmp_path / "fig.png")
     assert (tmp_path / "fig.png").stat().st_size > 10_000
+
+
+def test_over_seeds_means_spreads_constants_and_counts(study):
+    _cli = study("_cli")
+    runs = pd.DataFrame(
+        {
+            "mesh": ["b", "b", "a", "a", "a"],
+            "E_final": [1.0, 3.0, 2.0, 4.0, 9.0],
+            "E_true": [5.0] * 5,
+            "seed": [0, 1, 0, 1, 2],
+        }
+    )
+    table = _cli.over_seeds(
+        runs, ["mesh"], sd=("E",), first=("E_true",), count="n", E="E_final"
+    )
+    assert list(table.columns) == ["mesh", "E", "E_sd", "E_true", "n"]
+    assert table["mesh"].tolist() == ["a", "b"]  # sorted groups
+    assert table["E"].tolist() == [5.0, 2.0]
+    assert table["E_sd"].tolist() == pytest.approx(
+        [np.std([2, 4, 9], ddof=1), np.sqrt(2)]
+    )
+    assert table["n"].tolist() == [3, 2] and table["E_true"].tolist() == [5.0, 5.0]
+    unsorted = _cli.over_seeds(runs, ["mesh"], sort=False, E="E_final")
+    assert unsorted["mesh"].tolist() == ["b", "a"]
+    assert list(unsorted.columns) == ["mesh", "E"]  # no spread unless asked

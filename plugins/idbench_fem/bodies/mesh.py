@@ -593,24 +593,7 @@ def region_facets(mesh: SolidMesh, region: Region, what: str = "region") -> IntA
     ValueError
         Unknown name, or no boundary facet in the region.
     """
-    if region.name is not None:
-        if region.name not in mesh.facet_sets:
-            raise _unknown(mesh, region.name, what)
-        out = mesh.facet_sets[region.name]
-    elif region.patch is not None:
-        out = patch_facets(mesh, *region.patch, what=what)
-    else:
-        out = np.flatnonzero(
-            _selected(mesh.points, region, mesh)[mesh.facets].all(axis=1)
-        )
-    if region.excluding is not None:
-        out = np.setdiff1d(out, region_facets(mesh, region.excluding, what))
-    if len(out) == 0:
-        raise ValueError(
-            f"{what} {region.describe()} contains no boundary facet of "
-            f"mesh {mesh.path!r}"
-        )
-    return out
+    return _members(mesh, region, what, "facets")
 
 
 def region_nodes(mesh: SolidMesh, region: Region, what: str = "region") -> IntArray:
@@ -621,21 +604,7 @@ def region_nodes(mesh: SolidMesh, region: Region, what: str = "region") -> IntAr
     ValueError
         Unknown name, or no node in the region.
     """
-    if region.name is not None:
-        if region.name not in mesh.node_sets:
-            raise _unknown(mesh, region.name, what)
-        out = mesh.node_sets[region.name]
-    elif region.patch is not None:
-        out = np.unique(mesh.facets[patch_facets(mesh, *region.patch, what=what)])
-    else:
-        out = np.flatnonzero(_selected(mesh.points, region, mesh))
-    if region.excluding is not None:
-        out = np.setdiff1d(out, region_nodes(mesh, region.excluding, what))
-    if len(out) == 0:
-        raise ValueError(
-            f"{what} {region.describe()} contains no node of mesh {mesh.path!r}"
-        )
-    return out
+    return _members(mesh, region, what, "nodes")
 
 
 def region_cells(mesh: SolidMesh, region: Region, what: str = "region") -> IntArray:
@@ -646,25 +615,54 @@ def region_cells(mesh: SolidMesh, region: Region, what: str = "region") -> IntAr
     ValueError
         Unknown or non-volume name, patch selectors, or no tet in the region.
     """
-    if region.patch is not None:
+    return _members(mesh, region, what, "cells")
+
+
+_NOUNS = {"facets": "boundary facet", "nodes": "node", "cells": "tetrahedron"}
+"""What :func:`_members` finds of each kind, for its error message."""
+
+
+def _members(mesh: SolidMesh, region: Region, what: str, kind: str) -> IntArray:
+    """The facets, nodes or cells (``kind``) of a region, less its ``excluding``.
+
+    By name (the mesh's set of that kind), by patch (its facets, or their
+    nodes; not cells) or by selector (the nodes it selects, the facets whose 3
+    nodes it selects, the tets whose centroid it selects).
+    """
+    sets = {
+        "facets": mesh.facet_sets,
+        "nodes": mesh.node_sets,
+        "cells": mesh.cell_sets,
+    }[kind]
+    if kind == "cells" and region.patch is not None:
         raise ValueError(f"{what}: a patch selects surface, not cells")
+    if kind == "cells" and region.name in mesh.node_sets.keys() - sets:
+        raise ValueError(
+            f"{what} {region.name!r} is not a volume region of mesh "
+            f"{mesh.path!r}; volume regions: {', '.join(sorted(sets))}"
+        )
     if region.name is not None:
-        if region.name not in mesh.cell_sets:
-            if region.name in mesh.node_sets:
-                raise ValueError(
-                    f"{what} {region.name!r} is not a volume region of mesh "
-                    f"{mesh.path!r}; volume regions: "
-                    f"{', '.join(sorted(mesh.cell_sets))}"
-                )
+        if region.name not in sets:
             raise _unknown(mesh, region.name, what)
-        out = mesh.cell_sets[region.name]
+        out = sets[region.name]
+    elif region.patch is not None:
+        out = patch_facets(mesh, *region.patch, what=what)
+        if kind == "nodes":
+            out = np.unique(mesh.facets[out])
+    elif kind == "cells":
+        out = np.flatnonzero(
+            _selected(mesh.points[mesh.tets].mean(axis=1), region, mesh)
+        )
     else:
-        centroids = mesh.points[mesh.tets].mean(axis=1)
-        out = np.flatnonzero(_selected(centroids, region, mesh))
+        chosen = _selected(mesh.points, region, mesh)
+        if kind == "facets":
+            chosen = chosen[mesh.facets].all(axis=1)
+        out = np.flatnonzero(chosen)
     if region.excluding is not None:
-        out = np.setdiff1d(out, region_cells(mesh, region.excluding, what))
+        out = np.setdiff1d(out, _members(mesh, region.excluding, what, kind))
     if len(out) == 0:
         raise ValueError(
-            f"{what} {region.describe()} contains no tetrahedron of mesh {mesh.path!r}"
+            f"{what} {region.describe()} contains no {_NOUNS[kind]} of mesh "
+            f"{mesh.path!r}"
         )
     return out

@@ -33,15 +33,13 @@ to round-off); the numpy code here is the reference and the fallback.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from idbench_fem.fem import kernels, law_kernels
 from idbench_fem.fem.materials import Material, lame, strain_variation
-from idbench_fem.fem.svk_assembly import Pattern, shape_gradients
+from idbench_fem.fem.svk_assembly import Kinematics, Pattern, TetAssembly
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -49,29 +47,13 @@ IntArray = NDArray[np.int64]
 _I = np.arange(3)
 
 
-@dataclass
-class LawKinematics:
-    """Per-element state at one displacement: F and S (T, 3, 3), det F (T,).
-
-    ``forces`` is the assembled internal force (n,) when the compiled kernel
-    computed it in the same pass, else None.
-    """
-
-    F: FloatArray
-    S: FloatArray
-    det: FloatArray
-    forces: FloatArray | None = None
-
-
-class LawAssembler:
+class LawAssembler(TetAssembly):
     """Internal force and tangent of ``law`` on P1 tets with some nodes fixed.
 
     Parameters
     ----------
-    points, tets
-        Nodes (N, 3) and positively oriented tets (T, 4).
-    free
-        Boolean mask of the nodes whose displacements are unknowns (N,).
+    points, tets, free
+        As for :class:`~.svk_assembly.TetAssembly`.
     law
         A :class:`idbench_fem.fem.materials.Material` with
         ``linear_in_modulus``; it is evaluated at unit modulus.
@@ -93,38 +75,17 @@ class LawAssembler:
     ) -> None:
         if not law.linear_in_modulus:
             raise ValueError(f"law {law.name!r}: need a law linear in the modulus")
+        super().__init__(points, tets, free, lame(1.0, law.nu))
         self.law = law.with_modulus(1.0)  # type: ignore[attr-defined]
         self._code = law_kernels.LAW_CODES.get(law.name, -1)
         if compiled is None:
             compiled = kernels.available()
         self.compiled = bool(compiled) and self._code >= 0
         """Whether the compiled kernels are used (else numpy)."""
-        self._lam, self._mu = lame(1.0, law.nu)
-        self.tets = np.asarray(tets, dtype=np.int64)
-        self.n_nodes = len(points)
-        self.n_elements = len(tets)
-        self.grads, self.volumes = shape_gradients(points, self.tets)
         self._grads_t = np.ascontiguousarray(self.grads.transpose(0, 2, 1))
-        node_dof = np.full(self.n_nodes, -1, dtype=np.int64)
-        node_dof[free] = 3 * np.arange(int(free.sum()))
-        self.n_free = 3 * int(free.sum())
-        self.full_to_free = (node_dof[:, None] + _I).ravel()
-        self.full_to_free[np.repeat(~free, 3)] = -1
-        self.free_dofs = np.flatnonzero(self.full_to_free >= 0)
-        self.element_dofs = self.full_to_free[
-            (3 * self.tets[:, :, None] + _I).reshape(-1, 12)
-        ]
-        ed = self.element_dofs.ravel()
-        keep = ed >= 0
-        self._force_scatter = sp.csr_matrix(
-            (np.ones(int(keep.sum())), (ed[keep], np.flatnonzero(keep))),
-            shape=(self.n_free, ed.size),
-        )
-        self._patterns: dict[bool, Pattern] = {}
         self._emaps: dict[bool, IntArray] = {}
-        self._u_full = np.zeros(3 * self.n_nodes)
 
-    def kinematics(self, state: FloatArray, modulus: FloatArray) -> LawKinematics:
+    def kinematics(self, state: FloatArray, modulus: FloatArray) -> Kinematics:
         """F, S = modulus S_1(F) and det F of every element at free displacements.
 
         Parameters
@@ -135,11 +96,8 @@ class LawAssembler:
             Young's modulus per element (T,).
         """
         if self.compiled:
-            F, S, det, f = law_kernels.law_kinematics(
-                self._code, state, modulus, self.element_dofs, self.grads,
-                self.volumes, self._lam, self._mu, self.n_free,
-            )  # fmt: skip
-            return LawKinematics(F, S, det, f)
+            F, S, det, f = law_kernels.law_kinematics(self._code, state, modulus, self)
+            return Kinematics(F, S, det, f)
         u = self._u_full
         u[self.free_dofs] = state
         ue = u.reshape(-1, 3)[self.tets]  # (T, 4, 3)
@@ -149,30 +107,9 @@ class LawAssembler:
         with np.errstate(invalid="ignore", divide="ignore"):
             S = self.law.stress(F)
         S *= modulus[:, None, None]
-        return LawKinematics(F, S, det)
+        return Kinematics(F, S, det)
 
-    def element_forces(self, kin: LawKinematics) -> FloatArray:
-        """Element internal forces (T, 4, 3): V (F S)_iJ G_aJ."""
-        P = np.matmul(kin.F, kin.S * self.volumes[:, None, None])
-        return np.matmul(self.grads, P.transpose(0, 2, 1))
-
-    def forces(self, kin: LawKinematics) -> FloatArray:
-        """Assembled internal force on the free dofs (n,)."""
-        if kin.forces is not None:  # the compiled kernel's, computed with kin
-            return kin.forces.copy()
-        return self._force_scatter @ self.element_forces(kin).ravel()
-
-    def region_forces(
-        self, kin_unit: LawKinematics, regions: IntArray, p: int
-    ) -> FloatArray:
-        """Each region's internal force g_r (n, p) at the moduli of ``kin_unit``."""
-        fe = self.element_forces(kin_unit).reshape(self.n_elements, 12)
-        out = np.empty((self.n_free, p))
-        for r in range(p):  # p parameters, not elements
-            out[:, r] = self._force_scatter @ (fe * (regions == r)[:, None]).ravel()
-        return out
-
-    def element_tangents(self, kin: LawKinematics, modulus: FloatArray) -> FloatArray:
+    def element_tangents(self, kin: Kinematics, modulus: FloatArray) -> FloatArray:
         """Element tangents (T, 12, 12), dofs ordered (node, component)."""
         with np.errstate(invalid="ignore", divide="ignore"):
             D = self.law.mandel_tangent(kin.F)
@@ -213,13 +150,11 @@ class LawAssembler:
         return pat
 
     def tangent_data(
-        self, kin: LawKinematics, modulus: FloatArray, pattern: Pattern
+        self, kin: Kinematics, modulus: FloatArray, pattern: Pattern
     ) -> FloatArray:
         """CSR data of the free-free tangent in ``pattern`` (from :meth:`pattern`)."""
         if self.compiled:
             return law_kernels.law_tangent(
-                self._code, kin.F, kin.S, kin.det, modulus, self.grads,
-                self.volumes, self._lam, self._mu, self._emaps[pattern.upper],
-                pattern.nnz,
-            )  # fmt: skip
+                self._code, kin, modulus, self, self._emaps[pattern.upper], pattern.nnz
+            )
         return pattern.scatter @ self.element_tangents(kin, modulus).ravel()

@@ -69,10 +69,12 @@ def shape_gradients(
 
 @dataclass
 class Kinematics:
-    """Per-element state at one displacement, shapes (T, 3, 3) and (T,).
+    """Per-element state at one displacement: F and S (T, 3, 3), det F (T,).
 
-    ``forces`` is the assembled internal force (n,) when the compiled kernel
-    (:mod:`idbench_fem.fem.kernels`) computed it in the same pass, else None.
+    With a leading axis (r, ...) for a stack of states (:class:`Assembler`).
+    ``forces`` is the assembled internal force (n,) when a compiled kernel
+    (:mod:`idbench_fem.fem.kernels`, :mod:`~.law_kernels`) computed it in the
+    same pass, else None.
     """
 
     F: FloatArray
@@ -125,8 +127,15 @@ class Pattern:
         return a.tocsr()
 
 
-class Assembler:
-    """Internal forces and tangents of the SVK beam on the free degrees of freedom.
+class TetAssembly:
+    """What both assemblers share: P1 tets with some nodes fixed.
+
+    The geometry (shape-function gradients, volumes), the numbering of the free
+    degrees of freedom, node-major (``3 * j + c`` for the j-th free node and
+    component c), and the internal forces f_a = V F S G_a from the
+    kinematics. :class:`Assembler` (SVK) and
+    :class:`idbench_fem.fem.law_assembly.LawAssembler` (any law) add the
+    kinematics and the tangent.
 
     Parameters
     ----------
@@ -134,17 +143,81 @@ class Assembler:
         The mesh, (N, 3) and (T, 4), tets positively oriented.
     free
         Boolean mask (N,) of the unconstrained nodes.
+    lame
+        The law's Lamé parameters (lambda, mu) at unit Young's modulus,
+        attributes ``lam`` and ``mu`` (the compiled kernels read them, with
+        ``element_dofs``, ``grads``, ``volumes`` and ``n_free``).
+    """
+
+    def __init__(
+        self,
+        points: FloatArray,
+        tets: NDArray[np.int64],
+        free: NDArray[np.bool_],
+        lame: tuple[float, float],
+    ) -> None:
+        self.tets = np.asarray(tets, dtype=np.int64)
+        self.n_nodes = len(points)
+        self.n_elements = len(tets)
+        self.grads, self.volumes = shape_gradients(points, self.tets)
+        self.lam, self.mu = lame
+        node_dof = np.full(self.n_nodes, -1, dtype=np.int64)
+        node_dof[free] = 3 * np.arange(int(free.sum()))
+        self.n_free = 3 * int(free.sum())
+        # full dof index -> free dof index (or -1)
+        self.full_to_free = (node_dof[:, None] + np.arange(3)).ravel()
+        self.full_to_free[np.repeat(~free, 3)] = -1
+        self.free_dofs = np.flatnonzero(self.full_to_free >= 0)
+        self.element_dofs = self.full_to_free[
+            (3 * self.tets[:, :, None] + np.arange(3)).reshape(-1, 12)
+        ]
+        ed = self.element_dofs.ravel()
+        keep = ed >= 0
+        self._force_scatter = sp.csr_matrix(
+            (np.ones(int(keep.sum())), (ed[keep], np.flatnonzero(keep))),
+            shape=(self.n_free, ed.size),
+        )
+        self._patterns: dict[bool, Pattern] = {}
+        self._u_full = np.zeros(3 * self.n_nodes)
+
+    def element_forces(self, kin: Kinematics) -> FloatArray:
+        """Element internal forces (..., T, 4, 3): V P_iJ G_aJ."""
+        P = np.matmul(kin.F, kin.S * self.volumes[:, None, None])
+        return np.matmul(self.grads, P.swapaxes(-1, -2))
+
+    def forces(self, kin: Kinematics) -> FloatArray:
+        """Assembled internal force on the free dofs, (n,) (or (r, n) for a batch)."""
+        if kin.forces is not None:  # the compiled kernel's, computed with kin
+            return kin.forces.copy()
+        fe = self.element_forces(kin)
+        if fe.ndim == 3:
+            return self._force_scatter @ fe.ravel()
+        return np.asarray(self._force_scatter @ fe.reshape(len(fe), -1).T).T
+
+    def region_forces(
+        self, kin_unit: Kinematics, regions: NDArray[np.int64], p: int
+    ) -> FloatArray:
+        """Each region's internal force g_r (n, p) at the moduli of ``kin_unit``."""
+        fe = self.element_forces(kin_unit).reshape(self.n_elements, 12)
+        out = np.empty((self.n_free, p))
+        for r in range(p):
+            out[:, r] = self._force_scatter @ (fe * (regions == r)[:, None]).ravel()
+        return out
+
+
+class Assembler(TetAssembly):
+    """Internal forces and tangents of the SVK beam on the free degrees of freedom.
+
+    Parameters
+    ----------
+    points, tets, free
+        As for :class:`TetAssembly`.
     nu
         Poisson's ratio.
     compiled
         Evaluate kinematics and internal forces with the compiled kernel
         (:mod:`idbench_fem.fem.kernels`); None: where numba is installed and
         ``IDBENCH_NUMBA`` is not 0.
-
-    Notes
-    -----
-    The free degrees of freedom are numbered node-major, ``3 * j + c`` for the
-    j-th free node and component c.
     """
 
     STACKS = True
@@ -158,22 +231,8 @@ class Assembler:
         nu: float,
         compiled: bool | None = None,
     ) -> None:
+        super().__init__(points, tets, free, lame_unit(nu))
         self.compiled = kernels.available() if compiled is None else bool(compiled)
-        self.n_nodes = len(points)
-        self.n_elements = len(tets)
-        self.tets = tets
-        self.grads, self.volumes = shape_gradients(points, tets)
-        self.lam, self.mu = lame_unit(nu)
-        node_dof = np.full(self.n_nodes, -1, dtype=np.int64)
-        node_dof[free] = 3 * np.arange(int(free.sum()))
-        self.n_free = 3 * int(free.sum())
-        # full dof index -> free dof index (or -1)
-        self.full_to_free = (node_dof[:, None] + np.arange(3)).ravel()
-        self.full_to_free[np.repeat(~free, 3)] = -1
-        self.free_dofs = np.flatnonzero(self.full_to_free >= 0)
-        self.element_dofs = self.full_to_free[
-            (3 * tets[:, :, None] + np.arange(3)).reshape(-1, 12)
-        ]
         # V G_a . G_b of the node pairs a <= b (T, 10): constant, computed once
         self._pair_a, self._pair_b = np.triu_indices(4)
         gg = np.matmul(self.grads, self.grads.transpose(0, 2, 1))
@@ -183,14 +242,6 @@ class Assembler:
         self._grads_t = np.ascontiguousarray(self.grads.transpose(1, 2, 0))  # (4,3,T)
         self._block_work = np.empty((10, 3, 3, min(CHUNK, self.n_elements)))
         self._blocks = np.empty((10, 3, 3, self.n_elements))
-        ed = self.element_dofs.ravel()
-        keep = ed >= 0
-        self._force_scatter = sp.csr_matrix(
-            (np.ones(int(keep.sum())), (ed[keep], np.flatnonzero(keep))),
-            shape=(self.n_free, ed.size),
-        )
-        self._patterns: dict[bool, Pattern] = {}
-        self._u_full = np.zeros(3 * self.n_nodes)
 
     # -- kinematics and forces -------------------------------------------------
 
@@ -221,10 +272,7 @@ class Assembler:
             the compiled kernel also the internal force.
         """
         if self.compiled:
-            F, S, det, f = kernels.svk_kinematics(
-                state, modulus, self.element_dofs, self.grads, self.volumes,
-                self.lam, self.mu, self.n_free,
-            )  # fmt: skip
+            F, S, det, f = kernels.svk_kinematics(state, modulus, self)
             return Kinematics(F, S, det, f)
         H = np.matmul(self.element_displacements(state).swapaxes(-1, -2), self.grads)
         Ht = H.swapaxes(-1, -2)
@@ -245,30 +293,6 @@ class Assembler:
             + F[..., 0, 2] * (F[..., 1, 0] * F[..., 2, 1] - F[..., 1, 1] * F[..., 2, 0])
         )
         return Kinematics(F, S, det)
-
-    def element_forces(self, kin: Kinematics) -> FloatArray:
-        """Element internal forces (..., T, 4, 3): V P_iJ G_aJ."""
-        P = np.matmul(kin.F, kin.S * self.volumes[:, None, None])
-        return np.matmul(self.grads, P.swapaxes(-1, -2))
-
-    def forces(self, kin: Kinematics) -> FloatArray:
-        """Assembled internal force on the free dofs, (n,) (or (r, n) for a batch)."""
-        if kin.forces is not None:  # the compiled kernel's, computed with kin
-            return kin.forces.copy()
-        fe = self.element_forces(kin)
-        if fe.ndim == 3:
-            return self._force_scatter @ fe.ravel()
-        return np.asarray(self._force_scatter @ fe.reshape(len(fe), -1).T).T
-
-    def region_forces(
-        self, kin_unit: Kinematics, regions: NDArray[np.int64], p: int
-    ) -> FloatArray:
-        """Each region's internal force g_r (n, p) at the moduli of ``kin_unit``."""
-        fe = self.element_forces(kin_unit).reshape(self.n_elements, 12)
-        out = np.empty((self.n_free, p))
-        for r in range(p):
-            out[:, r] = self._force_scatter @ (fe * (regions == r)[:, None]).ravel()
-        return out
 
     # -- tangent ---------------------------------------------------------------
 

@@ -10,11 +10,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from idbench import Scenario
+from idbench_fem.models.solid_settings import check_solver_settings
 
 PARAMETER_KINDS = ("E", "E_regions")
 DEFAULT_E = 5000.0
 """Default true Young's modulus (Pa) of the beam (DESIGN.md section 7)."""
-SOLVERS = ("pardiso", "scipy")
 
 
 @dataclass(frozen=True)
@@ -94,18 +94,7 @@ class BeamSettings:
             object.__setattr__(self, name, tuple(float(v) for v in value))
         if self.regions is not None and not _whole(self.regions, 1):
             raise ValueError(f"regions {self.regions!r}: need a whole number >= 1")
-        for name in ("rtol", "atol"):
-            value = getattr(self, name)
-            if value is not None and (not _number(value) or not value > 0):
-                raise ValueError(f"{name} {value!r}: need a number > 0")
-        if self.max_iterations is not None and not _whole(self.max_iterations, 1):
-            raise ValueError(
-                f"max_iterations {self.max_iterations!r}: need a whole number >= 1"
-            )
-        if self.processes is not None and not _whole(self.processes, 1):
-            raise ValueError(f"processes {self.processes!r}: need a whole number >= 1")
-        if self.solver is not None and self.solver not in SOLVERS:
-            raise ValueError(f"solver {self.solver!r}: allowed: {', '.join(SOLVERS)}")
+        check_solver_settings(self)
 
     def options(self) -> dict[str, Any]:
         """The optional settings that were given, as the model's options dict."""

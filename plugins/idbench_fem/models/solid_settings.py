@@ -107,22 +107,11 @@ class SolidSettings:
             raise ValueError(f"law {self.law!r}: allowed: {', '.join(LAWS)}")
         if self.nu is not None and not (_number(self.nu) and -1 < self.nu < 0.5):
             raise ValueError(f"nu {self.nu!r}: must be a number in (-1, 0.5)")
-        for name in ("rtol", "atol"):
-            v = getattr(self, name)
-            if v is not None and not (_number(v) and v > 0):
-                raise ValueError(f"{name} {v!r}: need a number > 0")
-        m = self.max_iterations
-        if m is not None and (not isinstance(m, int) or isinstance(m, bool) or m < 1):
-            raise ValueError(f"max_iterations {m!r}: need a whole number >= 1")
-        if self.solver is not None and self.solver not in BACKENDS:
-            raise ValueError(f"solver {self.solver!r}: allowed: {', '.join(BACKENDS)}")
+        check_solver_settings(self)
         if not (_number(self.load_scale) and self.load_scale > 0):
             raise ValueError(f"load_scale {self.load_scale!r}: need a number > 0")
         if self.kernel not in KERNELS:
             raise ValueError(f"kernel {self.kernel!r}: allowed: {', '.join(KERNELS)}")
-        p = self.processes
-        if p is not None and (not isinstance(p, int) or isinstance(p, bool) or p < 1):
-            raise ValueError(f"processes {p!r}: need a whole number >= 1")
         c = self.chord_ratio
         if c is not None and not (_number(c) and 0 <= c < 1):
             raise ValueError(f"chord_ratio {c!r}: must be in [0, 1) (0: plain Newton)")
@@ -195,6 +184,30 @@ class SolidSettings:
             if getattr(self, name) is not None
         ]
         return [*out, *extra]
+
+
+def check_solver_settings(settings: Any) -> None:
+    """Check the Newton and solver settings the solid and the beam share.
+
+    ``rtol`` and ``atol`` (a number > 0), ``max_iterations`` and ``processes``
+    (a whole number >= 1), ``solver`` (one of
+    :data:`idbench_fem.fem.solver.BACKENDS`), each None when not given.
+
+    Raises
+    ------
+    ValueError
+        For the first bad value, in one line naming it and what is allowed.
+    """
+    for name in ("rtol", "atol"):
+        v = getattr(settings, name)
+        if v is not None and not (_number(v) and v > 0):
+            raise ValueError(f"{name} {v!r}: need a number > 0")
+    for name in ("max_iterations", "processes"):
+        n = getattr(settings, name)
+        if n is not None and (not isinstance(n, int) or isinstance(n, bool) or n < 1):
+            raise ValueError(f"{name} {n!r}: need a whole number >= 1")
+    if settings.solver is not None and settings.solver not in BACKENDS:
+        raise ValueError(f"solver {settings.solver!r}: allowed: {', '.join(BACKENDS)}")
 
 
 def _number(x: Any) -> bool:
