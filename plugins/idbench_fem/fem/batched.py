@@ -51,6 +51,15 @@ reduces |r| by less than a factor SLOW, or after MAX_MODIFIED in a row
 is refactored at the current iterate (a full Newton step);
 that factorization then serves the later pairs and the next call.
 
+Where the model reuses factorizations along a path (setting ``path_reuse``
+not false: the organs), the pairs' chords are Anderson-accelerated
+(:func:`_accelerated_chords`, :data:`ANDERSON`): each iterate combines the
+last ones, which on a linear residual is GMRES preconditioned by the held
+factorization, so the few modes that factorization misses (a region softer
+than at the factorization) no longer set the rate; an iteration that raises
+|r|, or ``ANDERSON["most"]`` without convergence, refactor at the iterate.
+The beam (plain Newton) keeps the chords above.
+
 Each result therefore meets the convergence test of ``step`` on the same
 load: it equals ``step(theta_i, k, state_i)`` to the Newton tolerance, not
 bitwise (a different iterate satisfies the same test). Backtracking keeps
