@@ -911,15 +911,19 @@ def _modified_newton(
         u, kin, res, norm = u_new, kin_new, res_new, norm_new
 
 
-ANDERSON = {"depth": 12, "most": 12}
+ANDERSON = {"depth": 12, "most": 16}
 """The accelerated chords of the sigma points (:func:`_accelerated_chords`):
 ``depth``, the past iterations whose differences the Anderson step combines;
 ``most``, the iterations with one factorization before the tangent is
 refactored at the iterate. Measured on the RO-UKF path (benchmarks/organs.py,
-counts of factorizations, solves and residuals at their unit costs): kidney
-p = 2 at 2,000 nodes 52 ms a step against 79 with the chords of
-:func:`_modified_newton` (depth 4: 62; most 25: 54-59); liver p = 4 slabs
-at 1,000 nodes 44 against 42 (depth 12, most 25: 41, but kidney 59)."""
+one process; the work a step, factorizations, back-substitutions and
+residuals, at their unit costs measured alone at load 0.4): kidney p = 2 at
+2,000 nodes 48 ms a step (0.4 factorizations, 32 solves) against 79 with the
+chords of :func:`_modified_newton` (2.3, 25); most 12: 52, 25: 59; depth 4:
+54-62. Liver p = 4 slabs at 1,000 nodes 45 (3.55 factorizations, 45 solves)
+against 42 (4.05, 32); most 25: 41 (0.9, 70), 12: 44. A nodal regional
+scaling of the preconditioner instead of the scalar s raised the residual
+at the first iteration (kidney 81 ms)."""
 
 
 def _accelerates(model: BatchedSteps) -> bool:
@@ -1008,8 +1012,7 @@ def _accelerated_chords(
         step = f
         if dF:
             Fm = np.stack(dF, axis=1)
-            gamma = np.linalg.lstsq(Fm, f, rcond=None)[0]
-            step = f - (np.stack(dU, axis=1) + Fm) @ gamma
+            step = f - (np.stack(dU, axis=1) + Fm) @ _mixing(Fm, f)
         if not np.all(np.isfinite(step)):
             raise ModelFailure("non-finite Newton update", step=k)
         for _ in range(9):
@@ -1057,3 +1060,20 @@ def _accelerated_chords(
                 dF.pop(0)
         model._cost[2] += 1
         u, kin, res, norm, f = u_new, kin_new, res_new, norm_new, f_new
+
+
+def _mixing(Fm: FloatArray, f: FloatArray) -> FloatArray:
+    """Anderson's gamma = argmin |f - Fm gamma|, Fm (n, m) with m small.
+
+    By the normal equations, columns scaled to unit norm and a 1e-10
+    ridge (a tenth of the cost of an SVD least squares at n = 2,700, where
+    that costs more than the back-substitution); least squares if singular.
+    """
+    scale = np.linalg.norm(Fm, axis=0)
+    scale[scale == 0] = 1.0
+    A = Fm / scale
+    G = A.T @ A + 1e-10 * np.eye(A.shape[1])
+    try:
+        return np.asarray(np.linalg.solve(G, A.T @ f) / scale)
+    except np.linalg.LinAlgError:
+        return np.asarray(np.linalg.lstsq(A, f, rcond=None)[0] / scale)
