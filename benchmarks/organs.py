@@ -13,7 +13,8 @@ ratios hold on a loaded machine; absolute times do not):
 
 - the RO-UKF's steps per second (targets: liver p = 1 >= 60 Hz at 1,000 and
   >= 30 Hz at 2,000, kidney p = 2 >= 20 Hz, liver p = 4 >= 20 Hz), its
-  factorizations a step and its wall time a step as a multiple of the bound
+  factorizations, back-substitutions and Newton/chord iterations (each one
+  residual) a step, and its wall time a step as a multiple of the bound
   ``B`` = one assembly, factorization and solve of the tangent at the path's
   end (``1 / B`` is the rate of a filter that factors once a step);
 - one forward step (``model.step`` along the true path, as the truth is
@@ -110,9 +111,11 @@ def case(label, body, manipulation, mesh, repeat):
     fwd = (np.inf, 0.0)
     b_full = b_fs = np.inf
     for _ in range(repeat):  # interleaved: machine load drifts
+        work = list(model._cost)
         wall, fac, e, _ = time_filter(RoUkf(), model, obs, N_STEPS, prior)
+        its, solves = ((model._cost[i] - work[i]) / N_STEPS for i in (1, 2))
         if wall < est["wall"]:
-            est = {"wall": wall, "fac": fac, "E": e.mean}
+            est = {"wall": wall, "fac": fac, "E": e.mean, "its": its, "solves": solves}
         t_step, f_step, u_end = forward(model, theta)
         if t_step < fwd[0]:
             fwd = (t_step, f_step)
@@ -124,7 +127,8 @@ def case(label, body, manipulation, mesh, repeat):
         f"{label:11s} {model.n_nodes:5d} nodes {model.n_state:5d} dofs p={len(theta)}: "
         f"RO-UKF {1e3 * est['wall']:7.2f} ms a step = {hz:6.1f} Hz"
         + (f" (target {target:.0f}: {hz / target:4.2f}x)" if target else "")
-        + f", {est['fac']:4.2f} fact/step, {est['wall'] / b_full:5.2f} B;"
+        + f", {est['fac']:4.2f} fact/step, {est['solves']:5.1f} solves/step"
+        f" ({est['its']:5.1f} iterations), {est['wall'] / b_full:5.2f} B;"
         f" bound B = {1e3 * b_full:6.2f} ms (1/B = {1 / b_full:6.1f} Hz; factor+solve"
         f" {1e3 * b_fs:6.2f} ms)"
     )
