@@ -43,6 +43,12 @@ def _slabs(folder: Path, p: int = 4) -> Path:
     return path
 
 
+@pytest.fixture(autouse=True)
+def accelerate_small_meshes(monkeypatch):
+    """The tests' 200-node liver is below the size that accelerates: lower it."""
+    monkeypatch.setattr(batched, "ACCELERATE_FROM_DOFS", 0)
+
+
 @pytest.fixture(scope="module")
 def body(tmp_path_factory):
     return _slabs(tmp_path_factory.mktemp("slabs"))
@@ -67,10 +73,10 @@ def _path(model, thetas, k_last=None):
 
 def test_sigma_points_equal_fresh_newton_with_fewer_factorizations(body, monkeypatch):
     model = _model(body, steps=8)
-    assert batched._accelerates(model)
+    assert batched._accelerates(model, 4)
     path = _path(model, SIGMA)
     with monkeypatch.context() as m:  # the same calls with plain chords
-        m.setattr(batched, "_accelerates", lambda model: False)
+        m.setattr(batched, "_accelerates", lambda model, p: False)
         chords = _model(body, steps=8)
         _path(chords, SIGMA)
     for k in (1, 4, 8):
@@ -107,9 +113,17 @@ def test_the_beam_keeps_the_plain_chords(monkeypatch):
     reg = idbench.build_registry()
     spec = idbench.ModelSpec(mesh="6x2x2", scenario=reg.scenario("bend-y"), n_steps=3)
     beam = reg.model("svk-beam")(spec)
-    assert not batched._accelerates(beam)
+    assert not batched._accelerates(beam, 4)
     theta = np.array([[4000.0], [2500.0], [6000.0]])
     X = np.zeros((3, beam.n_state))
     for k in (1, 2, 3):
         X = beam.step_many(theta, k, X)
     assert beam.batch_stats.modified > 0  # chords ran, not the accelerated ones
+
+
+def test_the_gate_keeps_plain_chords_for_p1_and_small_meshes(body, monkeypatch):
+    model = _model(body)
+    assert batched._accelerates(model, 4)  # the fixture's threshold 0
+    assert not batched._accelerates(model, 1)
+    monkeypatch.setattr(batched, "ACCELERATE_FROM_DOFS", model._asm.n_free + 1)
+    assert not batched._accelerates(model, 4)

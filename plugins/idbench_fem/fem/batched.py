@@ -940,15 +940,28 @@ scaling of the preconditioner instead of the scalar s raised the residual
 at the first iteration (kidney 81 ms)."""
 
 
-def _accelerates(model: BatchedSteps) -> bool:
+ACCELERATE_FROM_DOFS = 4000
+"""Free dofs from which :func:`step_many` accelerates the chords of p > 1.
+
+A proxy, deterministic, for a factorization costing many back-substitutions:
+the kidney at 2,004 nodes (5,800 free dofs) gains (79 -> 48 ms a step), the
+liver with 4 slabs at 975 nodes (2,800) does not (42 -> 45: a factorization
+there costs only about 20 back-substitutions). See :data:`ANDERSON`."""
+
+
+def _accelerates(model: BatchedSteps, p: int) -> bool:
     """Whether :func:`step_many` accelerates its chords (:func:`_accelerated_chords`).
 
-    Where the model reuses factorizations along a path (its setting
-    ``path_reuse`` is not false); the beam's plain Newton keeps the chords of
-    :func:`_modified_newton` (the default comparison's numbers, bitwise).
+    For p > 1 parameters on a model that reuses factorizations along a path
+    (its setting ``path_reuse`` is not false) with at least
+    :data:`ACCELERATE_FROM_DOFS` free dofs. The beam's plain Newton keeps the
+    chords of :func:`_modified_newton` (the default comparison's numbers,
+    bitwise), and so do p = 1 and small meshes, where they cost less.
     """
     settings = getattr(model, "settings", None)
-    return getattr(settings, "path_reuse", False) is not False
+    if getattr(settings, "path_reuse", False) is False or p < 2:
+        return False
+    return int(model._asm.n_free) >= ACCELERATE_FROM_DOFS
 
 
 def _solve_pair(
@@ -965,7 +978,7 @@ def _solve_pair(
     weights: FloatArray,
 ) -> tuple[FloatArray, FloatArray | None]:
     """Converge one pair of :func:`step_many` (accelerated chords or plain ones)."""
-    solve = _accelerated_chords if _accelerates(model) else _modified_newton
+    solve = _accelerated_chords if _accelerates(model, len(theta)) else _modified_newton
     return solve(model, theta, modulus, f_ext, u, kin, res, tol, k, theta_f, weights)
 
 
