@@ -83,3 +83,17 @@ def linear_posteriors(
         P = np.linalg.inv(info)
         out.append((P @ rhs, P))
     return out
+
+
+def write_box_mesh(path, n_x: int, length: float, width: float, n_yz: int = 3) -> None:
+    """A structured tet box mesh [0, length] x [0, width]^2 written to ``path``."""
+    import meshio
+    import numpy as np
+    from skfem import MeshTet
+
+    m = MeshTet.init_tensor(
+        np.linspace(0, length, n_x),
+        np.linspace(0, width, n_yz),
+        np.linspace(0, width, n_yz),
+    )
+    meshio.write(path, meshio.Mesh(m.p.T, [("tetra", m.t.T)]))

@@ -12,9 +12,9 @@ from __future__ import annotations
 import json
 import tomllib
 
-import meshio
 import numpy as np
 import pytest
+from helpers import write_box_mesh
 
 from idbench.cli import main
 from idbench.config import CompareConfig, ConfigError
@@ -27,6 +27,15 @@ from idbench_fem.models.solid_settings import SolidSettings
 
 L, W = 0.1, 0.02
 D = (0.0, 0.0, -0.006)
+
+GRASP = """[[manipulation]]
+name = "{name}"
+kind = "grasp"
+point = [0.1, 0.01, 0.01]
+radius = 0.015
+{load}
+"""
+"""The end grasp, driven (``displacement``) or loaded (``force``)."""
 
 BODY = """
 [mesh]
@@ -42,20 +51,7 @@ density = 1000.0
 [fixed]
 box = {{ lower = [-0.001, -1.0, -1.0], upper = [0.001, 1.0, 1.0] }}
 
-[[manipulation]]
-name = "pull-end"
-kind = "grasp"
-point = [0.1, 0.01, 0.01]
-radius = 0.015
-displacement = [0.0, 0.0, -0.006]
-
-[[manipulation]]
-name = "push-end"
-kind = "grasp"
-point = [0.1, 0.01, 0.01]
-radius = 0.015
-force = [0.0, 0.0, -0.01]
-
+{grasps}
 [markers]
 points = [[0.05, 0.0, 0.02], [0.07, 0.02, 0.02], [0.03, 0.01, 0.02]]
 snap_distance = 0.002
@@ -65,18 +61,20 @@ grid = [6, 2, 2]
 """
 
 
+def body_text(law: str) -> str:
+    """The box body TOML with the material ``law``."""
+    grasps = GRASP.format(name="pull-end", load="displacement = [0.0, 0.0, -0.006]")
+    grasps += "\n" + GRASP.format(name="push-end", load="force = [0.0, 0.0, -0.01]")
+    return BODY.format(law=law, grasps=grasps)
+
+
 @pytest.fixture
 def box(tmp_path, monkeypatch):
     """A 6 x 2 x 2 box (63 nodes) clamped at x = 0; the body TOML's path."""
-    from skfem import MeshTet
-
     monkeypatch.delenv("IDBENCH_BODIES", raising=False)
-    m = MeshTet.init_tensor(
-        np.linspace(0, L, 7), np.linspace(0, W, 3), np.linspace(0, W, 3)
-    )
-    meshio.write(tmp_path / "box.vtu", meshio.Mesh(m.p.T, [("tetra", m.t.T)]))
+    write_box_mesh(tmp_path / "box.vtu", 7, L, W)
     path = tmp_path / "box.toml"
-    path.write_text(BODY.format(law="neo-hookean"))
+    path.write_text(body_text("neo-hookean"))
     return path
 
 

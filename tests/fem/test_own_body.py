@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import json
 
-import meshio
 import numpy as np
 import pytest
+from helpers import write_box_mesh
 
 import idbench
 from idbench.cli import main
@@ -62,14 +62,9 @@ grid = [6, 2, 2]
 @pytest.fixture
 def box(tmp_path, monkeypatch):
     """The body TOML path; no IDBENCH_BODIES."""
-    from skfem import MeshTet
-
     monkeypatch.delenv("IDBENCH_BODIES", raising=False)
     for stem, n in SIZES.items():
-        m = MeshTet.init_tensor(
-            np.linspace(0, L, n), np.linspace(0, W, 3), np.linspace(0, W, 3)
-        )
-        meshio.write(tmp_path / f"{stem}.vtu", meshio.Mesh(m.p.T, [("tetra", m.t.T)]))
+        write_box_mesh(tmp_path / f"{stem}.vtu", n, L, W)
     path = tmp_path / "box.toml"
     path.write_text(BODY)
     return path

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
 from pathlib import Path
 
 import numpy as np
@@ -32,14 +31,9 @@ def _slabs(folder: Path, p: int = 4) -> Path:
     """The shipped liver with ``p`` slabs along x as parameter regions."""
     src = body_path("liver")
     text = src.read_text().replace('"meshes/', f'"{src.parent}/meshes/')
-    x = np.linspace(-0.1, 0.1, p + 1)
-    x[0], x[-1] = -1.0, 1.0
-    boxes = ", ".join(
-        f"{{ box = {{ lower = [{a}, -1.0, -1.0], upper = [{b}, 1.0, 1.0] }} }}"
-        for a, b in itertools.pairwise(x)
-    )
+    slabs = ", ".join(f"{{ slab = {{ index = {i}, count = {p} }} }}" for i in range(p))
     path = folder / f"liver-p{p}.toml"
-    path.write_text(f"{text}\n[parameters]\nregions = [{boxes}]\n")
+    path.write_text(f"{text}\n[parameters]\nregions = [{slabs}]\n")
     return path
 
 

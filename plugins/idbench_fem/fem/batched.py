@@ -80,7 +80,7 @@ from numpy.typing import NDArray
 
 from idbench import ModelFailure
 from idbench_fem.fem import step_workers
-from idbench_fem.fem.newton import NewtonSolve
+from idbench_fem.fem.newton import NewtonSolve, backtrack
 from idbench_fem.fem.step_workers import Helper, HelperLost
 
 if TYPE_CHECKING:
@@ -235,7 +235,10 @@ class BatchedSteps(NewtonSolve):
     _batch_anchor: _PreviousCall | None = None
     _batch_stats: BatchStats | None = None
     RUN_CACHES = (
-        *NewtonSolve.RUN_CACHES, "_batch_anchor", "_batch_stats", "_last_path_step"
+        *NewtonSolve.RUN_CACHES,
+        "_batch_anchor",
+        "_batch_stats",
+        "_last_path_step",
     )
     _last_path_step: _PathStep | None = None
 
@@ -886,22 +889,7 @@ def _modified_newton(
         du = model._solver.solve(-res) / scale
         model._cost[1] += 1
         model._cost[2] += 1
-        if not np.all(np.isfinite(du)):
-            raise ModelFailure("non-finite Newton update", step=k)
-        for _ in range(9):
-            u_new = u + du
-            kin_new = asm.kinematics(u_new, modulus)
-            if np.all(kin_new.det > 0):
-                break
-            du = 0.5 * du
-        else:
-            raise ModelFailure(
-                "inverted element (det F <= 0) in every backtrack", step=k
-            )
-        res_new = asm.forces(kin_new) - f_ext
-        norm_new = float(np.linalg.norm(res_new))
-        if not np.isfinite(norm_new):
-            raise ModelFailure("non-finite residual in a batched step", step=k)
+        u_new, kin_new, res_new, norm_new = _updated(asm, u, du, modulus, f_ext, k)
         if norm_new <= tol:
             stats.modified += modified
             return u_new, theta_f
@@ -947,6 +935,29 @@ A proxy, deterministic, for a factorization costing many back-substitutions:
 the kidney at 2,004 nodes (5,800 free dofs) gains (79 -> 48 ms a step), the
 liver with 4 slabs at 975 nodes (2,800) does not (42 -> 45: a factorization
 there costs only about 20 back-substitutions). See :data:`ANDERSON`."""
+
+
+def _updated(
+    asm: Any,
+    u: FloatArray,
+    du: FloatArray,
+    modulus: FloatArray,
+    f_ext: FloatArray,
+    k: int,
+) -> tuple[FloatArray, Kinematics, FloatArray, float]:
+    """The backtracked update of a pair and its residual: u, kinematics, r, |r|.
+
+    Raises
+    ------
+    ModelFailure
+        As :func:`~idbench_fem.fem.newton.backtrack`, or for a non-finite residual.
+    """
+    u_new, kin_new = backtrack(asm, u, du, modulus, k)
+    res_new = asm.forces(kin_new) - f_ext
+    norm_new = float(np.linalg.norm(res_new))
+    if not np.isfinite(norm_new):
+        raise ModelFailure("non-finite residual in a batched step", step=k)
+    return u_new, kin_new, res_new, norm_new
 
 
 def _accelerates(model: BatchedSteps, p: int) -> bool:
@@ -1040,22 +1051,7 @@ def _accelerated_chords(
         if dF:
             Fm = np.stack(dF, axis=1)
             step = f - (np.stack(dU, axis=1) + Fm) @ _mixing(Fm, f)
-        if not np.all(np.isfinite(step)):
-            raise ModelFailure("non-finite Newton update", step=k)
-        for _ in range(9):
-            u_new = u + step
-            kin_new = asm.kinematics(u_new, modulus)
-            if np.all(kin_new.det > 0):
-                break
-            step = 0.5 * step
-        else:
-            raise ModelFailure(
-                "inverted element (det F <= 0) in every backtrack", step=k
-            )
-        res_new = asm.forces(kin_new) - f_ext
-        norm_new = float(np.linalg.norm(res_new))
-        if not np.isfinite(norm_new):
-            raise ModelFailure("non-finite residual in a batched step", step=k)
+        u_new, kin_new, res_new, norm_new = _updated(asm, u, step, modulus, f_ext, k)
         if norm_new <= tol:
             model.batch_stats.modified += total - full
             return u_new, theta_f

@@ -25,6 +25,35 @@ FloatArray = NDArray[np.float64]
 BACKTRACKS = 8
 """Halvings of a Newton update tried before an inversion is a failure."""
 
+
+class InvertedElements(ModelFailure):
+    """Every backtrack of a Newton update inverted an element (det F <= 0)."""
+
+
+def backtrack(
+    asm: Any, u: NDArray[np.float64], du: NDArray[np.float64], modulus: Any, k: int
+) -> tuple[NDArray[np.float64], Any]:
+    """``u + du``, ``du`` halved up to :data:`BACKTRACKS` times until no tet inverts.
+
+    Returns the new displacement and its kinematics (``asm.kinematics``).
+
+    Raises
+    ------
+    ModelFailure
+        For a non-finite update; :class:`InvertedElements` when every
+        backtrack inverts an element.
+    """
+    if not np.all(np.isfinite(du)):
+        raise ModelFailure("non-finite Newton update", step=k)
+    for _ in range(BACKTRACKS + 1):
+        u_new = u + du
+        kin = asm.kinematics(u_new, modulus)
+        if np.all(kin.det > 0):
+            return u_new, kin
+        du = 0.5 * du
+    raise InvertedElements("inverted element (det F <= 0) in every backtrack", step=k)
+
+
 CHORD_RATIO = 1e-2
 """An update that cut the residual at least this much keeps its factorization
 for the next iteration (a chord step: residual assembly and one solve, no
@@ -234,18 +263,9 @@ class NewtonSolve:
                 self._factor(kin, modulus, k)
             du = self._solver.solve(-r)
             self._cost[2] += 1
-            if not np.all(np.isfinite(du)):
-                raise ModelFailure("non-finite Newton update", step=k)
-            for _ in range(BACKTRACKS + 1):
-                u_new = u + du
-                kin = asm.kinematics(u_new, modulus)
-                if np.all(kin.det > 0):
-                    break
-                du = 0.5 * du
-            else:
+            try:
+                u, kin = backtrack(asm, u, du, modulus, k)
+            except InvertedElements:
                 self._cost[1] += it + 1
-                raise ModelFailure(
-                    "inverted element (det F <= 0) in every backtrack", step=k
-                )
-            u = u_new
+                raise
         raise AssertionError("unreachable")  # pragma: no cover
