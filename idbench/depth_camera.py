@@ -558,6 +558,43 @@ def association(points: FloatArray, triangles: NDArray[np.int64]) -> Association
         return made
 
 
+HELDOUT_CANDIDATES = 8
+"""Nearest-centroid triangles searched for a held-out point's closest point."""
+
+
+def heldout_points_mm(model: ForwardModel, state: FloatArray, points: Any) -> float:
+    """Mean distance (mm) of held-out points to ``model``'s deformed surface.
+
+    ``points`` (N, 3), positions in model coordinates (m), without
+    correspondence; NaN rows (a frame with fewer points) are left out. The
+    distance is to the closest point on the :data:`HELDOUT_CANDIDATES`
+    triangles of nearest centroid (:func:`point_to_surface`, not gated):
+    what the model's surface at ``state`` misses of a surface nobody gave
+    the estimator. NaN if no point is finite or the model has no surface.
+    """
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    seen = np.isfinite(pts).all(axis=1)
+    if not seen.any() or member(model, "surface") is None:
+        return float("nan")
+    vertices, triangles = surface_of(model, state)
+    d = point_to_surface(pts[seen], vertices, triangles, candidates=HELDOUT_CANDIDATES)
+    return float(1000.0 * np.abs(d).mean())
+
+
+def clean_points(
+    cloud: Cloud, clean: Mapping[str, FloatArray], rng: np.random.Generator
+) -> FloatArray:
+    """``cloud.points`` noise-free points (N, 3) of a clean reading, no outliers.
+
+    Pixels drawn without replacement where there are enough (``rng``); the
+    held-out cloud of a recording (:mod:`idbench.recorder`).
+    """
+    depth, rays, origin = clean["depth"], clean["rays"], clean["origin"]
+    n = min(cloud.points, depth.size)
+    pick = rng.choice(depth.size, size=n, replace=False)
+    return np.asarray(origin)[None, :] + depth[pick][:, None] * rays[pick]
+
+
 def _dot(a: FloatArray, b: FloatArray) -> FloatArray:
     return np.einsum("ij,ij->i", a, b)
 
