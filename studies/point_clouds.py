@@ -21,6 +21,7 @@ one seed.
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 from typing import Any
 
@@ -37,9 +38,12 @@ STUDIED = ("liver",)
 """The bodies of a full run (``--bodies`` changes it)."""
 MESHES = ("1000",)
 TRUTH = "4000"
-ESTIMATORS: tuple[str, ...] | None = ("ro-ukf", "etkf")
-"""RO-UKF and the ETKF (the EnKF solves an m x m system a step: 5,000 points is
-minutes a step)."""
+ESTIMATORS: tuple[str, ...] = ("ro-ukf", "etkf")
+"""RO-UKF and the ETKF (the EnKF solves an m x m system a step)."""
+DENSE_LIMIT = 1000
+"""Ensemble filters keep a dense m x m innovation covariance (its NIS a dense
+solve a step): they skip clouds of more points (minutes a step at 5,000)."""
+ENSEMBLES = ("enkf", "etkf")
 SEEDS = 3
 STEPS = 20
 MARKERS = 8
@@ -101,24 +105,31 @@ def compute(
     if isinstance(bodies, str):
         bodies = tuple(b.strip() for b in bodies.split(","))
     rows = []
-    for body in bodies or q.get("bodies", STUDIED):
+    for body, estimator in itertools.product(
+        bodies or q.get("bodies", STUDIED), q.get("estimators", ESTIMATORS)
+    ):
         mesh = q.get("truth", TRUTH)
+        observed = tuple(
+            name for name in knobs
+            if estimator not in ENSEMBLES
+            or tables.get(name, {}).get("points", 0) <= DENSE_LIMIT
+        )  # fmt: skip
         config = CompareConfig(
             model="solid",
             model_settings={"solid": {"body": body, "reference": mesh}},
             scenarios=(BODIES[body],),
             meshes=q.get("meshes", MESHES),
             truth_mesh=mesh,
-            estimators=q.get("estimators", ESTIMATORS),
+            estimators=(estimator,),
             seeds=q.get("seeds", SEEDS),
             steps=q.get("steps", STEPS),
             obs_every=(1,),
             obs_points=(MARKERS,),
             noise=(MARKER_NOISE,),
-            observe=tuple(knobs),
-            observe_settings=tables,
+            observe=observed,
+            observe_settings={n: t for n, t in tables.items() if n in observed},
         )
-        folder = None if out is None else Path(out) / body
+        folder = None if out is None else Path(out) / body / estimator
         runs, _ = compare(config, folder)
         first = next(c[: -len("_true")] for c in runs.columns if c.endswith("_true"))
         for _, r in runs.iterrows():
