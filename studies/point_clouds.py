@@ -195,6 +195,8 @@ def plot(table: pd.DataFrame, path: Path) -> None:
             d = df[df["knob"] == knob]
             if not cbase.empty:
                 d = pd.concat([d, cbase.assign(value=float(BASE[knob]))])
+            if knob == "noise":  # mm on the axis
+                d = d.assign(value=1000.0 * d["value"])
             g = d.groupby("value")
             for i, m in enumerate(METRICS):
                 ax = axes[i][j]
@@ -203,12 +205,14 @@ def plot(table: pd.DataFrame, path: Path) -> None:
                 ax.fill_between(mean.index, lo, hi, color=line.get_color(), alpha=0.15)
                 if not base.empty:
                     ax.axhline(base[m].mean(), color=line.get_color(), ls=":", lw=1)
-                ax.set(xlabel=f"cloud {knob}", ylabel=m)
+                unit = " (mm along the ray)" if knob == "noise" else ""
+                ax.set(xlabel=f"cloud {knob}{unit}", ylabel=m)
                 if knob == "points":
                     ax.set_xscale("log")
     axes[0][0].legend(fontsize="x-small")
     fig.suptitle(
-        "clouds (mean, band: range over seeds) against 8 markers (dotted), last step"
+        "clouds (mean, band: range over seeds) against 8 markers (dotted), last "
+        "step; one knob varied from the base cloud"
     )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
