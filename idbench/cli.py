@@ -129,8 +129,16 @@ class _Printable(logging.Formatter):
         return "\n".join(printable(x) for x in super().format(record).split("\n"))
 
 
+CORE = "idbench (core)"
+"""The ``idbench plugins`` row of what the core has built in (observation models)."""
+
+
 def cmd_plugins(args: argparse.Namespace) -> int:
-    """``idbench plugins``: each plugin, its version, what it registered."""
+    """``idbench plugins``: each plugin, its version, what it registered.
+
+    The first row is the core's own (``markers``, ``cloud``, ``force``); every
+    row lists its observation models (``register_observations``).
+    """
     from idbench.plugins import build_registry, get_plugin_manager, plugin_version
 
     pm = get_plugin_manager()
@@ -139,7 +147,20 @@ def cmd_plugins(args: argparse.Namespace) -> int:
         reg.errors.setdefault(plugin, message)
         if message not in reg.errors[plugin]:
             reg.errors[plugin] += f"; {message}"
-    rows: list[dict[str, Any]] = []
+    from idbench import __version__, observe
+
+    # the core's own observation models first: no plugin registers them
+    rows: list[dict[str, Any]] = [
+        {
+            "name": CORE,
+            "version": __version__,
+            "models": [],
+            "estimators": [],
+            "scenarios": [],
+            "observations": sorted(observe.BUILTIN),
+            "error": "",
+        }
+    ]
     names = [pm.get_name(p) for p in pm.get_plugins()]
     for name in sorted(n for n in names if n) + sorted(set(reg.errors) - set(names)):
         rows.append(
@@ -153,6 +174,9 @@ def cmd_plugins(args: argparse.Namespace) -> int:
                 "scenarios": sorted(
                     k for k, e in reg.scenarios.items() if e.plugin == name
                 ),
+                "observations": sorted(
+                    k for k, e in reg.observations.items() if e.plugin == name
+                ),
                 "error": reg.errors.get(name, ""),
             }
         )
@@ -165,7 +189,8 @@ def cmd_plugins(args: argparse.Namespace) -> int:
     from idbench.sanitize import rich_text
 
     table = Table(title="idbench plugins")
-    for col in ("plugin", "version", "models", "estimators", "scenarios", "error"):
+    columns = ("plugin", "version", "models", "estimators", "scenarios")
+    for col in (*columns, "observations", "error"):
         table.add_column(col)
     for r in rows:  # plugin strings as text: no markup, no control sequences
         table.add_row(
@@ -174,6 +199,7 @@ def cmd_plugins(args: argparse.Namespace) -> int:
             rich_text(", ".join(r["models"])),
             rich_text(", ".join(r["estimators"])),
             rich_text(", ".join(r["scenarios"])),
+            rich_text(", ".join(r["observations"])),
             rich_text(r["error"], join_lines=True),
         )
     Console().print(table)

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from idbench import scoring, targets
+from idbench import depth_camera, scoring, targets
 from idbench.capabilities import n_nodes_of
 from idbench.config import ConfigError
 from idbench.interfaces import (
@@ -347,6 +347,8 @@ def _run_on(
     row.update(scoring.final_columns(spec, session, means, stds, traces, est))
     if spec.setup.data:
         row["heldout_final_mm"] = traces[-1]["heldout_mm"]
+        if "heldout_points_mm" in traces[-1]:
+            row["heldout_points_final_mm"] = traces[-1]["heldout_points_mm"]
     if targets.has_targets(metrics_model, truth):
         row.update(
             targets.final_columns(
@@ -423,6 +425,10 @@ def _estimate(
             trace["heldout_mm"] = targets.heldout_mm(
                 metrics_model, state, truth.observations[k - 1]
             )
+            if truth.held_points is not None:  # and its held-out points
+                trace["heldout_points_mm"] = depth_camera.heldout_points_mm(
+                    metrics_model, state, truth.held_points[k - 1]
+                )
         trace.update(
             n_solves=est.cost.forward_solves - solves_before,
             newton_its=est.cost.newton_its - newton_before,

@@ -4,7 +4,9 @@ The frames are exactly those a comparison with the same set-up feeds its
 estimators (:meth:`idbench.session.Session.frames`: the same truth, noise
 draws and observation model), so ``compare --data`` on the recording gives
 the numbers of the synthetic comparison. Held out: the truth's noise-free
-marker displacements and, where the model has them, its targets.
+marker displacements, where the model has them its targets, and with a
+cloud observed a noise-free cloud of the same camera on the truth (other
+pixels, no holes or outliers; :func:`held_out_points`).
 """
 
 from __future__ import annotations
@@ -13,8 +15,11 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from idbench import recording
+import numpy as np
+
+from idbench import observe, recording
 from idbench.config import CompareConfig, ConfigError
+from idbench.depth_camera import Cloud, clean_points
 from idbench.plugins import Registry, build_registry
 from idbench.session import Session
 from idbench.sweep import plan, prepare
@@ -69,6 +74,10 @@ def record(
     held: dict[str, Any] = {"markers": truth.observations}
     if truth.targets is not None:
         held["targets"] = truth.targets
+    clouds = [b for _, b in observe.leaves(session.observation_model(spec))]
+    clouds = [b for b in clouds if isinstance(b, Cloud)]
+    if clouds:  # a second, noise-free draw of the first cloud's camera
+        held["points"] = held_out_points(session, spec, clouds[0], seed)
     setup = spec.setup
     given = the_plan.config.model_settings.get(setup.model, {})
     manifest: dict[str, Any] = {
@@ -92,3 +101,29 @@ def record(
             for block, t in tables.items()
         }
     return recording.write(path, manifest, frames, held)
+
+
+HELD_OUT_STREAM = 27
+"""Seeds the held-out cloud's pixel draws, with the run's seed (not the frames')."""
+
+
+def held_out_points(session: Session, spec: Any, cloud: Cloud, seed: int) -> Any:
+    """(K, N, 3) noise-free points of ``cloud``'s camera on the truth, per step.
+
+    Pixels drawn independently of the frames' (generator seeded by ``seed``
+    and :data:`HELD_OUT_STREAM`), no holes, outliers or noise: a surface the
+    estimators never see, for ``heldout_points_mm``.
+    """
+    truth = session.truth(spec)
+    model = session.model(spec, spec.setup.truth_mesh, role="truth")
+    theta = session.theta_true(spec)
+    rng = np.random.default_rng([seed, HELD_OUT_STREAM])
+    rows = []
+    for k, state in enumerate(truth.states, start=1):
+        clean = cloud.sense(model, theta, k, state)
+        rows.append(clean_points(cloud, clean, rng))
+    n = max(len(r) for r in rows)
+    out = np.full((len(rows), n, 3), np.nan)
+    for i, r in enumerate(rows):
+        out[i, : len(r)] = r
+    return out

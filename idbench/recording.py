@@ -15,7 +15,7 @@ A recording is a folder with two files::
     noise = 0.0001               # m, the markers' noise std (--noise)
     markers = 8                  # markers per frame (--obs-points)
     steps = 20                   # load steps K; one frame per step, in order
-    held_out = ["markers", "targets"]   # in frames.npz for scoring only
+    held_out = ["markers", "points", "targets"]   # in frames.npz, scoring only
 
     [model_settings]             # the model options (--model-option)
     body = "liver"
@@ -36,8 +36,12 @@ for a cloud (points in the body's coordinates, m; ``origin`` the camera
 centre; ``sigma`` the noise std along the rays); ``force`` (c,) in N; in a
 combination ``BLOCK/NAME`` (``cloud/points``, ``force/force``). Held out,
 never given to an estimator: ``held_out/markers`` (K, 3M) marker tracks (NaN
-where occluded) and ``held_out/targets`` (K, T, 3), the displacements of the
-body's ``[targets]``.
+where occluded), ``held_out/targets`` (K, T, 3), the displacements of the
+body's ``[targets]``, and ``held_out/points`` (K, N, 3), a cloud per frame
+without correspondence (positions, m; NaN rows where a frame has fewer),
+scored per step as ``heldout_points_mm``, the mean distance of the points to
+the model's deformed surface
+(:func:`idbench.depth_camera.heldout_points_mm`).
 
 :func:`read` checks a recording and says what is wrong in one line naming the
 frame (:class:`RecordingError`); :func:`check_body` checks it against the
@@ -68,7 +72,7 @@ FORMAT = 1
 MANIFEST = "recording.toml"
 ARRAYS = "frames.npz"
 UNITS = ("m",)
-HELD_OUT = ("markers", "targets")
+HELD_OUT = ("markers", "targets", "points")
 
 
 class RecordingError(ConfigError):
@@ -230,6 +234,11 @@ def _read(root: Path, key: str) -> Recording:
                 f"{where}: held_out/{name} of shape {value.shape}: allowed "
                 f"{', '.join(HELD_OUT)}, one row per frame ({steps})"
             )
+        if name == "points" and (value.ndim != 3 or value.shape[2] != 3):
+            raise RecordingError(
+                f"{where}: held_out/points of shape {value.shape}: need (K, N, 3), "
+                "positions (m), NaN rows where a frame has fewer points"
+            )
     return Recording(
         path=root,
         model=str(raw["model"]),
@@ -355,20 +364,34 @@ def check_body(rec: Recording, bounds: Any, scenarios: Sequence[str]) -> None:
     for frame in rec.frames:
         for name, value in frame.data.items():
             leaf = name.rpartition("/")[2]
-            if leaf == "points" and len(value):
-                centre = np.median(value, axis=0)
-                away = float(np.linalg.norm(centre - np.clip(centre, box[0], box[1])))
-                if away > size:
-                    raise RecordingError(
-                        f"{where}: frame {frame.step}: the cloud {name} lies "
-                        f"{away:.3g} m from the body (which is {size:.3g} m across): "
-                        "it is not registered to the body's coordinates"
-                    )
+            if leaf == "points":
+                _registered(where, frame.step, name, value, box, size)
             if leaf == "markers":
                 _plausible(where, frame.step, name, value, size)
     for name, value in rec.held_out.items():
         for i, row in enumerate(value):
-            _plausible(where, i + 1, f"held_out/{name}", row, size)
+            if name == "points":  # positions, not displacements
+                _registered(where, i + 1, "held_out/points", row, box, size)
+            else:
+                _plausible(where, i + 1, f"held_out/{name}", row, size)
+
+
+def _registered(
+    where: str, k: int, name: str, value: FloatArray, box: Any, size: float
+) -> None:
+    """A cloud whose median lies within the body's size of its box, else one line."""
+    pts = np.asarray(value, dtype=float).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if not len(pts):
+        return
+    centre = np.median(pts, axis=0)
+    away = float(np.linalg.norm(centre - np.clip(centre, box[0], box[1])))
+    if away > size:
+        raise RecordingError(
+            f"{where}: frame {k}: the cloud {name} lies {away:.3g} m from the body "
+            f"(which is {size:.3g} m across): it is not registered to the body's "
+            "coordinates"
+        )
 
 
 def _plausible(where: str, k: int, name: str, value: FloatArray, size: float) -> None:

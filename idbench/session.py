@@ -207,8 +207,9 @@ class Session:
         """What a recording holds out, as a truth for ``spec``'s model mesh.
 
         Held-out markers as the observations (NaN without), held-out targets
-        as the targets; no states, probes or nodes; the shape-error grid NaN
-        (in the metrics model's shape: there is no truth field to compare).
+        as the targets, held-out points as ``held_points``; no states,
+        probes or nodes; the shape-error grid NaN (in the metrics model's
+        shape: there is no truth field to compare).
         """
         key = spec.truth_product_key(spec.scenario)
         if key not in self._truths:
@@ -226,6 +227,7 @@ class Session:
                 grid=np.full((steps, *grid), np.nan),
                 probes={},
                 targets=rec.held_out.get("targets"),
+                held_points=rec.held_out.get("points"),
             )
         return self._truths[key]
 

@@ -57,6 +57,10 @@ class Truth:
         Hidden-target displacements per step, shape (K, T, 3), or None if the
         model has no ``targets`` (:class:`~idbench.interfaces.TargetModel`)
         or none to show (T = 0).
+    held_points
+        A recording's held-out points per step (K, N, 3), NaN rows where a
+        frame has fewer, scored by their distance to the model's surface; None
+        without (every simulated truth).
     """
 
     states: FloatArray
@@ -65,6 +69,7 @@ class Truth:
     probes: dict[str, FloatArray]
     nodes: float = float("nan")
     targets: FloatArray | None = None
+    held_points: FloatArray | None = None
 
 
 def truth_key(model: ForwardModel, theta: FloatArray) -> str:

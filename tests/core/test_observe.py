@@ -15,7 +15,7 @@ from helpers import registry_with
 from toymodels import SensitiveLinearToy
 
 import idbench
-from idbench import observe
+from idbench import depth_camera, observe
 from idbench.cli import main
 from idbench.config import CompareConfig, ConfigError
 from idbench.depth_camera import Cloud, point_to_surface, render
@@ -171,6 +171,65 @@ def test_point_to_plane_is_exact_on_a_face_and_signed():
     pts = np.array([[0.3, 0.4, 1.2], [0.6, 0.5, 0.9], [0.5, 0.5, -0.25]])
     d = point_to_surface(pts, CUBE, CUBE_TRIANGLES)
     np.testing.assert_allclose(d, [0.2, -0.1, 0.25], atol=1e-12)
+
+
+def beam_frame(points: int = 300) -> tuple[Any, np.ndarray, dict[float, list[Any]]]:
+    """A bending beam's cloud at its last step and the paths at several E."""
+    model = beam()
+    paths = {E: path(model, E) for E in (5000.0, 4990.0, 5010.0, 3000.0, 9000.0)}
+    cloud = Cloud(points=points, noise=1e-3)
+    k = model.n_steps
+    clean = cloud.sense(model, np.array([5000.0]), k, paths[5000.0][-1])
+    data = cloud.measure([clean], np.random.default_rng(3), 1e-3)[0]
+    return model, data["points"], paths
+
+
+@pytest.mark.parametrize(
+    "order",
+    [(5000.0, 4990.0, 5010.0, 3000.0, 9000.0), (9000.0, 3000.0, 5010.0, 5000.0)],
+)
+def test_a_reused_association_gives_a_fresh_querys_residual_in_any_order(order):
+    model, pts, paths = beam_frame()
+    points = pts.copy()  # a new array: its association starts at order[0]
+    for E in order:
+        V, T = model.surface(paths[E][-1])
+        reused = point_to_surface(points, V, T, gate=0.01)
+        fresh = point_to_surface(points, V, T, gate=0.01, reuse=False)
+        np.testing.assert_array_equal(reused, fresh)
+    # the far states (E x 0.6, x 1.8) re-query: still the fresh query's triangles
+    assert depth_camera.association(points, T).queries >= 2
+
+
+def test_nearby_states_of_a_frame_build_no_kd_tree(monkeypatch):
+    model, pts, _ = beam_frame()
+    built = []
+    real = depth_camera.cKDTree
+    monkeypatch.setattr(
+        depth_camera, "cKDTree", lambda *a, **kw: built.append(1) or real(*a, **kw)
+    )
+    for E in (5000.0, 4999.99, 5000.01, 5000.0):  # as finite differences do
+        V, T = model.surface(path(model, E)[-1])
+        point_to_surface(pts, V, T)
+    assert len(built) == 1  # the first state's query; the others are certified
+    # a changed point set (same array, edited in place) is associated anew
+    pts[0] += 0.01
+    point_to_surface(pts, V, T)
+    assert len(built) == 2
+
+
+def test_point_to_plane_of_the_reused_association_is_near_the_closest_point():
+    model, pts, paths = beam_frame()
+    for E in (5000.0, 3000.0):
+        V, T = model.surface(paths[E][-1])
+        plane = point_to_surface(pts, V, T)
+        exact = point_to_surface(pts, V, T, candidates=8)
+        scale = np.sqrt(np.mean(exact**2))
+        # point-to-plane is exact where the nearest-centroid triangle holds the
+        # closest point (3 in 4 points here), off by curvature x offset^2 elsewhere
+        same = np.abs(plane - exact) < 1e-9
+        assert same.mean() > 0.6, same.mean()
+        if E != 5000.0:  # a wrong E: the residual is the misfit, not the noise
+            assert np.sqrt(np.mean((plane - exact) ** 2)) < 0.2 * scale
 
 
 # --- the filters with a per-value noise ------------------------------------------

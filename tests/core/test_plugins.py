@@ -562,3 +562,59 @@ def test_the_registry_cache_lives_in_plugins_and_the_cli_uses_it() -> None:
     plugins.reset_registry_cache()
     again = plugins.cached_registry()
     assert again is not first and set(again.models) == set(first.models)
+
+
+# --- idbench plugins lists observation models ------------------------------------
+
+OBSERVES_DEPTH = """
+from dataclasses import dataclass
+import numpy as np
+import idbench
+
+
+@dataclass(frozen=True)
+class Depth:
+    requires: tuple = ("observe",)
+
+    def sense(self, model, theta, k, state):
+        return {"depth": np.asarray(model.observe(state))}
+
+    def measure(self, clean, rng, noise):
+        return [dict(c) for c in clean]
+
+    def values(self, frame):
+        return frame.data["depth"]
+
+    def noise_std(self, frame, noise):
+        return noise
+
+    def predict(self, model, frame, theta, k, state):
+        return np.asarray(model.observe(state))
+
+    def identity(self):
+        return ["depth"]
+
+
+@idbench.hookimpl
+def register_observations(register):
+    register("depth-probe", Depth)
+"""
+
+
+def test_plugins_lists_the_core_and_the_plugins_observation_models(
+    install: Any, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from idbench.cli import CORE, main
+
+    install("depthplug", OBSERVES_DEPTH)
+    assert main(["plugins", "--json"]) == 0
+    rows = {r["name"]: r for r in json.loads(capsys.readouterr().out)}
+    assert rows[CORE]["observations"] == ["cloud", "force", "markers"]
+    assert rows["depthplug"]["observations"] == ["depth-probe"]
+    assert rows["depthplug"]["error"] == ""
+    assert rows["filters"]["observations"] == []
+    monkeypatch.setenv("COLUMNS", "200")  # rich: one line a row
+    assert main(["plugins"]) == 0  # the table has the column and the names
+    table = capsys.readouterr().out
+    assert "observations" in table
+    assert "depth-probe" in table and "cloud, force, markers" in table

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -10,9 +11,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
+import idbench
 from idbench import recording
 from idbench.cli import main
 from idbench.config import CompareConfig
+from idbench.depth_camera import heldout_points_mm
 from idbench.recorder import record
 from idbench.report import write_report
 from idbench.sweep import compare
@@ -81,6 +84,63 @@ def test_the_manifest_reads_back(recordings):
     assert all(n <= 60 for n in sizes)
 
 
+def test_a_cloud_recording_holds_out_a_cloud_scored_on_the_surface(
+    recordings, tmp_path
+):
+    rec = recording.read(recordings / "cloud")
+    held = rec.held_out["points"]
+    assert held.shape[0] == STEPS and held.shape[2] == 3 and held.shape[1] <= 60
+    # a second draw of the camera's pixels, not the frames' points
+    assert not np.array_equal(held[0][: len(rec.frames[0].data["points"])],
+                              rec.frames[0].data["points"])  # fmt: skip
+    # written and read back bit for bit
+    again = recording.write(
+        tmp_path / "again",
+        tomllib.loads((recordings / "cloud" / recording.MANIFEST).read_text()),
+        rec.frames, rec.held_out,
+    )  # fmt: skip
+    np.testing.assert_array_equal(recording.read(again).held_out["points"], held)
+    # noise-free points on the truth's surface: the truth model scores ~0
+    reg = idbench.build_registry()
+    spec = idbench.ModelSpec(TRUTH, reg.scenario("bend-y"), n_steps=STEPS)
+    truth = reg.model("svk-beam")(spec)
+    u = truth.reset()
+    for k in range(1, STEPS + 1):
+        u = truth.step(np.array([rec.true["E"]]), k, u)
+        assert heldout_points_mm(truth, u, held[k - 1]) < 1e-9
+    # compare --data scores every step on them (a coarser model: > 0)
+    out = tmp_path / "out"
+    argv = ["compare", "--data", str(recordings / "cloud"), "--meshes", MESH,
+            "--estimators", "ro-ukf", "--seeds", "1", "--obs-every", "1",
+            "--out", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    traces = pd.read_parquet(out / "traces.parquet")
+    assert (traces.heldout_points_mm > 0).all() and len(traces) == STEPS
+    runs = pd.read_parquet(out / "runs.parquet")
+    assert runs.heldout_points_final_mm.iloc[0] == traces.heldout_points_mm.iloc[-1]
+
+
+class Box:
+    """A model whose surface is the unit cube at every state."""
+
+    def surface(self, state: Any) -> tuple[np.ndarray, np.ndarray]:
+        v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
+                      [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], dtype=float)
+        t = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5],
+                      [0, 5, 4], [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6],
+                      [3, 0, 4], [3, 4, 7]])  # fmt: skip
+        return v, t
+
+
+def test_heldout_points_mm_is_the_mean_distance_to_the_surface():
+    pts = np.array([[0.5, 0.5, 1.002], [0.3, 0.4, -0.001], [0.5, 0.5, 0.5],
+                    [np.nan, np.nan, np.nan]])  # fmt: skip
+    # 2 mm and 1 mm outside, 500 mm inside; the NaN row (no point) left out
+    assert heldout_points_mm(Box(), np.zeros(1), pts) == pytest.approx(503 / 3)
+    assert np.isnan(heldout_points_mm(Box(), np.zeros(1), pts[3:]))
+    assert np.isnan(heldout_points_mm(object(), np.zeros(1), pts))
+
+
 def edited(src: Path, dst: Path, arrays: Any = None, toml: Any = None) -> Path:
     shutil.copytree(src, dst)
     if arrays is not None:
@@ -106,6 +166,14 @@ def far_cloud(d: dict[str, np.ndarray]) -> None:
     d["frame.00003/points"] += np.array([5.0, 0.0, 0.0])
 
 
+def flat_held_points(d: dict[str, np.ndarray]) -> None:
+    d["held_out/points"] = d["held_out/points"][:, :, :2]
+
+
+def far_held_points(d: dict[str, np.ndarray]) -> None:
+    d["held_out/points"][2] += np.array([5.0, 0.0, 0.0])
+
+
 def millimetres(d: dict[str, np.ndarray]) -> None:
     for k in d:
         if k.endswith("markers"):
@@ -118,6 +186,8 @@ BAD = [
     ("cloud", nan_point, None, "frame 2: the cloud points has 1 of"),
     ("cloud", far_cloud, None, "frame 3: the cloud points lies"),
     ("cloud", far_cloud, None, "not registered"),
+    ("cloud", flat_held_points, None, "held_out/points of shape (4, 60, 2): need"),
+    ("cloud", far_held_points, None, "frame 3: the cloud held_out/points lies"),
     ("markers", None, lambda t: t.replace('units = "m"', 'units = "mm"'),
      "units = 'mm' cannot be right"),
     ("markers", millimetres, None, "frame 1: markers moves"),
