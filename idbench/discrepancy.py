@@ -73,7 +73,7 @@ from typing import Any
 import numpy as np
 
 from idbench.capabilities import member
-from idbench.files import atomic_write, digest, stable_hash
+from idbench.files import digest, stable_hash
 from idbench.interfaces import (
     Cost,
     FloatArray,
@@ -83,8 +83,17 @@ from idbench.interfaces import (
     Prior,
 )
 from idbench.scenario import Scenario
+from idbench.settings import check_choice
 from idbench.transforms import LogTransform
-from idbench.truth import _load, _save, cache_dir, probe, truth_key
+from idbench.truth import (
+    _load,
+    _save,
+    cache_dir,
+    probe,
+    read_entry,
+    truth_key,
+    write_entry,
+)
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +104,6 @@ a path with parameter theta (p = 1) depends on (k, theta) only through
 False declares it does not hold. Absent: checked numerically."""
 
 FEATURES = ("linear", "quadratic")
-CORRECTIONS = ("none", "approximation-error")
 
 FLOOR = 1e-4
 """t_0: the residual variance floor, relative to the squared RMS sample |z|."""
@@ -153,11 +161,7 @@ class CalibrationSettings:
             raise ValueError(
                 f"scaled_steps = {self.scaled_steps!r}: need an integer >= 2"
             )
-        if self.features not in FEATURES:
-            raise ValueError(
-                f"features = {self.features!r}: use one of "
-                + ", ".join(repr(f) for f in FEATURES)
-            )
+        check_choice("features", self.features, FEATURES)
         if not (math.isfinite(self.ridge) and self.ridge >= 0):
             raise ValueError(f"ridge = {self.ridge!r}: need a finite value >= 0")
 
@@ -280,43 +284,31 @@ class Discrepancy:
         arrays = self.arrays()
         meta = json.dumps({"features": self.features, "info": self.info})
         check = digest(np.concatenate([a.ravel() for a in arrays.values()]))
-
-        def write(tmp: Path) -> None:
-            with open(tmp, "wb") as fh:
-                content: dict[str, Any] = {"key": np.array(key),
-                                           "meta": np.array(meta),
-                                           "digest": np.array(check), **arrays}
-                np.savez(fh, **content)  # fmt: skip
-
-        try:
-            atomic_write(path, write)
-        except OSError as exc:
-            log.warning("discrepancy cache %s not writable (%s)", path.parent, exc)
+        content = {"meta": np.array(meta), "digest": np.array(check), **arrays}
+        write_entry(path, key, content, "discrepancy")
 
     @classmethod
     def load(cls, path: Path, key: str) -> Discrepancy | None:
         """The entry at ``path`` if its key and content digest match, else None."""
-        if not path.exists():
-            return None
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                if str(data["key"]) != key:
-                    raise ValueError("key mismatch")
-                names = ("w_obs", "w_grid", "cov_unit", "a_inv", "scalars")
-                arrays = {n: np.array(data[n], dtype=float) for n in names}
-                meta = json.loads(str(data["meta"]))
-                stored = str(data["digest"])
-            check = digest(np.concatenate([a.ravel() for a in arrays.values()]))
-            if stored != check:
+        names = ("w_obs", "w_grid", "cov_unit", "a_inv", "scalars")
+
+        def check(data: dict[str, Any]) -> None:
+            arrays = [np.asarray(data[n], dtype=float).ravel() for n in names]
+            if str(data["digest"]) != digest(np.concatenate(arrays)):
                 raise ValueError("content digest mismatch (altered or damaged)")
-            scale, floor, lev, cost = arrays.pop("scalars")
-            return cls(features=meta["features"], scale=float(scale),
-                       floor=float(floor), leverage_max=float(lev),
-                       cost=float(cost), info=meta["info"], **arrays)  # fmt: skip
-        except Exception as exc:  # damaged or foreign: recompute
-            log.warning("discrepancy cache entry %s unusable (%s); recomputing",
-                        path, exc)  # fmt: skip
+            meta = json.loads(str(data["meta"]))
+            if not isinstance(meta.get("features"), str) or "info" not in meta:
+                raise ValueError("meta without features or info")
+
+        data = read_entry(path, key, check, "discrepancy")
+        if data is None:
             return None
+        arrays = {n: np.array(data[n], dtype=float) for n in names}
+        meta = json.loads(str(data["meta"]))
+        scale, floor, lev, cost = arrays.pop("scalars")
+        return cls(features=meta["features"], scale=float(scale), floor=float(floor),
+                   leverage_max=float(lev), cost=float(cost), info=meta["info"],
+                   **arrays)  # fmt: skip
 
 
 # --- the design ---------------------------------------------------------------
@@ -386,51 +378,89 @@ class Samples:
 Factory = Callable[[ModelSpec], ForwardModel]
 
 
-def simulate_samples(
-    factory: Factory,
-    coarse: ModelSpec,
-    fine_mesh: str,
-    scenarios: Sequence[Scenario],
-    prior: Prior,
-    settings: CalibrationSettings,
-) -> tuple[Samples, float, bool]:
-    """Fine and coarse paths over the design; the samples and their fine cost.
+@dataclass(frozen=True)
+class Design:
+    """What a calibration simulates: the coarse model, the finer mesh, the paths.
 
-    Returns the samples, the fine path simulations they took (fine steps /
-    K) and whether the load scaling was used.
+    Attributes
+    ----------
+    factory
+        The registered model factory (the same model on both meshes).
+    coarse
+        The coarse model's spec (its scenario is replaced by each of
+        ``scenarios``; its markers and settings are kept).
+    fine_mesh
+        The finer mesh of the same body.
+    scenarios
+        The design's load paths.
+    prior
+        The prior the design draws from.
+    settings
+        The design and the regression.
     """
-    scaled = scaling_holds(factory(coarse))
-    K = coarse.n_steps
-    zs, dos, dgs, groups = [], [], [], []
-    fine_steps = 0
-    for g, scenario in enumerate(scenarios):
-        if scaled:
-            steps = settings.scaled_steps
-            thetas = prior_quantile(prior, settings.quantile)[None, :]
-        else:
-            steps = K
-            thetas = prior_draws(prior, settings.draws, settings.seed)
-        fine = factory(replace(coarse, mesh=fine_mesh, scenario=scenario,
-                               n_steps=steps))  # fmt: skip
-        crs = factory(replace(coarse, scenario=scenario, n_steps=steps))
-        for theta in thetas:
-            path = probe(fine, fine_path(fine, theta))  # cached like a truth
-            fine_steps += len(path.states)
-            states = _reach(crs, theta, len(path.states))
-            n = len(states)
-            if n < steps:
-                log.warning("calibration of %s on %s: load states up to step %d of "
-                            "%d (the models fail beyond)", coarse.mesh,
-                            scenario.name, n, steps)  # fmt: skip
-            z = np.array([crs.observe(s) for s in states])
-            zg = np.array([np.ravel(crs.grid(s)) for s in states])
-            zs.append(z)
-            dos.append(path.observations[:n] - z)
-            dgs.append(path.grid[:n].reshape(n, -1) - zg)
-            groups.append(np.full(n, g))
-    samples = Samples(np.vstack(zs), np.vstack(dos), np.vstack(dgs),
-                      np.concatenate(groups).astype(float))  # fmt: skip
-    return samples, fine_steps / K, scaled
+
+    factory: Factory
+    coarse: ModelSpec
+    fine_mesh: str
+    scenarios: Sequence[Scenario]
+    prior: Prior
+    settings: CalibrationSettings
+
+    def key(self) -> str:
+        """Cache key: both models' descriptions per scenario, prior, settings."""
+        from idbench import __version__
+
+        descs = []
+        for sc in self.scenarios:
+            for mesh in (self.coarse.mesh, self.fine_mesh):
+                spec = replace(self.coarse, mesh=mesh, scenario=sc)
+                descs.append(self.factory(spec).describe())
+        prior = [list(self.prior.mean), list(self.prior.std)]
+        return stable_hash(
+            {"models": descs, "prior": prior, "settings": asdict(self.settings),
+             "version": __version__, "fit": FIT_VERSION},
+            length=24,
+        )  # fmt: skip
+
+    def samples(self) -> tuple[Samples, float, bool]:
+        """Fine and coarse paths over the design; the samples and their fine cost.
+
+        Returns the samples, the fine path simulations they took (fine steps /
+        K) and whether the load scaling was used.
+        """
+        factory, coarse, settings = self.factory, self.coarse, self.settings
+        scaled = scaling_holds(factory(coarse))
+        K = coarse.n_steps
+        zs, dos, dgs, groups = [], [], [], []
+        fine_steps = 0
+        for g, scenario in enumerate(self.scenarios):
+            if scaled:
+                steps = settings.scaled_steps
+                thetas = prior_quantile(self.prior, settings.quantile)[None, :]
+            else:
+                steps = K
+                thetas = prior_draws(self.prior, settings.draws, settings.seed)
+            fine = factory(replace(coarse, mesh=self.fine_mesh, scenario=scenario,
+                                   n_steps=steps))  # fmt: skip
+            crs = factory(replace(coarse, scenario=scenario, n_steps=steps))
+            for theta in thetas:
+                path = probe(fine, fine_path(fine, theta))  # cached like a truth
+                fine_steps += len(path.states)
+                states = _reach(crs, theta, len(path.states))
+                n = len(states)
+                if n < steps:
+                    log.warning("calibration of %s on %s: load states up to step %d "
+                                "of %d (the models fail beyond)", coarse.mesh,
+                                scenario.name, n, steps)  # fmt: skip
+                z = np.array([crs.observe(s) for s in states])
+                zg = np.array([np.ravel(crs.grid(s)) for s in states])
+                zs.append(z)
+                dos.append(path.observations[:n] - z)
+                dgs.append(path.grid[:n].reshape(n, -1) - zg)
+                groups.append(np.full(n, g))
+        samples = Samples(np.vstack(zs), np.vstack(dos), np.vstack(dgs),
+                          np.concatenate(groups).astype(float))  # fmt: skip
+        return samples, fine_steps / K, scaled
 
 
 def _reach(model: ForwardModel, theta: FloatArray, n: int) -> FloatArray:
@@ -569,29 +599,6 @@ def _transfer_residuals(
     return np.vstack(kept_r), np.concatenate(kept_w), rms
 
 
-def discrepancy_key(
-    factory: Factory,
-    coarse: ModelSpec,
-    fine_mesh: str,
-    scenarios: Sequence[Scenario],
-    prior: Prior,
-    settings: CalibrationSettings,
-) -> str:
-    """Cache key of a calibration: both models' descriptions per scenario, etc."""
-    from idbench import __version__
-
-    descs = []
-    for sc in scenarios:
-        for mesh in (coarse.mesh, fine_mesh):
-            descs.append(factory(replace(coarse, mesh=mesh, scenario=sc)).describe())
-    return stable_hash(
-        {"models": descs, "prior": [list(prior.mean), list(prior.std)],
-         "settings": asdict(settings), "version": __version__,
-         "fit": FIT_VERSION},
-        length=24,
-    )  # fmt: skip
-
-
 def fit_discrepancy(
     factory: Factory,
     coarse: ModelSpec,
@@ -606,17 +613,8 @@ def fit_discrepancy(
 
     Parameters
     ----------
-    factory
-        The registered model factory (the same model on both meshes).
-    coarse
-        The coarse model's spec (its scenario is replaced by each of
-        ``scenarios``; its markers and settings are kept).
-    fine_mesh
-        The finer mesh of the same body.
-    scenarios
-        The design's load paths.
-    prior
-        The prior the design draws from.
+    factory, coarse, fine_mesh, scenarios, prior
+        What the calibration simulates (the fields of :class:`Design`).
     settings
         The design and the regression (default :class:`CalibrationSettings`).
     cache
@@ -625,16 +623,15 @@ def fit_discrepancy(
     settings = settings or CalibrationSettings()
     if not scenarios:
         raise ValueError("a calibration needs at least one scenario")
-    key = discrepancy_key(factory, coarse, fine_mesh, scenarios, prior, settings)
+    design = Design(factory, coarse, fine_mesh, tuple(scenarios), prior, settings)
+    key = design.key()
     path = cache_dir() / f"discrepancy-{key}.npz"
     found = Discrepancy.load(path, key) if cache else None
     if found is not None:
         return found
     log.info("calibrating %s against %s on %s", coarse.mesh, fine_mesh,
              ", ".join(s.name for s in scenarios))  # fmt: skip
-    samples, cost, scaled = simulate_samples(
-        factory, coarse, fine_mesh, scenarios, prior, settings
-    )
+    samples, cost, scaled = design.samples()
     result = fit(samples, settings)
     info = {
         **result.info, "coarse": coarse.mesh, "fine": fine_mesh,

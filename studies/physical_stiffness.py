@@ -48,6 +48,25 @@ STEPS = 20
 CALIBRATION: dict[str, Any] = {}  # CalibrationSettings fields (defaults)
 MODES = ("uncorrected", "used", "not used")
 
+# The liver (examples/liver/body.toml: neo-Hookean, E = 4 kPa, 8 anterior
+# markers), its three manipulations; "not used" is calibrated on the design
+# body examples/liver/calibration.toml (other grasp forces, shifted pressure
+# caps, tilted gravity) whose loads span the three without containing them.
+LIVER_MESHES = ("500", "1000")
+LIVER_TRUTH = "4000"  # the example's truth; also the calibration mesh
+LIVER_SCENARIOS = ("grasp-lift", "lateral-push", "sag-90")
+LIVER_DESIGN = ("cal-grasp-a", "cal-grasp-b", "cal-grasp-c", "cal-push-up",
+                "cal-push-down", "cal-tilt-a", "cal-tilt-b")  # fmt: skip
+LIVER_STEPS = 20
+LIVER_SEEDS = 3
+LIVER_CALIBRATION: dict[str, Any] = {"quantile": 0.25, "scaled_steps": 40}
+LIVER_OBSERVATION: dict[str, Any] = {
+    "obs_points": (8,), "obs_every": (2,), "noise": (1e-4,), "prior": (2000.0, 2000.0),
+}  # fmt: skip
+LIVER_DESIGN_BODY = Path(__file__).resolve().parent.parent / "examples" / "liver" / (
+    "calibration.toml"
+)
+
 QUICK: dict[str, Any] = {
     "MESHES": ("6x2x2",),
     "TRUTH": "9x2x2",
@@ -56,6 +75,13 @@ QUICK: dict[str, Any] = {
     "SEEDS": 1,
     "STEPS": 8,
     "CALIBRATION": {"scaled_steps": 12},
+    "LIVER_MESHES": ("150",),
+    "LIVER_TRUTH": "600",
+    "LIVER_SCENARIOS": ("grasp-lift",),
+    "LIVER_DESIGN": ("cal-grasp-a", "cal-grasp-b", "cal-grasp-c"),
+    "LIVER_STEPS": 6,
+    "LIVER_SEEDS": 1,
+    "LIVER_CALIBRATION": {"quantile": 0.25, "scaled_steps": 12},
 }
 
 BEND_TRACTION = 8.9  # Pa, as the registered bending and mixed paths
@@ -76,6 +102,16 @@ def new_paths(registry: Registry) -> Registry:
     return registry.with_scenarios(new, "physical_stiffness")
 
 
+def liver_design(registry: Registry, body: Path = LIVER_DESIGN_BODY) -> Registry:
+    """The registry with the liver calibration design's manipulations."""
+    from idbench_fem.bodies.catalog import get_body
+
+    spec = str(body)
+    found = [m.name for m in get_body(spec).manipulations]
+    new = [Scenario(n, {"body": spec, "manipulation": n}) for n in found]
+    return registry.with_scenarios(new, "physical_stiffness")
+
+
 def _runs(
     p: dict[str, Any],
     registry: Registry,
@@ -83,6 +119,7 @@ def _runs(
     name: str,
     scenarios: tuple[str, ...],
     design: tuple[str, ...] | None,
+    body: str = "beam",
 ) -> pd.DataFrame:
     """One comparison: uncorrected (``design`` None) or calibrated on ``design``."""
     settings = (
@@ -90,39 +127,65 @@ def _runs(
         if design is None
         else {e: {"correction": "approximation-error"} for e in p["ESTIMATORS"]}
     )
-    config = CompareConfig(
-        scenarios=scenarios, meshes=p["MESHES"], truth_mesh=p["TRUTH"],
-        estimators=p["ESTIMATORS"], seeds=p["SEEDS"], steps=p["STEPS"],
-        estimator_settings=settings,
-        calibration={**p["CALIBRATION"], "scenarios": list(design or ())},
-    )  # fmt: skip
+    if body == "beam":
+        common: dict[str, Any] = dict(
+            meshes=p["MESHES"], truth_mesh=p["TRUTH"], seeds=p["SEEDS"],
+            steps=p["STEPS"], calibration={**p["CALIBRATION"],
+                                           "scenarios": list(design or ())},
+        )  # fmt: skip
+    else:
+        common = dict(
+            meshes=p["LIVER_MESHES"], truth_mesh=p["LIVER_TRUTH"],
+            seeds=p["LIVER_SEEDS"], steps=p["LIVER_STEPS"], model="solid",
+            model_settings={"solid": {"body": "liver",
+                                      "reference": p["LIVER_TRUTH"]}},
+            calibration={**p["LIVER_CALIBRATION"], "scenarios": list(design or ())},
+            **LIVER_OBSERVATION,
+        )  # fmt: skip
+    config = CompareConfig(scenarios=scenarios, estimators=p["ESTIMATORS"],
+                           estimator_settings=settings, **common)  # fmt: skip
     runs, _ = compare(config, None if out is None else out / name, registry=registry)
+    runs["body"] = body
     return runs
 
 
-def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
-    """Runs of every (mode, mesh, path, estimator, seed); one row each.
+def compute(
+    quick: bool = False,
+    out: str | Path | None = None,
+    bodies: tuple[str, ...] = ("beam", "liver"),
+) -> pd.DataFrame:
+    """Runs of every (body, mode, mesh, path, estimator, seed); one row each.
 
-    Columns: the runs table's, plus ``mode`` and ``E_ratio`` (E_final /
-    E_true); ``extrapolated`` (the correction warned it extrapolated).
+    Columns: the runs table's, plus ``body``, ``mode`` and ``E_ratio``
+    (E_final / E_true); ``extrapolated`` (the correction warned it
+    extrapolated).
     """
     p = {k: globals()[k] for k in QUICK}
     if quick:
         p.update(QUICK)
     root = None if out is None else Path(out)
-    registry = new_paths(build_registry())
-    scenarios = tuple(p["SCENARIOS"])
+    registry = liver_design(new_paths(build_registry()))
     parts = []
-    plain = _runs(p, registry, root, "uncorrected", scenarios, None)
-    plain["mode"] = "uncorrected"
-    used = _runs(p, registry, root, "used", scenarios, scenarios)
-    used["mode"] = "used"
-    parts += [plain, used]
-    for held in scenarios:
-        others = tuple(s for s in scenarios if s != held)
-        loo = _runs(p, registry, root, f"not-used-{held}", (held,), others)
-        loo["mode"] = "not used"
-        parts.append(loo)
+    if "beam" in bodies:
+        scenarios = tuple(p["SCENARIOS"])
+        plain = _runs(p, registry, root, "uncorrected", scenarios, None)
+        plain["mode"] = "uncorrected"
+        used = _runs(p, registry, root, "used", scenarios, scenarios)
+        used["mode"] = "used"
+        parts += [plain, used]
+        for held in scenarios:
+            others = tuple(s for s in scenarios if s != held)
+            loo = _runs(p, registry, root, f"not-used-{held}", (held,), others)
+            loo["mode"] = "not used"
+            parts.append(loo)
+    if "liver" in bodies:
+        scenarios = tuple(p["LIVER_SCENARIOS"])
+        for mode, design in (("uncorrected", None), ("used", scenarios),
+                             ("not used", tuple(p["LIVER_DESIGN"]))):  # fmt: skip
+            name = "liver-" + mode.replace(" ", "-")
+            runs = _runs(p, registry, root, name, scenarios, design, "liver")
+            runs["mode"] = mode
+            parts.append(runs)
     runs = pd.concat(parts, ignore_index=True)
     runs["E_ratio"] = runs["E_final"] / runs["E_true"]
     warning = runs["warning"].fillna("").astype(str)
@@ -130,8 +193,8 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     return runs
 
 
-def summarise(runs: pd.DataFrame, by: tuple[str, ...] = ("mode", "model_nodes",
-              "estimator")) -> pd.DataFrame:  # fmt: skip
+def summarise(runs: pd.DataFrame, by: tuple[str, ...] = ("body", "mode",
+              "model_nodes", "estimator")) -> pd.DataFrame:  # fmt: skip
     """Median |E/E_true - 1|, coverage of E_true, mean NEES, ... per group."""
     ok = runs[runs["status"] == "ok"].copy()
     ok["abs_err"] = ok["E_relerr_true"].abs()
@@ -186,13 +249,16 @@ def plot(runs: pd.DataFrame, path: Path) -> None:
 
 if __name__ == "__main__":
     parser = _cli.parser(__doc__, "results/physical")
+    parser.add_argument("--bodies", default="beam,liver",
+                        help="comma-separated: beam, liver (default both)")
     args = parser.parse_args()
-    runs = compute(args.quick, args.out)
+    runs = compute(args.quick, args.out, tuple(args.bodies.split(",")))
     args.out.mkdir(parents=True, exist_ok=True)
     runs.to_parquet(args.out / "physical_stiffness_runs.parquet")
     table = summarise(runs)
     table.to_csv(args.out / "physical_stiffness.csv", index=False)
-    by_path = summarise(runs, ("mode", "model_nodes", "scenario", "estimator"))
+    by_path = summarise(runs, ("body", "mode", "model_nodes", "scenario",
+                               "estimator"))  # fmt: skip
     by_path.to_csv(args.out / "physical_stiffness_paths.csv", index=False)
     with pd.option_context("display.width", 250, "display.max_columns", 40):
         print(table.to_string(index=False))
