@@ -46,7 +46,7 @@ ESTIMATORS = ("ro-ukf",)  # the others: see the README (idbench compare)
 SEEDS = 3
 STEPS = 20
 CALIBRATION: dict[str, Any] = {}  # CalibrationSettings fields (defaults)
-MODES = ("uncorrected", "used", "not used")
+MODES = ("uncorrected", "used", "not used", "left out")
 
 # The liver (examples/liver/body.toml: neo-Hookean, E = 4 kPa, 8 anterior
 # markers), its three manipulations; "not used" is calibrated on the design
@@ -85,10 +85,28 @@ QUICK: dict[str, Any] = {
 }
 
 BEND_TRACTION = 8.9  # Pa, as the registered bending and mixed paths
+STRETCH_TRACTION = 250.0  # Pa, as stretch-x
+
+# The beam's calibration design (mode "not used"): six end tractions (Pa),
+# none of them a path of SCENARIOS, whose cone holds every one of them (each
+# path's traction is a combination of them with coefficients >= 0): along +x,
+# -y and -z each tilted by 0.2 of the bending traction towards the other two
+# axes, one way (cal-x, cal-y, cal-z) and the other (cal-x2, cal-y2, cal-z2).
+# The x components of the bending ones stay at +-0.5 Pa: an end compression
+# beyond a few Pa buckles the beam at the prior's low E.
+_T = 0.2 * BEND_TRACTION
+DESIGN: dict[str, tuple[float, float, float]] = {
+    "cal-x": (STRETCH_TRACTION, _T, _T),
+    "cal-y": (-0.5, -BEND_TRACTION, _T),
+    "cal-z": (-0.5, _T, -BEND_TRACTION),
+    "cal-x2": (STRETCH_TRACTION, -_T, -_T),
+    "cal-y2": (0.5, -BEND_TRACTION, -_T),
+    "cal-z2": (0.5, -_T, -BEND_TRACTION),
+}
 
 
 def new_paths(registry: Registry) -> Registry:
-    """The registry with the two new directions (beam end tractions)."""
+    """The registry with the two new directions and the design (end tractions)."""
     a = math.radians(45.0)
     r = math.sqrt(0.5)
     new = [
@@ -99,6 +117,10 @@ def new_paths(registry: Registry) -> Registry:
                              "magnitude": BEND_TRACTION}, "stretch-x",
                  "bending along the y-z diagonal"),
     ]  # fmt: skip
+    for name, t in DESIGN.items():
+        size = math.sqrt(sum(c * c for c in t))
+        load = {"direction": [c / size for c in t], "magnitude": size}
+        new.append(Scenario(name, load, "", "calibration design"))
     return registry.with_scenarios(new, "physical_stiffness")
 
 
@@ -153,12 +175,14 @@ def compute(
     quick: bool = False,
     out: str | Path | None = None,
     bodies: tuple[str, ...] = ("beam", "liver"),
+    left_out: bool = False,
 ) -> pd.DataFrame:
     """Runs of every (body, mode, mesh, path, estimator, seed); one row each.
 
     Columns: the runs table's, plus ``body``, ``mode`` and ``E_ratio``
     (E_final / E_true); ``extrapolated`` (the correction warned it
-    extrapolated).
+    extrapolated). ``left_out``: also the beam's leave-one-path-out
+    calibrations (mode ``"left out"``).
     """
     p = {k: globals()[k] for k in QUICK}
     if quick:
@@ -172,11 +196,13 @@ def compute(
         plain["mode"] = "uncorrected"
         used = _runs(p, registry, root, "used", scenarios, scenarios)
         used["mode"] = "used"
-        parts += [plain, used]
-        for held in scenarios:
+        design = _runs(p, registry, root, "design", scenarios, tuple(DESIGN))
+        design["mode"] = "not used"
+        parts += [plain, used, design]
+        for held in scenarios if left_out else ():
             others = tuple(s for s in scenarios if s != held)
             loo = _runs(p, registry, root, f"not-used-{held}", (held,), others)
-            loo["mode"] = "not used"
+            loo["mode"] = "left out"
             parts.append(loo)
     if "liver" in bodies:
         scenarios = tuple(p["LIVER_SCENARIOS"])
@@ -220,8 +246,9 @@ def plot(runs: pd.DataFrame, path: Path) -> None:
 
     ok = runs[(runs["status"] == "ok") & (runs["estimator"] == "ro-ukf")]
     fig, axs = plt.subplots(1, 2, figsize=(11, 4))
-    for i, mode in enumerate(MODES):
-        d = ok[ok["mode"] == mode]
+    cases = [(b, m) for b in ("beam", "liver") for m in MODES]
+    for i, (body, mode) in enumerate(cases):
+        d = ok[(ok["mode"] == mode) & (ok["body"] == body)]
         if d.empty:
             continue
         g = d.groupby("model_nodes")
@@ -230,9 +257,11 @@ def plot(runs: pd.DataFrame, path: Path) -> None:
         lo, hi = g["E_ratio"].min().reindex(nodes), g["E_ratio"].max().reindex(nodes)
         cover = g["E_cover95_true"].mean().reindex(nodes)
         st = style(i)
-        axs[0].errorbar(nodes * (1 + 0.03 * (i - 1)), med, yerr=[med - lo, hi - med],
-                        capsize=3, label=mode, **st)  # fmt: skip
-        axs[1].plot(nodes, cover, label=mode, **st)
+        label = f"{body}: {mode}"
+        shift = 1 + 0.03 * (MODES.index(mode) - 1)
+        axs[0].errorbar(nodes * shift, med, yerr=[med - lo, hi - med], capsize=3,
+                        label=label, **st)  # fmt: skip
+        axs[1].plot(nodes, cover, label=label, **st)
     axs[0].axhline(1.0, color="0.4", ls="--", lw=1)
     axs[0].set_ylabel("identified E / E_true (median, range over paths, seeds)")
     axs[1].axhline(0.95, color="0.4", ls="--", lw=1)
@@ -251,8 +280,11 @@ if __name__ == "__main__":
     parser = _cli.parser(__doc__, "results/physical")
     parser.add_argument("--bodies", default="beam,liver",
                         help="comma-separated: beam, liver (default both)")
+    parser.add_argument("--left-out", action="store_true",
+                        help="also the beam's leave-one-path-out calibrations")
     args = parser.parse_args()
-    runs = compute(args.quick, args.out, tuple(args.bodies.split(",")))
+    runs = compute(args.quick, args.out, tuple(args.bodies.split(",")),
+                   args.left_out)  # fmt: skip
     args.out.mkdir(parents=True, exist_ok=True)
     runs.to_parquet(args.out / "physical_stiffness_runs.parquet")
     table = summarise(runs)
