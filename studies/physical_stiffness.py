@@ -46,6 +46,9 @@ ESTIMATORS = ("ro-ukf",)  # the others: see the README (idbench compare)
 SEEDS = 3
 STEPS = 20
 CALIBRATION: dict[str, Any] = {}  # CalibrationSettings fields (defaults)
+# the design's: its fine paths start at the prior's 20% quantile of E, 30
+# steps (6 paths x 30 / 20 = 9 fine path simulations per coarse mesh)
+DESIGN_CALIBRATION: dict[str, Any] = {"quantile": 0.2, "scaled_steps": 30}
 MODES = ("uncorrected", "used", "not used", "left out")
 
 # The liver (examples/liver/body.toml: neo-Hookean, E = 4 kPa, 8 anterior
@@ -56,7 +59,8 @@ LIVER_MESHES = ("500", "1000")
 LIVER_TRUTH = "4000"  # the example's truth; also the calibration mesh
 LIVER_SCENARIOS = ("grasp-lift", "lateral-push", "sag-90")
 LIVER_DESIGN = ("cal-grasp-a", "cal-grasp-b", "cal-grasp-c", "cal-push-up",
-                "cal-push-down", "cal-tilt-a", "cal-tilt-b")  # fmt: skip
+                "cal-push-down", "cal-push-in", "cal-push-out", "cal-tilt-a",
+                "cal-tilt-b")  # fmt: skip
 LIVER_STEPS = 20
 LIVER_SEEDS = 3
 LIVER_CALIBRATION: dict[str, Any] = {"quantile": 0.25, "scaled_steps": 40}
@@ -75,6 +79,7 @@ QUICK: dict[str, Any] = {
     "SEEDS": 1,
     "STEPS": 8,
     "CALIBRATION": {"scaled_steps": 12},
+    "DESIGN_CALIBRATION": {"quantile": 0.2, "scaled_steps": 12},
     "LIVER_MESHES": ("150",),
     "LIVER_TRUTH": "600",
     "LIVER_SCENARIOS": ("grasp-lift",),
@@ -142,8 +147,12 @@ def _runs(
     scenarios: tuple[str, ...],
     design: tuple[str, ...] | None,
     body: str = "beam",
+    calibration: dict[str, Any] | None = None,
 ) -> pd.DataFrame:
-    """One comparison: uncorrected (``design`` None) or calibrated on ``design``."""
+    """One comparison: uncorrected (``design`` None) or calibrated on ``design``.
+
+    ``calibration``: the calibration settings (default the body's).
+    """
     settings = (
         {}
         if design is None
@@ -152,7 +161,7 @@ def _runs(
     if body == "beam":
         common: dict[str, Any] = dict(
             meshes=p["MESHES"], truth_mesh=p["TRUTH"], seeds=p["SEEDS"],
-            steps=p["STEPS"], calibration={**p["CALIBRATION"],
+            steps=p["STEPS"], calibration={**(calibration or p["CALIBRATION"]),
                                            "scenarios": list(design or ())},
         )  # fmt: skip
     else:
@@ -176,13 +185,15 @@ def compute(
     out: str | Path | None = None,
     bodies: tuple[str, ...] = ("beam", "liver"),
     left_out: bool = False,
+    used: bool = True,
 ) -> pd.DataFrame:
     """Runs of every (body, mode, mesh, path, estimator, seed); one row each.
 
     Columns: the runs table's, plus ``body``, ``mode`` and ``E_ratio``
     (E_final / E_true); ``extrapolated`` (the correction warned it
     extrapolated). ``left_out``: also the beam's leave-one-path-out
-    calibrations (mode ``"left out"``).
+    calibrations (mode ``"left out"``); ``used`` False: not the beam's
+    calibrations on the paths' own directions (mode ``"used"``).
     """
     p = {k: globals()[k] for k in QUICK}
     if quick:
@@ -194,11 +205,15 @@ def compute(
         scenarios = tuple(p["SCENARIOS"])
         plain = _runs(p, registry, root, "uncorrected", scenarios, None)
         plain["mode"] = "uncorrected"
-        used = _runs(p, registry, root, "used", scenarios, scenarios)
-        used["mode"] = "used"
-        design = _runs(p, registry, root, "design", scenarios, tuple(DESIGN))
+        parts.append(plain)
+        if used:
+            own = _runs(p, registry, root, "used", scenarios, scenarios)
+            own["mode"] = "used"
+            parts.append(own)
+        design = _runs(p, registry, root, "design", scenarios, tuple(DESIGN),
+                       calibration=p["DESIGN_CALIBRATION"])  # fmt: skip
         design["mode"] = "not used"
-        parts += [plain, used, design]
+        parts.append(design)
         for held in scenarios if left_out else ():
             others = tuple(s for s in scenarios if s != held)
             loo = _runs(p, registry, root, f"not-used-{held}", (held,), others)
@@ -282,9 +297,11 @@ if __name__ == "__main__":
                         help="comma-separated: beam, liver (default both)")
     parser.add_argument("--left-out", action="store_true",
                         help="also the beam's leave-one-path-out calibrations")
+    parser.add_argument("--no-used", action="store_true",
+                        help="leave out the beam's calibrations on its own paths")
     args = parser.parse_args()
     runs = compute(args.quick, args.out, tuple(args.bodies.split(",")),
-                   args.left_out)  # fmt: skip
+                   args.left_out, not args.no_used)  # fmt: skip
     args.out.mkdir(parents=True, exist_ok=True)
     runs.to_parquet(args.out / "physical_stiffness_runs.parquet")
     table = summarise(runs)
