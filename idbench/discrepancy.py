@@ -54,6 +54,14 @@ of every draw (a draw theta_j at step k is the load fraction
 (k / K) theta_lo / theta_j of it): its steps are the samples. The cost is
 reported in fine path simulations (fine steps / K).
 
+The same regression (the same features and weights) gives the mean
+discrepancy of the shape-error grid and of the hidden targets (a model with
+``targets``), and per grid point and per target a residual covariance
+(3 x 3, from the same in-sample or leave-one-scenario-out residuals as C)
+that grows with z like Sigma: the predictive uncertainty of a corrected
+shape is the parameter's propagated covariance plus this one
+(:func:`idbench.targets.grid_columns`).
+
 The fitted :class:`Discrepancy` is cached on disk like the truth
 (:mod:`idbench.truth`'s folder, a hash of both models' descriptions, the
 prior, the settings and the version; atomic writes, a content digest
