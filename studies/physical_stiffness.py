@@ -63,7 +63,8 @@ LIVER_DESIGN = ("cal-grasp-a", "cal-grasp-b", "cal-grasp-c", "cal-push-up",
                 "cal-tilt-b")  # fmt: skip
 LIVER_STEPS = 20
 LIVER_SEEDS = 3
-LIVER_CALIBRATION: dict[str, Any] = {"quantile": 0.25, "scaled_steps": 40}
+LIVER_CALIBRATION: dict[str, Any] = {"quantile": 0.25, "scaled_steps": 40,
+                                     "features": "linear"}
 LIVER_OBSERVATION: dict[str, Any] = {
     "obs_points": (8,), "obs_every": (2,), "noise": (1e-4,), "prior": (2000.0, 2000.0),
 }  # fmt: skip
@@ -86,7 +87,7 @@ QUICK: dict[str, Any] = {
     "LIVER_DESIGN": ("cal-grasp-a", "cal-grasp-b", "cal-grasp-c"),
     "LIVER_STEPS": 6,
     "LIVER_SEEDS": 1,
-    "LIVER_CALIBRATION": {"quantile": 0.25, "scaled_steps": 12},
+    "LIVER_CALIBRATION": {"quantile": 0.25, "scaled_steps": 12},  # quadratic
 }
 
 BEND_TRACTION = 8.9  # Pa, as the registered bending and mixed paths
