@@ -54,6 +54,14 @@ of every draw (a draw theta_j at step k is the load fraction
 (k / K) theta_lo / theta_j of it): its steps are the samples. The cost is
 reported in fine path simulations (fine steps / K).
 
+The same regression (the same features and weights) gives the mean
+discrepancy of the shape-error grid and of the hidden targets (a model with
+``targets``), and per grid point and per target a residual covariance
+(3 x 3, from the same in-sample or leave-one-scenario-out residuals as C)
+that grows with z like Sigma: the predictive uncertainty of a corrected
+shape is the parameter's propagated covariance plus this one
+(:func:`idbench.targets.grid_columns`).
+
 The fitted :class:`Discrepancy` is cached on disk like the truth
 (:mod:`idbench.truth`'s folder, a hash of both models' descriptions, the
 prior, the settings and the version; atomic writes, a content digest
@@ -73,7 +81,7 @@ from typing import Any
 import numpy as np
 
 from idbench.capabilities import member
-from idbench.files import atomic_write, digest, stable_hash
+from idbench.files import digest, stable_hash
 from idbench.interfaces import (
     Cost,
     FloatArray,
@@ -83,8 +91,17 @@ from idbench.interfaces import (
     Prior,
 )
 from idbench.scenario import Scenario
+from idbench.settings import check_choice
 from idbench.transforms import LogTransform
-from idbench.truth import _load, _save, cache_dir, probe, truth_key
+from idbench.truth import (
+    _load,
+    _save,
+    cache_dir,
+    probe,
+    read_entry,
+    truth_key,
+    write_entry,
+)
 
 log = logging.getLogger(__name__)
 
@@ -95,14 +112,14 @@ a path with parameter theta (p = 1) depends on (k, theta) only through
 False declares it does not hold. Absent: checked numerically."""
 
 FEATURES = ("linear", "quadratic")
-CORRECTIONS = ("none", "approximation-error")
 
 FLOOR = 1e-4
 """t_0: the residual variance floor, relative to the squared RMS sample |z|."""
 
-FIT_VERSION = 2
+FIT_VERSION = 3
 """Changes when the fit changes (the cache keys on it); 2: C from the
-leave-one-scenario-out residuals where they interpolate."""
+leave-one-scenario-out residuals where they interpolate; 3: the targets'
+discrepancy and the grid's and targets' residual covariances."""
 
 SCALING_TOLERANCE = 1e-6
 """Relative difference under which the load scaling counts as holding."""
@@ -153,11 +170,7 @@ class CalibrationSettings:
             raise ValueError(
                 f"scaled_steps = {self.scaled_steps!r}: need an integer >= 2"
             )
-        if self.features not in FEATURES:
-            raise ValueError(
-                f"features = {self.features!r}: use one of "
-                + ", ".join(repr(f) for f in FEATURES)
-            )
+        check_choice("features", self.features, FEATURES)
         if not (math.isfinite(self.ridge) and self.ridge >= 0):
             raise ValueError(f"ridge = {self.ridge!r}: need a finite value >= 0")
 
@@ -208,6 +221,13 @@ class Discrepancy:
         Regression weights (F, G d) of the shape-error grid discrepancy.
     cov_unit
         C (m, m), the weighted residual covariance.
+    w_targets
+        Regression weights (F, 3 T) of the hidden targets' discrepancy
+        (T = 0: the model has no targets).
+    cov_grid
+        Per grid point, its residual covariance (G, d, d), like C.
+    cov_targets
+        Per target, its residual covariance (T, 3, 3), like C.
     a_inv
         (Phi^T W Phi + ridge)^-1 (F, F), for the prediction variance and the
         leverage.
@@ -232,6 +252,9 @@ class Discrepancy:
     leverage_max: float
     cost: float
     info: dict[str, Any] = field(default_factory=dict, hash=False)
+    w_targets: FloatArray = field(default_factory=lambda: np.zeros((1, 0)))
+    cov_grid: FloatArray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    cov_targets: FloatArray = field(default_factory=lambda: np.zeros((0, 3, 3)))
 
     def mean(self, z: FloatArray) -> FloatArray:
         """mu(z) (m,): the mean marker discrepancy at coarse observation z."""
@@ -240,6 +263,11 @@ class Discrepancy:
     def mean_grid(self, z: FloatArray) -> FloatArray:
         """The mean grid discrepancy (G d,) at coarse observation z."""
         return np.asarray(_features(z, self.scale, self.features)[0] @ self.w_grid)
+
+    def mean_targets(self, z: FloatArray) -> FloatArray:
+        """The mean targets' discrepancy (3 T,) at coarse observation z."""
+        phi = _features(z, self.scale, self.features)[0]
+        return np.asarray(phi @ self.w_targets)
 
     def jacobian(self, z: FloatArray) -> FloatArray:
         """The Jacobian d mu / d z (m, m) at z."""
@@ -252,10 +280,22 @@ class Discrepancy:
         phi = _features(z, self.scale, self.features)[0]
         return float(phi @ self.a_inv @ phi)
 
+    def spread(self, z: FloatArray) -> float:
+        """t(z) + t_0 + h(z): the factor of every residual covariance at z."""
+        t = float(np.sum(np.square(z))) / self.scale**2
+        return t + self.floor + self.leverage(z)
+
     def cov(self, z: FloatArray) -> FloatArray:
         """Sigma(z) = C (|z|^2 / z_s^2 + t_0 + h(z)) (m, m)."""
-        t = float(np.sum(np.square(z))) / self.scale**2
-        return np.asarray(self.cov_unit * (t + self.floor + self.leverage(z)))
+        return np.asarray(self.cov_unit * self.spread(z))
+
+    def grid_cov(self, z: FloatArray) -> FloatArray:
+        """The grid discrepancy's covariance per point (G, d, d) at z."""
+        return np.asarray(self.cov_grid * self.spread(z))
+
+    def targets_cov(self, z: FloatArray) -> FloatArray:
+        """The targets' discrepancy covariance per target (T, 3, 3) at z."""
+        return np.asarray(self.cov_targets * self.spread(z))
 
     def extrapolates(self, z: FloatArray) -> bool:
         """Whether z lies beyond the calibrated load states (leverage above all)."""
@@ -270,6 +310,9 @@ class Discrepancy:
             "w_grid": self.w_grid,
             "cov_unit": self.cov_unit,
             "a_inv": self.a_inv,
+            "w_targets": self.w_targets,
+            "cov_grid": self.cov_grid,
+            "cov_targets": self.cov_targets,
             "scalars": np.array(
                 [self.scale, self.floor, self.leverage_max, self.cost]
             ),
@@ -280,43 +323,32 @@ class Discrepancy:
         arrays = self.arrays()
         meta = json.dumps({"features": self.features, "info": self.info})
         check = digest(np.concatenate([a.ravel() for a in arrays.values()]))
-
-        def write(tmp: Path) -> None:
-            with open(tmp, "wb") as fh:
-                content: dict[str, Any] = {"key": np.array(key),
-                                           "meta": np.array(meta),
-                                           "digest": np.array(check), **arrays}
-                np.savez(fh, **content)  # fmt: skip
-
-        try:
-            atomic_write(path, write)
-        except OSError as exc:
-            log.warning("discrepancy cache %s not writable (%s)", path.parent, exc)
+        content = {"meta": np.array(meta), "digest": np.array(check), **arrays}
+        write_entry(path, key, content, "discrepancy")
 
     @classmethod
     def load(cls, path: Path, key: str) -> Discrepancy | None:
         """The entry at ``path`` if its key and content digest match, else None."""
-        if not path.exists():
-            return None
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                if str(data["key"]) != key:
-                    raise ValueError("key mismatch")
-                names = ("w_obs", "w_grid", "cov_unit", "a_inv", "scalars")
-                arrays = {n: np.array(data[n], dtype=float) for n in names}
-                meta = json.loads(str(data["meta"]))
-                stored = str(data["digest"])
-            check = digest(np.concatenate([a.ravel() for a in arrays.values()]))
-            if stored != check:
+        names = ("w_obs", "w_grid", "cov_unit", "a_inv", "w_targets", "cov_grid",
+                 "cov_targets", "scalars")  # fmt: skip
+
+        def check(data: dict[str, Any]) -> None:
+            arrays = [np.asarray(data[n], dtype=float).ravel() for n in names]
+            if str(data["digest"]) != digest(np.concatenate(arrays)):
                 raise ValueError("content digest mismatch (altered or damaged)")
-            scale, floor, lev, cost = arrays.pop("scalars")
-            return cls(features=meta["features"], scale=float(scale),
-                       floor=float(floor), leverage_max=float(lev),
-                       cost=float(cost), info=meta["info"], **arrays)  # fmt: skip
-        except Exception as exc:  # damaged or foreign: recompute
-            log.warning("discrepancy cache entry %s unusable (%s); recomputing",
-                        path, exc)  # fmt: skip
+            meta = json.loads(str(data["meta"]))
+            if not isinstance(meta.get("features"), str) or "info" not in meta:
+                raise ValueError("meta without features or info")
+
+        data = read_entry(path, key, check, "discrepancy")
+        if data is None:
             return None
+        arrays = {n: np.array(data[n], dtype=float) for n in names}
+        meta = json.loads(str(data["meta"]))
+        scale, floor, lev, cost = arrays.pop("scalars")
+        return cls(features=meta["features"], scale=float(scale), floor=float(floor),
+                   leverage_max=float(lev), cost=float(cost), info=meta["info"],
+                   **arrays)  # fmt: skip
 
 
 # --- the design ---------------------------------------------------------------
@@ -375,62 +407,123 @@ class Samples:
         Fine minus coarse grid displacements (n, G d).
     group
         Index of the scenario of each sample (n,).
+    d_targets
+        Fine minus coarse hidden-target displacements (n, 3 T), T = 0 for a
+        model without targets.
+    grid_dim
+        d, the components of a grid point (the grid is (G, d)).
     """
 
     z: FloatArray
     d_obs: FloatArray
     d_grid: FloatArray
     group: FloatArray
+    d_targets: FloatArray | None = None
+    grid_dim: int = 3
 
 
 Factory = Callable[[ModelSpec], ForwardModel]
 
 
-def simulate_samples(
-    factory: Factory,
-    coarse: ModelSpec,
-    fine_mesh: str,
-    scenarios: Sequence[Scenario],
-    prior: Prior,
-    settings: CalibrationSettings,
-) -> tuple[Samples, float, bool]:
-    """Fine and coarse paths over the design; the samples and their fine cost.
+@dataclass(frozen=True)
+class Design:
+    """What a calibration simulates: the coarse model, the finer mesh, the paths.
 
-    Returns the samples, the fine path simulations they took (fine steps /
-    K) and whether the load scaling was used.
+    Attributes
+    ----------
+    factory
+        The registered model factory (the same model on both meshes).
+    coarse
+        The coarse model's spec (its scenario is replaced by each of
+        ``scenarios``; its markers and settings are kept).
+    fine_mesh
+        The finer mesh of the same body.
+    scenarios
+        The design's load paths.
+    prior
+        The prior the design draws from.
+    settings
+        The design and the regression.
     """
-    scaled = scaling_holds(factory(coarse))
-    K = coarse.n_steps
-    zs, dos, dgs, groups = [], [], [], []
-    fine_steps = 0
-    for g, scenario in enumerate(scenarios):
-        if scaled:
-            steps = settings.scaled_steps
-            thetas = prior_quantile(prior, settings.quantile)[None, :]
-        else:
-            steps = K
-            thetas = prior_draws(prior, settings.draws, settings.seed)
-        fine = factory(replace(coarse, mesh=fine_mesh, scenario=scenario,
-                               n_steps=steps))  # fmt: skip
-        crs = factory(replace(coarse, scenario=scenario, n_steps=steps))
-        for theta in thetas:
-            path = probe(fine, fine_path(fine, theta))  # cached like a truth
-            fine_steps += len(path.states)
-            states = _reach(crs, theta, len(path.states))
-            n = len(states)
-            if n < steps:
-                log.warning("calibration of %s on %s: load states up to step %d of "
-                            "%d (the models fail beyond)", coarse.mesh,
-                            scenario.name, n, steps)  # fmt: skip
-            z = np.array([crs.observe(s) for s in states])
-            zg = np.array([np.ravel(crs.grid(s)) for s in states])
-            zs.append(z)
-            dos.append(path.observations[:n] - z)
-            dgs.append(path.grid[:n].reshape(n, -1) - zg)
-            groups.append(np.full(n, g))
-    samples = Samples(np.vstack(zs), np.vstack(dos), np.vstack(dgs),
-                      np.concatenate(groups).astype(float))  # fmt: skip
-    return samples, fine_steps / K, scaled
+
+    factory: Factory
+    coarse: ModelSpec
+    fine_mesh: str
+    scenarios: Sequence[Scenario]
+    prior: Prior
+    settings: CalibrationSettings
+
+    def key(self) -> str:
+        """Cache key: both models' descriptions per scenario, prior, settings."""
+        from idbench import __version__
+
+        descs = []
+        for sc in self.scenarios:
+            for mesh in (self.coarse.mesh, self.fine_mesh):
+                spec = replace(self.coarse, mesh=mesh, scenario=sc)
+                descs.append(self.factory(spec).describe())
+        prior = [list(self.prior.mean), list(self.prior.std)]
+        return stable_hash(
+            {"models": descs, "prior": prior, "settings": asdict(self.settings),
+             "version": __version__, "fit": FIT_VERSION},
+            length=24,
+        )  # fmt: skip
+
+    def samples(self) -> tuple[Samples, float, bool]:
+        """Fine and coarse paths over the design; the samples and their fine cost.
+
+        Returns the samples, the fine path simulations they took (fine steps /
+        K) and whether the load scaling was used.
+        """
+        factory, coarse, settings = self.factory, self.coarse, self.settings
+        scaled = scaling_holds(factory(coarse))
+        K = coarse.n_steps
+        zs, dos, dgs, dts, groups = [], [], [], [], []
+        dim = 3
+        fine_steps = 0
+        for g, scenario in enumerate(self.scenarios):
+            if scaled:
+                steps = settings.scaled_steps
+                thetas = prior_quantile(self.prior, settings.quantile)[None, :]
+            else:
+                steps = K
+                thetas = prior_draws(self.prior, settings.draws, settings.seed)
+            fine = factory(replace(coarse, mesh=self.fine_mesh, scenario=scenario,
+                                   n_steps=steps))  # fmt: skip
+            crs = factory(replace(coarse, scenario=scenario, n_steps=steps))
+            for theta in thetas:
+                path = probe(fine, fine_path(fine, theta))  # cached like a truth
+                fine_steps += len(path.states)
+                states = _reach(crs, theta, len(path.states))
+                n = len(states)
+                if n < steps:
+                    log.warning("calibration of %s on %s: load states up to step %d "
+                                "of %d (the models fail beyond)", coarse.mesh,
+                                scenario.name, n, steps)  # fmt: skip
+                z = np.array([crs.observe(s) for s in states])
+                zg = np.array([np.ravel(crs.grid(s)) for s in states])
+                dim = int(np.shape(path.grid)[-1])
+                zs.append(z)
+                dos.append(path.observations[:n] - z)
+                dgs.append(path.grid[:n].reshape(n, -1) - zg)
+                dts.append(_target_discrepancy(crs, states, path.targets))
+                groups.append(np.full(n, g))
+        samples = Samples(np.vstack(zs), np.vstack(dos), np.vstack(dgs),
+                          np.concatenate(groups).astype(float), np.vstack(dts),
+                          dim)  # fmt: skip
+        return samples, fine_steps / K, scaled
+
+
+def _target_discrepancy(
+    coarse: ForwardModel, states: FloatArray, fine: FloatArray | None
+) -> FloatArray:
+    """Fine minus coarse target displacements (n, 3 T); (n, 0) without targets."""
+    targets = member(coarse, "targets")
+    n = len(states)
+    if not callable(targets) or fine is None:
+        return np.zeros((n, 0))
+    moved = np.array([np.ravel(targets(s)) for s in states], dtype=float)
+    return np.asarray(fine[:n].reshape(n, -1) - moved)
 
 
 def _reach(model: ForwardModel, theta: FloatArray, n: int) -> FloatArray:
@@ -516,11 +609,18 @@ def fit(samples: Samples, settings: CalibrationSettings) -> Discrepancy:
     w = 1.0 / (t + FLOOR)
     a_inv = _weighted_fit(phi, w, settings.ridge)
     pw = (phi * w[:, None]).T
-    w_obs = a_inv @ (pw @ samples.d_obs)
-    w_grid = a_inv @ (pw @ samples.d_grid)
-    res = samples.d_obs - phi @ w_obs
+    d_targets = samples.d_targets
+    if d_targets is None:
+        d_targets = np.zeros((len(z), 0))
+    m, ng = samples.d_obs.shape[1], samples.d_grid.shape[1]
+    y = np.hstack([samples.d_obs, samples.d_grid, d_targets])
+    weights = a_inv @ (pw @ y)
+    w_obs, w_grid, w_targets = weights[:, :m], weights[:, m:m + ng], weights[:, m + ng:]
+    every = y - phi @ weights
+    res = every[:, :m]
     dof = max(len(z) - phi.shape[1], 1)
     cov_unit = _psd((res * w[:, None]).T @ res / dof)
+    blocks = _block_cov(every[:, m:], w, dof, samples.grid_dim, ng)
     leverage = np.einsum("ij,jk,ik->i", phi, a_inv, phi)
     info: dict[str, Any] = {
         "samples": len(z),
@@ -528,38 +628,61 @@ def fit(samples: Samples, settings: CalibrationSettings) -> Discrepancy:
         "discrepancy_rms": float(np.sqrt(np.mean(samples.d_obs**2))),
         "covariance": "in-sample",
     }
-    transfer = _transfer_residuals(phi, w, samples, settings.ridge)
+    transfer = _transfer_residuals(phi, w, samples.group, y, m, settings.ridge)
     if transfer is not None:
-        r_out, w_out, rms = transfer
+        r_all, w_out, rms = transfer
         info["loso_rms"] = rms
+        r_out = r_all[:, :m]
         if len(r_out) > phi.shape[1]:
             cov_out = _psd((r_out * w_out[:, None]).T @ r_out / len(r_out))
             if np.trace(cov_out) > np.trace(cov_unit):
                 cov_unit, info["covariance"] = cov_out, "leave-one-scenario-out"
+                blocks = _block_cov(r_all[:, m:], w_out, len(r_out),
+                                    samples.grid_dim, ng)  # fmt: skip
+    cov_grid, cov_targets = blocks
     return Discrepancy(settings.features, scale, w_obs, w_grid, cov_unit, a_inv,
-                       FLOOR, float(leverage.max()), 0.0, info)  # fmt: skip
+                       FLOOR, float(leverage.max()), 0.0, info, w_targets,
+                       cov_grid, cov_targets)  # fmt: skip
+
+
+def _block_cov(
+    res: FloatArray, w: FloatArray, dof: int, dim: int, ng: int
+) -> tuple[FloatArray, FloatArray]:
+    """Per-point weighted residual covariances of the grid (G, d, d) and targets.
+
+    ``res`` (n, G d + 3 T): the grid's residuals, then the targets'.
+    """
+    n = len(res)
+    grid = res[:, :ng].reshape(n, -1, dim)
+    tgt = res[:, ng:].reshape(n, -1, 3)
+    out = []
+    for r in (grid, tgt):
+        out.append(np.einsum("i,ipj,ipk->pjk", w, r, r) / dof)
+    return out[0], out[1]
 
 
 def _transfer_residuals(
-    phi: FloatArray, w: FloatArray, samples: Samples, ridge: float
+    phi: FloatArray, w: FloatArray, group: FloatArray, y: FloatArray, m: int,
+    ridge: float,
 ) -> tuple[FloatArray, FloatArray, float] | None:
     """Leave-one-scenario-out residuals where the others' fit interpolates.
 
     Each scenario is predicted by a fit on the others; its samples within
     that fit's largest training leverage (where the fit would not flag an
-    extrapolation) give the residuals and their weights. Also returns the RMS
-    of every held-out residual. None with fewer than two scenarios.
+    extrapolation) give the residuals of every column of ``y`` and their
+    weights. Also returns the RMS of every held-out residual of the first
+    ``m`` columns (the markers). None with fewer than two scenarios.
     """
-    groups = np.unique(samples.group)
+    groups = np.unique(group)
     if groups.size < 2:
         return None
     kept_r, kept_w, every = [], [], []
     for g in groups:
-        out = samples.group == g
+        out = group == g
         ai = _weighted_fit(phi[~out], w[~out], ridge)
-        wg = ai @ ((phi[~out] * w[~out, None]).T @ samples.d_obs[~out])
-        r = samples.d_obs[out] - phi[out] @ wg
-        every.append(r)
+        wg = ai @ ((phi[~out] * w[~out, None]).T @ y[~out])
+        r = y[out] - phi[out] @ wg
+        every.append(r[:, :m])
         lev_in = np.einsum("ij,jk,ik->i", phi[~out], ai, phi[~out]).max()
         lev_out = np.einsum("ij,jk,ik->i", phi[out], ai, phi[out])
         inside = lev_out <= lev_in
@@ -567,29 +690,6 @@ def _transfer_residuals(
         kept_w.append(w[out][inside])
     rms = float(np.sqrt(np.mean(np.vstack(every) ** 2)))
     return np.vstack(kept_r), np.concatenate(kept_w), rms
-
-
-def discrepancy_key(
-    factory: Factory,
-    coarse: ModelSpec,
-    fine_mesh: str,
-    scenarios: Sequence[Scenario],
-    prior: Prior,
-    settings: CalibrationSettings,
-) -> str:
-    """Cache key of a calibration: both models' descriptions per scenario, etc."""
-    from idbench import __version__
-
-    descs = []
-    for sc in scenarios:
-        for mesh in (coarse.mesh, fine_mesh):
-            descs.append(factory(replace(coarse, mesh=mesh, scenario=sc)).describe())
-    return stable_hash(
-        {"models": descs, "prior": [list(prior.mean), list(prior.std)],
-         "settings": asdict(settings), "version": __version__,
-         "fit": FIT_VERSION},
-        length=24,
-    )  # fmt: skip
 
 
 def fit_discrepancy(
@@ -606,17 +706,8 @@ def fit_discrepancy(
 
     Parameters
     ----------
-    factory
-        The registered model factory (the same model on both meshes).
-    coarse
-        The coarse model's spec (its scenario is replaced by each of
-        ``scenarios``; its markers and settings are kept).
-    fine_mesh
-        The finer mesh of the same body.
-    scenarios
-        The design's load paths.
-    prior
-        The prior the design draws from.
+    factory, coarse, fine_mesh, scenarios, prior
+        What the calibration simulates (the fields of :class:`Design`).
     settings
         The design and the regression (default :class:`CalibrationSettings`).
     cache
@@ -625,16 +716,15 @@ def fit_discrepancy(
     settings = settings or CalibrationSettings()
     if not scenarios:
         raise ValueError("a calibration needs at least one scenario")
-    key = discrepancy_key(factory, coarse, fine_mesh, scenarios, prior, settings)
+    design = Design(factory, coarse, fine_mesh, tuple(scenarios), prior, settings)
+    key = design.key()
     path = cache_dir() / f"discrepancy-{key}.npz"
     found = Discrepancy.load(path, key) if cache else None
     if found is not None:
         return found
     log.info("calibrating %s against %s on %s", coarse.mesh, fine_mesh,
              ", ".join(s.name for s in scenarios))  # fmt: skip
-    samples, cost, scaled = simulate_samples(
-        factory, coarse, fine_mesh, scenarios, prior, settings
-    )
+    samples, cost, scaled = design.samples()
     result = fit(samples, settings)
     info = {
         **result.info, "coarse": coarse.mesh, "fine": fine_mesh,
@@ -680,6 +770,8 @@ class CorrectedModel:
         self.extrapolated = 0
         if member(model, "sensitivity") is not None:
             self.sensitivity = self._sensitivity
+        if member(model, "targets") is not None and discrepancy.w_targets.size:
+            self.targets = self._targets
 
     def __getattr__(self, name: str) -> Any:
         # only called for what this class does not define: the coarse model's
@@ -708,6 +800,23 @@ class CorrectedModel:
         g = np.asarray(self.coarse.grid(state), dtype=float)
         z = np.asarray(self.coarse.observe(state), dtype=float)
         return g + self.discrepancy.mean_grid(z).reshape(g.shape)
+
+    def _targets(self, state: FloatArray) -> FloatArray:
+        """Coarse target displacements plus the mean targets' discrepancy."""
+        moved = member(self.coarse, "targets")
+        t: FloatArray = np.asarray(moved(state), dtype=np.float64)
+        z = np.asarray(self.coarse.observe(state), dtype=float)
+        return np.asarray(t + self.discrepancy.mean_targets(z).reshape(t.shape))
+
+    def grid_cov(self, state: FloatArray) -> FloatArray:
+        """The grid prediction's discrepancy covariance per point (G, d, d)."""
+        z = np.asarray(self.coarse.observe(state), dtype=float)
+        return self.discrepancy.grid_cov(z)
+
+    def targets_cov(self, state: FloatArray) -> FloatArray:
+        """The targets' discrepancy covariance per target (T, 3, 3)."""
+        z = np.asarray(self.coarse.observe(state), dtype=float)
+        return self.discrepancy.targets_cov(z)
 
     def observation_cov(self, state: FloatArray) -> FloatArray:
         """n_obs Sigma(h_c(state)) (m, m): the extra observation covariance."""

@@ -28,6 +28,7 @@ from idbench.interfaces import (
     Observation,
     Prior,
 )
+from idbench.settings import check_choice
 from idbench.transforms import TRANSFORMS, IdentityTransform
 
 CORRECTIONS = ("none", "approximation-error")
@@ -156,21 +157,13 @@ class Filter(_Conventions):
     _run: Run | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        if self.transform not in TRANSFORMS:
-            raise ValueError(
-                f"transform = {self.transform!r} is not allowed; use one of "
-                + ", ".join(repr(a) for a in TRANSFORMS)
-            )
+        check_choice("transform", self.transform, tuple(TRANSFORMS))
         floor = self.sigma_floor
         if not (isinstance(floor, int | float) and math.isfinite(floor) and floor > 0):
             raise ValueError(
                 f"sigma_floor = {floor!r} is not allowed; it must be finite > 0"
             )
-        if self.correction not in CORRECTIONS:
-            raise ValueError(
-                f"correction = {self.correction!r} is not allowed; use one of "
-                + ", ".join(repr(a) for a in CORRECTIONS)
-            )
+        check_choice("correction", self.correction, CORRECTIONS)
 
     # --- what a subclass writes --------------------------------------------
 

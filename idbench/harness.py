@@ -356,6 +356,11 @@ def _run_on(
                 truth.targets[-1],  # type: ignore[index]
             )
         )  # fmt: skip
+    if "calibration_cost" in row:  # corrected: the grid's predictive uncertainty
+        row.update(
+            targets.grid_columns(metrics_model, estimator, last, means[-1],
+                                 stds[-1], truth.grid[-1])
+        )  # fmt: skip
     row["warning"] = run_warning(
         model.parameters, stream, truth, spec.noise, means[-1],
         np.array([row[f"{n}_ref"] for n in spec.setup.names]),

@@ -36,6 +36,15 @@ def finite_number(x: Any) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
+def check_choice(name: str, value: Any, allowed: typing.Sequence[str]) -> None:
+    """Raise ``ValueError`` (one line) unless ``value`` is one of ``allowed``."""
+    if value not in allowed:
+        raise ValueError(
+            f"{name} = {value!r} is not allowed; use one of "
+            + ", ".join(repr(a) for a in allowed)
+        )
+
+
 # --- building a settings object ------------------------------------------------
 
 

@@ -28,6 +28,18 @@ run:
 
 A model without targets gives no such columns and costs nothing.
 
+Under the approximation-error correction (:mod:`idbench.discrepancy`) the
+model's targets and grid carry the calibrated mean discrepancy, and the
+predicted covariance adds the discrepancy's own (``targets_cov`` /
+``grid_cov`` of the corrected model) to the parameter's propagated one:
+C = C_theta + Sigma_d. For the shape-error grid the same (:func:`grid_columns`):
+
+- ``grid_std_final_mm``: sqrt(trace C) averaged over the grid points (mm);
+- ``grid_covered_final``: the share of grid points whose true displacement
+  lies in the 95% region of N(prediction, C) (as ``tre_covered_final``);
+- ``grid_disc_std_final_mm``: the discrepancy's part alone (sqrt(trace
+  Sigma_d), mean over points).
+
 On a recording (``--data``, :mod:`idbench.recording`) the truth's targets are
 the recording's held-out targets, and its held-out marker tracks score each
 step's ``heldout_mm``: the mean distance (mm) between the model's markers
@@ -37,6 +49,7 @@ step's ``heldout_mm``: the mean distance (mm) between the model's markers
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -122,6 +135,9 @@ def final_columns(
     true = np.asarray(truth_targets, dtype=float).reshape(moved.shape)
     tre = metrics.target_registration_error(moved, true)
     cov, how = covariance(model, estimator, state.size, mean, std)
+    extra = getattr(model, "targets_cov", None)
+    if extra is not None:  # the corrected model's discrepancy at the targets
+        cov = cov + np.asarray(extra(state), dtype=float).reshape(cov.shape)
     covered = [
         metrics.ellipsoid_covers(true[t] - moved[t], cov[t]) for t in range(len(moved))
     ]
@@ -135,38 +151,82 @@ def final_columns(
     }
 
 
+def grid_columns(
+    model: ForwardModel,
+    estimator: Any,
+    state: FloatArray,
+    mean: FloatArray,
+    std: FloatArray,
+    truth_grid: FloatArray,
+) -> dict[str, Any]:
+    """The predictive uncertainty of the shape-error grid at the last step.
+
+    Arguments as :func:`final_columns` (``truth_grid``: the truth's grid
+    displacements (G, d)); the columns are the module's ``grid_*``.
+    """
+    pred = _grid(model, state)
+    true = np.asarray(truth_grid, dtype=float).reshape(pred.shape)
+    cov, _ = covariance(model, estimator, state.size, mean, std, _grid)
+    disc = np.zeros_like(cov)
+    extra = getattr(model, "grid_cov", None)
+    if extra is not None:
+        disc = np.asarray(extra(state), dtype=float).reshape(cov.shape)
+    cov = cov + disc
+    covered = [metrics.ellipsoid_covers(true[g] - pred[g], cov[g])
+               for g in range(len(pred))]  # fmt: skip
+
+    def spread(c: FloatArray) -> float:
+        tr = np.clip(np.trace(c, axis1=1, axis2=2), 0.0, None)
+        return float(MM * np.sqrt(tr).mean())
+
+    return {
+        "grid_std_final_mm": spread(cov),
+        "grid_disc_std_final_mm": spread(disc),
+        "grid_covered_final": float(np.mean(covered)),
+    }
+
+
 def covariance(
-    model: ForwardModel, estimator: Any, n: int, mean: FloatArray, std: FloatArray
+    model: ForwardModel, estimator: Any, n: int, mean: FloatArray, std: FloatArray,
+    points: Callable[[Any, FloatArray], FloatArray] | None = None,
 ) -> tuple[FloatArray, str]:
     """Predicted covariance (T, 3, 3) of the targets at the last step, and how.
 
     From the estimator's ensemble if it has one (rows [u (n,), ...]), else the
     parameter std through a forward-difference Jacobian (see the module).
-    NaN where the estimator gives no std.
+    NaN where the estimator gives no std. ``points(model, state)`` (P, d):
+    other points than the targets (the grid: :func:`grid_columns`).
     """
+    at = _moved if points is None else points
     members = _ensemble(estimator, n)
     if members is not None:
-        moved = np.array([_moved(model, u) for u in members])
+        moved = np.array([at(model, u) for u in members])
         d = moved - moved.mean(axis=0)
         cov = np.einsum("ntj,ntk->tjk", d, d) / (len(members) - 1)
         return cov, "ensemble"
     mean = np.asarray(mean, dtype=float)
     std = np.asarray(std, dtype=float)
-    t = len(_moved(model, np.zeros(n)))
+    shape = at(model, np.zeros(n)).shape
     if not np.all(np.isfinite(std)):
-        return np.full((t, 3, 3), np.nan), "jacobian"
+        return np.full((shape[0], shape[1], shape[1]), np.nan), "jacobian"
     try:
-        return _jacobian_covariance(model, mean, std, t), "jacobian"
+        return _jacobian_covariance(model, mean, std, at), "jacobian"
     except ModelFailure:  # a perturbed path that does not solve: no region
-        return np.full((t, 3, 3), np.nan), "jacobian"
+        return np.full((shape[0], shape[1], shape[1]), np.nan), "jacobian"
 
 
 def _jacobian_covariance(
-    model: ForwardModel, mean: FloatArray, std: FloatArray, t: int
+    model: ForwardModel, mean: FloatArray, std: FloatArray,
+    at: Callable[[Any, FloatArray], FloatArray],
 ) -> FloatArray:
-    """J diag(std^2) J^T (T, 3, 3), J by forward differences of the target map."""
-    base = _targets_at(model, mean)
-    jac = np.empty((t, 3, mean.size))
+    """J diag(std^2) J^T (P, d, d), J by forward differences of the point map."""
+
+    def points_at(theta: FloatArray) -> FloatArray:
+        return at(model, simulate_path(model, theta)[-1])
+
+    base = points_at(mean)
+    t, dim = base.shape
+    jac = np.empty((t, dim, mean.size))
     for j in range(mean.size):
         h = FD_STEP * max(abs(float(mean[j])), float(std[j]), 1e-300)
         shifted = mean.copy()
@@ -174,14 +234,14 @@ def _jacobian_covariance(
         if not model.parameters.contains(shifted):
             shifted[j] -= 2 * h
             h = -h
-        jac[:, :, j] = (_targets_at(model, shifted) - base) / h
+        jac[:, :, j] = (points_at(shifted) - base) / h
     return np.asarray(np.einsum("tjp,p,tkp->tjk", jac, std**2, jac))
 
 
-def _targets_at(model: ForwardModel, theta: FloatArray) -> FloatArray:
-    """The targets (T, 3) at the last step of ``model``'s path at ``theta``."""
-    states = simulate_path(model, theta)
-    return _moved(model, states[-1])
+def _grid(model: Any, state: FloatArray) -> FloatArray:
+    """``model.grid(state)`` (G, d), floats."""
+    g = np.asarray(model.grid(state), dtype=np.float64)
+    return g.reshape(len(g), -1)
 
 
 def _moved(model: Any, state: FloatArray) -> FloatArray:

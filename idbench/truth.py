@@ -195,12 +195,14 @@ def _check_finite(values: FloatArray, what: str) -> None:
         )
 
 
-def _load(path: Path, key: str, shape: tuple[int, int]) -> FloatArray | None:
-    """The cached states at ``path``, or None if missing or not to be trusted.
+def read_entry(
+    path: Path, key: str, check: Callable[[dict[str, Any]], None], what: str
+) -> dict[str, Any] | None:
+    """The arrays of the cache entry at ``path``, or None if missing or untrusted.
 
-    An entry is trusted only if its key, its shape and the SHA-256 digest of its
-    content (stored with it) all match: a truncated, foreign or altered file is
-    recomputed.
+    The entry must hold ``key``; ``check(arrays)`` raises ``ValueError`` for
+    content not to be trusted (shape, digest). An unusable entry is logged
+    (``what``: ``"truth"``, ``"discrepancy"``) and None returned: recomputed.
     """
     if not path.exists():
         return None
@@ -208,34 +210,56 @@ def _load(path: Path, key: str, shape: tuple[int, int]) -> FloatArray | None:
         with np.load(path, allow_pickle=False) as data:
             if str(data["key"]) != key:
                 raise ValueError("key mismatch")
-            states = np.array(data["states"], dtype=float)
-            stored = str(data["digest"]) if "digest" in data else ""
-        if states.shape != shape:
-            raise ValueError(f"states of shape {states.shape}, expected {shape}")
-        if not stored:
-            raise ValueError("written by an older idbench (no content digest)")
-        if stored != digest(states):
-            raise ValueError("content digest mismatch (altered or damaged)")
-        if not np.all(np.isfinite(states)):
-            raise ValueError("non-finite states")
-        return states
+            arrays = {name: np.array(data[name]) for name in data.files}
+        check(arrays)
+        return arrays
     except Exception as exc:  # truncated, foreign or altered file: recompute
-        log.warning("truth cache entry %s unusable (%s); recomputing", path, exc)
+        log.warning("%s cache entry %s unusable (%s); recomputing", what, path, exc)
         return None
 
 
-def _save(path: Path, key: str, states: FloatArray) -> None:
-    """Store ``states`` with its key and digest; warn (not fail) if impossible."""
+def write_entry(path: Path, key: str, arrays: dict[str, Any], what: str) -> None:
+    """Store ``arrays`` with ``key`` atomically (``.npz``, no pickle), or warn."""
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as fh:
-            np.savez(fh, key=np.array(key), states=states, digest=digest(states))
+            np.savez(fh, key=np.array(key), **arrays)
 
     try:
         atomic_write(path, write)
     except OSError as exc:
         log.warning(
-            "truth cache %s is not writable (%s); going on without caching",
+            "%s cache %s is not writable (%s); going on without caching",
+            what,
             path.parent,
             exc,
         )
+
+
+def _load(path: Path, key: str, shape: tuple[int, int]) -> FloatArray | None:
+    """The cached states at ``path``, or None if missing or not to be trusted.
+
+    An entry is trusted only if its key, its shape and the SHA-256 digest of its
+    content (stored with it) all match: a truncated, foreign or altered file is
+    recomputed.
+    """
+
+    def check(arrays: dict[str, Any]) -> None:
+        states = arrays["states"]
+        if states.shape != shape:
+            raise ValueError(f"states of shape {states.shape}, expected {shape}")
+        stored = str(arrays["digest"]) if "digest" in arrays else ""
+        if not stored:
+            raise ValueError("written by an older idbench (no content digest)")
+        if stored != digest(np.asarray(states, dtype=float)):
+            raise ValueError("content digest mismatch (altered or damaged)")
+        if not np.all(np.isfinite(states)):
+            raise ValueError("non-finite states")
+
+    arrays = read_entry(path, key, check, "truth")
+    return None if arrays is None else np.array(arrays["states"], dtype=float)
+
+
+def _save(path: Path, key: str, states: FloatArray) -> None:
+    """Store ``states`` with its key and digest; warn (not fail) if impossible."""
+    write_entry(path, key, {"states": states, "digest": digest(states)}, "truth")

@@ -46,7 +46,31 @@ ESTIMATORS = ("ro-ukf",)  # the others: see the README (idbench compare)
 SEEDS = 3
 STEPS = 20
 CALIBRATION: dict[str, Any] = {}  # CalibrationSettings fields (defaults)
-MODES = ("uncorrected", "used", "not used")
+# the design's: its fine paths start at the prior's 20% quantile of E, 30
+# steps (6 paths x 30 / 20 = 9 fine path simulations per coarse mesh)
+DESIGN_CALIBRATION: dict[str, Any] = {"quantile": 0.2, "scaled_steps": 30}
+MODES = ("uncorrected", "used", "not used", "left out")
+
+# The liver (examples/liver/body.toml: neo-Hookean, E = 4 kPa, 8 anterior
+# markers), its three manipulations; "not used" is calibrated on the design
+# body examples/liver/calibration.toml (other grasp forces, shifted pressure
+# caps, tilted gravity) whose loads span the three without containing them.
+LIVER_MESHES = ("500", "1000")
+LIVER_TRUTH = "4000"  # the example's truth; also the calibration mesh
+LIVER_SCENARIOS = ("grasp-lift", "lateral-push", "sag-90")
+LIVER_DESIGN = ("cal-grasp-a", "cal-grasp-b", "cal-grasp-c", "cal-push-up",
+                "cal-push-down", "cal-push-in", "cal-push-out", "cal-tilt-a",
+                "cal-tilt-b")  # fmt: skip
+LIVER_STEPS = 20
+LIVER_SEEDS = 3
+LIVER_CALIBRATION: dict[str, Any] = {"quantile": 0.25, "scaled_steps": 40,
+                                     "features": "linear"}
+LIVER_OBSERVATION: dict[str, Any] = {
+    "obs_points": (8,), "obs_every": (2,), "noise": (1e-4,), "prior": (2000.0, 2000.0),
+}  # fmt: skip
+LIVER_DESIGN_BODY = Path(__file__).resolve().parent.parent / "examples" / "liver" / (
+    "calibration.toml"
+)
 
 QUICK: dict[str, Any] = {
     "MESHES": ("6x2x2",),
@@ -56,13 +80,39 @@ QUICK: dict[str, Any] = {
     "SEEDS": 1,
     "STEPS": 8,
     "CALIBRATION": {"scaled_steps": 12},
+    "DESIGN_CALIBRATION": {"quantile": 0.2, "scaled_steps": 12},
+    "LIVER_MESHES": ("150",),
+    "LIVER_TRUTH": "600",
+    "LIVER_SCENARIOS": ("grasp-lift",),
+    "LIVER_DESIGN": ("cal-grasp-a", "cal-grasp-b", "cal-grasp-c"),
+    "LIVER_STEPS": 6,
+    "LIVER_SEEDS": 1,
+    "LIVER_CALIBRATION": {"quantile": 0.25, "scaled_steps": 12},  # quadratic
 }
 
 BEND_TRACTION = 8.9  # Pa, as the registered bending and mixed paths
+STRETCH_TRACTION = 250.0  # Pa, as stretch-x
+
+# The beam's calibration design (mode "not used"): six end tractions (Pa),
+# none of them a path of SCENARIOS, whose cone holds every one of them (each
+# path's traction is a combination of them with coefficients >= 0): along +x,
+# -y and -z each tilted by 0.2 of the bending traction towards the other two
+# axes, one way (cal-x, cal-y, cal-z) and the other (cal-x2, cal-y2, cal-z2).
+# The x components of the bending ones stay at +-0.5 Pa: an end compression
+# beyond a few Pa buckles the beam at the prior's low E.
+_T = 0.2 * BEND_TRACTION
+DESIGN: dict[str, tuple[float, float, float]] = {
+    "cal-x": (STRETCH_TRACTION, _T, _T),
+    "cal-y": (-0.5, -BEND_TRACTION, _T),
+    "cal-z": (-0.5, _T, -BEND_TRACTION),
+    "cal-x2": (STRETCH_TRACTION, -_T, -_T),
+    "cal-y2": (0.5, -BEND_TRACTION, -_T),
+    "cal-z2": (0.5, -_T, -BEND_TRACTION),
+}
 
 
 def new_paths(registry: Registry) -> Registry:
-    """The registry with the two new directions (beam end tractions)."""
+    """The registry with the two new directions and the design (end tractions)."""
     a = math.radians(45.0)
     r = math.sqrt(0.5)
     new = [
@@ -73,6 +123,20 @@ def new_paths(registry: Registry) -> Registry:
                              "magnitude": BEND_TRACTION}, "stretch-x",
                  "bending along the y-z diagonal"),
     ]  # fmt: skip
+    for name, t in DESIGN.items():
+        size = math.sqrt(sum(c * c for c in t))
+        load = {"direction": [c / size for c in t], "magnitude": size}
+        new.append(Scenario(name, load, "", "calibration design"))
+    return registry.with_scenarios(new, "physical_stiffness")
+
+
+def liver_design(registry: Registry, body: Path = LIVER_DESIGN_BODY) -> Registry:
+    """The registry with the liver calibration design's manipulations."""
+    from idbench_fem.bodies.catalog import get_body
+
+    spec = str(body)
+    found = [m.name for m in get_body(spec).manipulations]
+    new = [Scenario(n, {"body": spec, "manipulation": n}) for n in found]
     return registry.with_scenarios(new, "physical_stiffness")
 
 
@@ -83,46 +147,87 @@ def _runs(
     name: str,
     scenarios: tuple[str, ...],
     design: tuple[str, ...] | None,
+    body: str = "beam",
+    calibration: dict[str, Any] | None = None,
 ) -> pd.DataFrame:
-    """One comparison: uncorrected (``design`` None) or calibrated on ``design``."""
+    """One comparison: uncorrected (``design`` None) or calibrated on ``design``.
+
+    ``calibration``: the calibration settings (default the body's).
+    """
     settings = (
         {}
         if design is None
         else {e: {"correction": "approximation-error"} for e in p["ESTIMATORS"]}
     )
-    config = CompareConfig(
-        scenarios=scenarios, meshes=p["MESHES"], truth_mesh=p["TRUTH"],
-        estimators=p["ESTIMATORS"], seeds=p["SEEDS"], steps=p["STEPS"],
-        estimator_settings=settings,
-        calibration={**p["CALIBRATION"], "scenarios": list(design or ())},
-    )  # fmt: skip
+    if body == "beam":
+        common: dict[str, Any] = dict(
+            meshes=p["MESHES"], truth_mesh=p["TRUTH"], seeds=p["SEEDS"],
+            steps=p["STEPS"], calibration={**(calibration or p["CALIBRATION"]),
+                                           "scenarios": list(design or ())},
+        )  # fmt: skip
+    else:
+        common = dict(
+            meshes=p["LIVER_MESHES"], truth_mesh=p["LIVER_TRUTH"],
+            seeds=p["LIVER_SEEDS"], steps=p["LIVER_STEPS"], model="solid",
+            model_settings={"solid": {"body": "liver",
+                                      "reference": p["LIVER_TRUTH"]}},
+            calibration={**p["LIVER_CALIBRATION"], "scenarios": list(design or ())},
+            **LIVER_OBSERVATION,
+        )  # fmt: skip
+    config = CompareConfig(scenarios=scenarios, estimators=p["ESTIMATORS"],
+                           estimator_settings=settings, **common)  # fmt: skip
     runs, _ = compare(config, None if out is None else out / name, registry=registry)
+    runs["body"] = body
     return runs
 
 
-def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
-    """Runs of every (mode, mesh, path, estimator, seed); one row each.
+def compute(
+    quick: bool = False,
+    out: str | Path | None = None,
+    bodies: tuple[str, ...] = ("beam", "liver"),
+    left_out: bool = False,
+    used: bool = True,
+) -> pd.DataFrame:
+    """Runs of every (body, mode, mesh, path, estimator, seed); one row each.
 
-    Columns: the runs table's, plus ``mode`` and ``E_ratio`` (E_final /
-    E_true); ``extrapolated`` (the correction warned it extrapolated).
+    Columns: the runs table's, plus ``body``, ``mode`` and ``E_ratio``
+    (E_final / E_true); ``extrapolated`` (the correction warned it
+    extrapolated). ``left_out``: also the beam's leave-one-path-out
+    calibrations (mode ``"left out"``); ``used`` False: not the beam's
+    calibrations on the paths' own directions (mode ``"used"``).
     """
     p = {k: globals()[k] for k in QUICK}
     if quick:
         p.update(QUICK)
     root = None if out is None else Path(out)
-    registry = new_paths(build_registry())
-    scenarios = tuple(p["SCENARIOS"])
+    registry = liver_design(new_paths(build_registry()))
     parts = []
-    plain = _runs(p, registry, root, "uncorrected", scenarios, None)
-    plain["mode"] = "uncorrected"
-    used = _runs(p, registry, root, "used", scenarios, scenarios)
-    used["mode"] = "used"
-    parts += [plain, used]
-    for held in scenarios:
-        others = tuple(s for s in scenarios if s != held)
-        loo = _runs(p, registry, root, f"not-used-{held}", (held,), others)
-        loo["mode"] = "not used"
-        parts.append(loo)
+    if "beam" in bodies:
+        scenarios = tuple(p["SCENARIOS"])
+        plain = _runs(p, registry, root, "uncorrected", scenarios, None)
+        plain["mode"] = "uncorrected"
+        parts.append(plain)
+        if used:
+            own = _runs(p, registry, root, "used", scenarios, scenarios)
+            own["mode"] = "used"
+            parts.append(own)
+        design = _runs(p, registry, root, "design", scenarios, tuple(DESIGN),
+                       calibration=p["DESIGN_CALIBRATION"])  # fmt: skip
+        design["mode"] = "not used"
+        parts.append(design)
+        for held in scenarios if left_out else ():
+            others = tuple(s for s in scenarios if s != held)
+            loo = _runs(p, registry, root, f"not-used-{held}", (held,), others)
+            loo["mode"] = "left out"
+            parts.append(loo)
+    if "liver" in bodies:
+        scenarios = tuple(p["LIVER_SCENARIOS"])
+        for mode, design in (("uncorrected", None), ("used", scenarios),
+                             ("not used", tuple(p["LIVER_DESIGN"]))):  # fmt: skip
+            name = "liver-" + mode.replace(" ", "-")
+            runs = _runs(p, registry, root, name, scenarios, design, "liver")
+            runs["mode"] = mode
+            parts.append(runs)
     runs = pd.concat(parts, ignore_index=True)
     runs["E_ratio"] = runs["E_final"] / runs["E_true"]
     warning = runs["warning"].fillna("").astype(str)
@@ -130,8 +235,8 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     return runs
 
 
-def summarise(runs: pd.DataFrame, by: tuple[str, ...] = ("mode", "model_nodes",
-              "estimator")) -> pd.DataFrame:  # fmt: skip
+def summarise(runs: pd.DataFrame, by: tuple[str, ...] = ("body", "mode",
+              "model_nodes", "estimator")) -> pd.DataFrame:  # fmt: skip
     """Median |E/E_true - 1|, coverage of E_true, mean NEES, ... per group."""
     ok = runs[runs["status"] == "ok"].copy()
     ok["abs_err"] = ok["E_relerr_true"].abs()
@@ -157,8 +262,9 @@ def plot(runs: pd.DataFrame, path: Path) -> None:
 
     ok = runs[(runs["status"] == "ok") & (runs["estimator"] == "ro-ukf")]
     fig, axs = plt.subplots(1, 2, figsize=(11, 4))
-    for i, mode in enumerate(MODES):
-        d = ok[ok["mode"] == mode]
+    cases = [(b, m) for b in ("beam", "liver") for m in MODES]
+    for i, (body, mode) in enumerate(cases):
+        d = ok[(ok["mode"] == mode) & (ok["body"] == body)]
         if d.empty:
             continue
         g = d.groupby("model_nodes")
@@ -167,9 +273,11 @@ def plot(runs: pd.DataFrame, path: Path) -> None:
         lo, hi = g["E_ratio"].min().reindex(nodes), g["E_ratio"].max().reindex(nodes)
         cover = g["E_cover95_true"].mean().reindex(nodes)
         st = style(i)
-        axs[0].errorbar(nodes * (1 + 0.03 * (i - 1)), med, yerr=[med - lo, hi - med],
-                        capsize=3, label=mode, **st)  # fmt: skip
-        axs[1].plot(nodes, cover, label=mode, **st)
+        label = f"{body}: {mode}"
+        shift = 1 + 0.03 * (MODES.index(mode) - 1)
+        axs[0].errorbar(nodes * shift, med, yerr=[med - lo, hi - med], capsize=3,
+                        label=label, **st)  # fmt: skip
+        axs[1].plot(nodes, cover, label=label, **st)
     axs[0].axhline(1.0, color="0.4", ls="--", lw=1)
     axs[0].set_ylabel("identified E / E_true (median, range over paths, seeds)")
     axs[1].axhline(0.95, color="0.4", ls="--", lw=1)
@@ -186,13 +294,21 @@ def plot(runs: pd.DataFrame, path: Path) -> None:
 
 if __name__ == "__main__":
     parser = _cli.parser(__doc__, "results/physical")
+    parser.add_argument("--bodies", default="beam,liver",
+                        help="comma-separated: beam, liver (default both)")
+    parser.add_argument("--left-out", action="store_true",
+                        help="also the beam's leave-one-path-out calibrations")
+    parser.add_argument("--no-used", action="store_true",
+                        help="leave out the beam's calibrations on its own paths")
     args = parser.parse_args()
-    runs = compute(args.quick, args.out)
+    runs = compute(args.quick, args.out, tuple(args.bodies.split(",")),
+                   args.left_out, not args.no_used)  # fmt: skip
     args.out.mkdir(parents=True, exist_ok=True)
     runs.to_parquet(args.out / "physical_stiffness_runs.parquet")
     table = summarise(runs)
     table.to_csv(args.out / "physical_stiffness.csv", index=False)
-    by_path = summarise(runs, ("mode", "model_nodes", "scenario", "estimator"))
+    by_path = summarise(runs, ("body", "mode", "model_nodes", "scenario",
+                               "estimator"))  # fmt: skip
     by_path.to_csv(args.out / "physical_stiffness_paths.csv", index=False)
     with pd.option_context("display.width", 250, "display.max_columns", 40):
         print(table.to_string(index=False))

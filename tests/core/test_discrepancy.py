@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -203,3 +204,82 @@ def test_a_correction_with_another_observation_model_is_refused(tmp_path, capsys
     err = capsys.readouterr().err
     assert "needs observe = 'markers'" in err and "'cloud'" in err
     assert len(err.strip().splitlines()) == 1
+
+
+LIVER_DESIGN = ("cal-grasp-a", "cal-grasp-b", "cal-grasp-c")
+
+
+def _liver_compare(design: tuple[str, ...] | None) -> Any:
+    """RO-UKF on a tiny liver (150 nodes against 600), grasp-lift, 6 steps."""
+    from pathlib import Path
+
+    from idbench import Scenario
+
+    body = str(Path(__file__).resolve().parents[2] / "examples/liver/calibration.toml")
+    reg = REG.with_scenarios(
+        [Scenario(n, {"body": body, "manipulation": n}) for n in LIVER_DESIGN],
+        "test",
+    )
+    on = {"correction": "approximation-error"}
+    settings = {} if design is None else {"ro-ukf": on}
+    config = CompareConfig(
+        scenarios=("grasp-lift",), meshes=("150",), truth_mesh="600",
+        estimators=("ro-ukf",), seeds=1, steps=6, obs_points=(8,), obs_every=(2,),
+        noise=(1e-4,), prior=(2000.0, 2000.0), model="solid",
+        model_settings={"solid": {"body": "liver", "reference": "600"}},
+        estimator_settings=settings,
+        calibration={"quantile": 0.25, "scaled_steps": 12,
+                     "scenarios": list(design or ())},
+    )  # fmt: skip
+    runs, _ = compare(config, None, registry=reg)
+    return runs
+
+
+def test_on_the_liver_a_design_of_other_grasps_gives_the_tissue_e():
+    """Calibrated on grasps in three other directions (not grasp-lift's)."""
+    plain = _liver_compare(None)
+    fixed = _liver_compare(LIVER_DESIGN)
+    assert (plain["status"] == "ok").all() and (fixed["status"] == "ok").all()
+    assert plain["E_cover95_true"].mean() == 0
+    assert fixed["E_cover95_true"].mean() == 1
+    assert fixed["E_relerr_true"].abs().max() < 0.1
+    assert plain["E_relerr_true"].abs().min() > 0.1
+    assert (fixed["calibration_cost"] == 3 * 12 / 6).all()
+    # the predictive uncertainty of the grid and of the hidden targets
+    row = fixed.iloc[0]
+    assert row["grid_std_final_mm"] > row["grid_disc_std_final_mm"] > 0
+    assert 0 <= fixed["grid_covered_final"].iloc[0] <= 1
+    assert "grid_covered_final" not in plain
+    assert fixed["tre_final_mm"].iloc[0] < plain["tre_final_mm"].iloc[0]
+
+
+def test_the_corrected_grid_and_targets_carry_the_discrepancy_and_its_covariance():
+    """The targets' and grid's mean discrepancy and covariance at a load state."""
+    from pathlib import Path
+
+    from idbench import Scenario
+    from idbench.truth import simulate_truth
+
+    solid = REG.model("solid")
+    body = str(Path(__file__).resolve().parents[2] / "examples/liver/calibration.toml")
+    grasp = Scenario("cal-grasp-a", {"body": body, "manipulation": "cal-grasp-a"})
+    coarse = ModelSpec(mesh="150", scenario=grasp, n_steps=4,
+                       settings={"body": "liver", "reference": "600"})  # fmt: skip
+    settings = CalibrationSettings(quantile=0.25, scaled_steps=8)
+    prior = Prior((2000.0,), (2000.0,))
+    disc = fit_discrepancy(solid, coarse, "600", [grasp], prior, settings)
+    model = solid(coarse)
+    fixed = CorrectedModel(model, disc)
+    fine = simulate_truth(solid(replace(coarse, mesh="600")), np.array([3000.0]))
+    state = model.reset()
+    for k in range(1, 5):
+        state = model.step(np.array([3000.0]), k, state)
+    true_t, true_g = fine.targets[-1], fine.grid[-1]
+    err = lambda a, b: float(np.linalg.norm(np.asarray(a) - b))  # noqa: E731
+    assert err(fixed.targets(state), true_t) < 0.5 * err(model.targets(state), true_t)
+    assert err(fixed.grid(state), true_g) < 0.5 * err(model.grid(state), true_g)
+    tc, gc = fixed.targets_cov(state), fixed.grid_cov(state)
+    assert tc.shape == (len(true_t), 3, 3) and gc.shape == (len(true_g), 3, 3)
+    for c in (tc, gc):
+        assert np.all(np.linalg.eigvalsh(c) >= -1e-18)
+        assert np.all(np.trace(c, axis1=1, axis2=2) > 0)
