@@ -22,7 +22,8 @@ shipped organ (the ``solid`` model: the liver's grasp-lift with one E, the
 kidney's grasp-pole with two, parenchyma and tumour) on meshes of about 500
 to 4,000 nodes against the 16,000-node truth, for every estimator (the full
 UKF only where it fits its budget), with the identified moduli at the last
-step (``E_final``, mean over seeds; the kidney's parenchyma) in the table.
+step (``x_final`` and ``x_true`` for every modulus x, mean over seeds:
+``E`` on the liver, ``E_parenchyma`` and ``E_inclusion`` on the kidney).
 
 Run ``python studies/realtime_frontier.py [--quick] [--out DIR] [--organ NAME]``;
 it prints the table and writes it to ``<out>/realtime_frontier.csv`` (all

@@ -1043,6 +1043,7 @@ def _accelerated_chords(
     dU: list[FloatArray] = []
     dF: list[FloatArray] = []
     its = total = full = 0
+    fresh = False  # the last iterate was a Newton step (just refactored)
     while True:
         its += 1
         total += 1
@@ -1064,17 +1065,19 @@ def _accelerated_chords(
                 step=k,
             )
         if norm_new > norm or its >= most:
-            if norm_new > norm:  # discard the iterate that raised |r|
+            if norm_new > norm and not fresh:  # discard the chord that raised |r|
                 u_new, kin_new, res_new, norm_new = u, kin, res, norm
             if kin_new is None:
                 kin_new = asm.kinematics(u_new, modulus)
             model._factor(kin_new, modulus, k)
             theta_f, scale, its = theta, 1.0, 0
             full += 1
+            fresh = True
             dU.clear()
             dF.clear()
             f_new = -np.asarray(solver.solve(res_new))
         else:
+            fresh = False
             f_new = -np.asarray(solver.solve(res_new)) / scale
             dU.append(u_new - u)
             dF.append(f_new - f)
