@@ -3,11 +3,12 @@
 A tracker loses markers behind instruments: a recording's marker tracks hold
 NaN where a marker was occluded (:mod:`idbench.recording`). An
 :class:`~idbench.interfaces.Observation` with NaN entries is assimilated with
-its visible entries only: with the boolean mask v of the finite values,
-y <- y[v], R <- R[v, v] (the noise std of each value, when it has one per
-value), h(x) <- h(x)[v], the sensitivity J <- J[v, :] and a corrected model's
-Sigma <- Sigma[v, v]. For a Gaussian update this is exact: it is the same
-analysis as on a model and an observation with those entries removed.
+its visible entries only: with the boolean mask v of the non-NaN values,
+``y <- y[v]``, ``R <- R[v, v]`` (the noise std of each value, when it has one
+per value), ``h(x) <- h(x)[v]``, the sensitivity ``J <- J[v, :]`` and a
+corrected model's ``Sigma <- Sigma[v, v]``. For a Gaussian update this is
+exact: it is the same analysis as on a model and an observation with those
+entries removed.
 
 :class:`idbench.Filter` applies it once for every estimator built on it
 (:func:`visible`, :func:`restrict`, :class:`MaskedModel`); an observation all
@@ -77,9 +78,9 @@ def refusal(name: str, estimator: Any, stream: Sequence[Observation | None]) -> 
 class MaskedModel:
     """``model`` whose observation is restricted to the visible entries ``mask``.
 
-    ``observe`` returns h(x)[mask], ``sensitivity`` (if the model has it)
-    J[mask, :] and ``observation_cov`` (a corrected model's Sigma, if it has
-    it) Sigma[mask][:, mask]; everything else is the model's own.
+    ``observe`` returns ``h(x)[mask]``, ``sensitivity`` (if the model has it)
+    ``J[mask, :]`` and ``observation_cov`` (a corrected model's Sigma, if it
+    has it) ``Sigma[mask][:, mask]``; everything else is the model's own.
 
     Parameters
     ----------
