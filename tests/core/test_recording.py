@@ -358,3 +358,48 @@ def test_an_estimator_off_filter_is_refused_occluded_markers(recordings, tmp_pat
     config = dataclasses.replace(config, data=str(recordings / "markers"))
     runs, _ = compare(config, registry=registry)
     assert list(runs.status) == ["ok"], runs.error.tolist()
+
+
+def test_simulated_occlusion_round_trips_through_a_recording(tmp_path, monkeypatch):
+    """``markers.occlusion``: seeded NaN markers; the recording gives the same runs."""
+    monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    hide = {"markers": {"occlusion": 0.4}}
+    argv = ["simulate", "--mesh", TRUTH, "--scenario", "bend-y", "--steps",
+            str(STEPS), "--noise", "1e-4", "--obs-points", "4",
+            "--observe-option", "markers.occlusion=0.4",
+            "--record", str(tmp_path / "rec")]  # fmt: skip
+    assert main(argv) == 0
+    rec = recording.read(tmp_path / "rec")
+    markers = np.array([f.data["markers"] for f in rec.frames]).reshape(STEPS, 4, 3)
+    hidden = np.isnan(markers).all(axis=2)
+    assert (np.isnan(markers).any(axis=2) == hidden).all()  # whole markers only
+    assert 0 < hidden.sum() < hidden.size  # some hidden, some seen
+    # the visible values are those without occlusion (drawn after the noise)
+    argv[argv.index("markers.occlusion=0.4")] = "markers.occlusion=0"
+    argv[-1] = str(tmp_path / "plain")
+    assert main(argv) == 0
+    plain = recording.read(tmp_path / "plain").frames
+    seen = np.array([f.data["markers"] for f in plain]).reshape(STEPS, 4, 3)
+    np.testing.assert_array_equal(markers[~hidden], seen[~hidden])
+    synthetic, _ = compare(CompareConfig(
+        truth_mesh=TRUTH, meshes=(MESH,), estimators=ALL,
+        **base(observe=("markers",), observe_settings=hide, obs_points=(4,)),
+    ))  # fmt: skip
+    recorded, _ = compare(CompareConfig(
+        meshes=(MESH,), estimators=ALL, seeds=1, obs_every=(1,),
+        data=str(tmp_path / "rec"),
+    ))  # fmt: skip
+    assert list(recorded.status) == ["ok"] * len(ALL), recorded.error.tolist()
+    assert np.isfinite(recorded.E_final).all()
+    np.testing.assert_allclose(recorded.E_final, synthetic.E_final, rtol=1e-9)
+    np.testing.assert_allclose(recorded.E_ref, synthetic.E_ref, rtol=1e-9)
+
+
+def test_a_bad_occlusion_is_one_line(tmp_path, capsys):
+    argv = ["simulate", "--mesh", TRUTH, "--scenario", "bend-y", "--steps", "2",
+            "--observe-option", "markers.occlusion=1.5",
+            "--record", str(tmp_path / "rec")]  # fmt: skip
+    assert main(argv) != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert "occlusion = 1.5 is not allowed" in err and "0 <= occlusion < 1" in err
