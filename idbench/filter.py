@@ -232,7 +232,7 @@ class Filter(_Conventions):
         those (values and noise std) and, while it runs, :attr:`model` is the
         run's model restricted to them (:class:`~idbench.occlusion.MaskedModel`:
         h(x), the sensitivity rows, a corrected model's Sigma); one all NaN is
-        no observation.
+        no observation (and leaves :attr:`innovation` None).
 
         Raises
         ------
@@ -253,6 +253,7 @@ class Filter(_Conventions):
         mask = None if observation is None else visible_mask(observation)
         if mask is not None and not mask.any():  # every entry occluded
             observation, mask = None, None
+            self.innovation = None  # none of this step's (not the last one's)
         elif mask is not None:
             observation = restrict(observation, mask)  # type: ignore[arg-type]
             self._view = MaskedModel(run.model, mask)

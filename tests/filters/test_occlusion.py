@@ -170,7 +170,8 @@ def test_nan_entries_are_the_model_without_them(name: str, correction: str) -> N
         assert np.all(np.isfinite(g.mean)), f"step {k}: {g.mean}"
         np.testing.assert_allclose(g.mean, w.mean, rtol=RTOL, err_msg=f"step {k}")
         np.testing.assert_allclose(g.std, w.std, rtol=RTOL, err_msg=f"step {k}")
-        if k == 3:  # every entry hidden: no innovation of its own
+        if k == 3:  # every entry hidden: no observation, no innovation of its own
+            assert g_nu is None, f"step {k}: {g_nu}"
             continue
         assert (g_nu is None) == (w_nu is None), f"step {k}"
         if g_nu is not None and w_nu is not None:
