@@ -36,6 +36,7 @@ from idbench.interfaces import (
     VolumeModel,
 )
 from idbench.lowrank import LowRankCovariance
+from idbench.occlusion import MaskedModel
 from idbench.plugins import (
     Command,
     PluginError,
@@ -87,6 +88,7 @@ __all__ = [
     "IdentityTransform",
     "LogTransform",
     "LowRankCovariance",
+    "MaskedModel",
     "ModelDefaults",
     "ModelFailure",
     "ModelSpec",

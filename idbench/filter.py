@@ -4,11 +4,12 @@
 ``da_method`` wraps ``assimilate``): it owns ``start`` and ``update`` and does,
 once for all, the run check, the step check, the cost bookkeeping, the turning
 of a failed linear solve into :class:`~idbench.Diverged` and the final
-finite/bounds check. A subclass writes only ``begin`` (set up a run) and
-``assimilate`` (advance to step k, assimilate the observation), working on
-xi = transform(theta) (:mod:`idbench.transforms`) and returning an
-:class:`Analysis`. Estimators that do not subclass it keep working: the
-protocol is the contract.
+finite/bounds check, and the masking of occluded (NaN) observation entries
+(:mod:`idbench.occlusion`: the analysis sees the visible entries only). A
+subclass writes only ``begin`` (set up a run) and ``assimilate`` (advance to
+step k, assimilate the observation), working on xi = transform(theta)
+(:mod:`idbench.transforms`) and returning an :class:`Analysis`. Estimators
+that do not subclass it keep working: the protocol is the contract.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ from idbench.interfaces import (
     Observation,
     Prior,
 )
+from idbench.occlusion import BoolArray, MaskedModel, restrict
+from idbench.occlusion import visible as visible_mask
 from idbench.settings import check_choice
 from idbench.transforms import TRANSFORMS, IdentityTransform
 
@@ -84,6 +87,7 @@ class _Conventions:
     """
 
     reference: ClassVar[bool] = False
+    handles_nan: ClassVar[bool] = False
     seed: int | None = None
     innovation: tuple[FloatArray, FloatArray] | None = None
 
@@ -137,7 +141,20 @@ class Filter(_Conventions):
         Default None (reset by :meth:`start`): after an observed step, a
         filter may set ``(nu, S)``, the innovation nu = y - y_hat (m,) of the
         forecast and its covariance S = H P H^T + R (m, m); the traces'
-        ``nis`` column is then nu^T S^-1 nu.
+        ``nis`` column is then nu^T S^-1 nu (over the visible entries of an
+        occluded observation).
+    handles_nan
+        Class attribute: True when the estimator takes observations with NaN
+        (occluded) entries. The protocol's default is False (the harness
+        refuses such a run in one line); :class:`Filter` is True: it masks
+        them (see :meth:`update`).
+    visible
+        During :meth:`assimilate`: None when every entry of the observation is
+        visible, else the mask (m,) of its visible entries (the observation
+        given and :attr:`model` already restricted to them). An estimator
+        that keeps past observations (batch least squares) keeps their masks
+        and sees them through :class:`idbench.occlusion.MaskedModel` of
+        ``self.run.model``.
     correction
         ``"none"`` (default: the model is trusted, the estimate is the mesh's
         effective parameter) or ``"approximation-error"`` (the physical
@@ -151,10 +168,18 @@ class Filter(_Conventions):
         :meth:`noise_cov`.
     """
 
+    handles_nan: ClassVar[bool] = True
+
     transform: str = "log"
     sigma_floor: float = 1e-6
     correction: str = "none"
     _run: Run | None = field(default=None, init=False, repr=False, compare=False)
+    _view: MaskedModel | None = field(
+        default=None, init=False, repr=False, compare=False
+    )
+    visible: BoolArray | None = field(
+        default=None, init=False, repr=False, compare=False
+    )
 
     def __post_init__(self) -> None:
         check_choice("transform", self.transform, tuple(TRANSFORMS))
@@ -195,6 +220,13 @@ class Filter(_Conventions):
     def update(self, k: int, observation: Observation | None) -> Estimate:
         """Advance to load step ``k`` and assimilate ``observation`` if any.
 
+        An observation with NaN (occluded) values is assimilated with its
+        visible values only: :meth:`assimilate` is given the observation of
+        those (values and noise std) and, while it runs, :attr:`model` is the
+        run's model restricted to them (:class:`~idbench.occlusion.MaskedModel`:
+        h(x), the sensitivity rows, a corrected model's Sigma); one all NaN is
+        no observation (and leaves :attr:`innovation` None).
+
         Raises
         ------
         ValueError
@@ -211,10 +243,20 @@ class Filter(_Conventions):
             raise ValueError(
                 f"observation for step {observation.step} given at step {k}"
             )
+        mask = None if observation is None else visible_mask(observation)
+        if mask is not None and not mask.any():  # every entry occluded
+            observation, mask = None, None
+            self.innovation = None  # none of this step's (not the last one's)
+        elif mask is not None:
+            observation = restrict(observation, mask)  # type: ignore[arg-type]
+            self._view = MaskedModel(run.model, mask)
+        self.visible = mask
         try:
             result = self.assimilate(k, observation)
         except np.linalg.LinAlgError as exc:
             raise Diverged(f"linear algebra failed: {exc}", step=k) from exc
+        finally:
+            self._view, self.visible = None, None
         self.check_estimate(result.xi, k, *result.finite)
         mean = self.to_theta(result.xi)
         if result.cov is None:
@@ -242,7 +284,13 @@ class Filter(_Conventions):
 
     @property
     def model(self) -> ForwardModel:
-        """The current run's model (RuntimeError before :meth:`start`)."""
+        """The current run's model (RuntimeError before :meth:`start`).
+
+        While an occluded observation is assimilated: that model restricted
+        to the observation's visible entries (see :meth:`update`).
+        """
+        if self._view is not None:
+            return self._view  # type: ignore[return-value]
         return self.run.model
 
     @property

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from idbench import depth_camera, scoring, targets
+from idbench import depth_camera, occlusion, scoring, targets
 from idbench.capabilities import n_nodes_of
 from idbench.config import ConfigError
 from idbench.interfaces import (
@@ -324,6 +324,9 @@ def _run_on(
         row["calibration_cost"] = model.discrepancy.cost
     truth = session.truth(spec)
     stream = session.observations(spec)
+    refused = occlusion.refusal(spec.estimator, estimator, stream)
+    if refused:  # NaN entries an estimator off idbench.Filter does not mask
+        raise Skipped(refused)
     direct = session.direct(spec)
     if phase is not None:
         phase("estimator")

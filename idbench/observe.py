@@ -122,17 +122,43 @@ class ObservationModel(Protocol):
         ...
 
 
+IF_SET = "if-set"
+"""Field metadata ``{"identity": IF_SET}``: a setting that enters the runs'
+keys only when it differs from its default (one added after runs were keyed
+without it), see :func:`settings_items`."""
+
+
 @dataclass(frozen=True)
 class Markers:
     """Marker displacements with perfect correspondence (today's observation).
 
-    No settings: the markers are the model's (``--obs-points``), the noise
-    sigma the run's ``--noise``.
+    The markers are the model's (``--obs-points``), the noise sigma the run's
+    ``--noise``.
+
+    Attributes
+    ----------
+    occlusion
+        Fraction in [0, 1) of markers hidden (behind an instrument) in each
+        frame: each marker of each frame independently with this probability,
+        drawn after the noise from the run's generator, so the visible values
+        are those of ``occlusion = 0``; a hidden marker is NaN in x, y and z
+        (the estimators assimilate the visible ones, :mod:`idbench.occlusion`).
+        0 (default) hides none, and keeps the runs' keys.
     """
 
+    occlusion: float = dataclasses.field(default=0.0, metadata={"identity": IF_SET})
     requires: tuple[str, ...] = dataclasses.field(
         default=("observe",), init=False, repr=False
     )
+
+    def __post_init__(self) -> None:
+        f = self.occlusion
+        ok = isinstance(f, int | float) and not isinstance(f, bool)
+        if not (ok and math.isfinite(f) and 0 <= f < 1):
+            raise ValueError(
+                f"occlusion = {f!r} is not allowed; it must be a fraction "
+                "0 <= occlusion < 1"
+            )
 
     def sense(
         self, model: ForwardModel, theta: FloatArray, k: int, state: FloatArray
@@ -144,10 +170,18 @@ class Markers:
         self, clean: Sequence[Mapping[str, FloatArray]], rng: np.random.Generator,
         noise: float,
     ) -> list[dict[str, FloatArray]]:  # fmt: skip
-        """Clean markers plus N(0, noise^2), drawn for all K steps at once."""
+        """Clean markers plus N(0, noise^2), drawn for all K steps at once.
+
+        With ``occlusion`` > 0, then, each marker of each frame hidden (NaN)
+        with that probability.
+        """
         y = np.array([c["markers"] for c in clean])
         draws = rng.standard_normal(y.shape) * noise
-        return [{"markers": y[i] + draws[i]} for i in range(len(clean))]
+        out = y + draws
+        if self.occlusion > 0:
+            xyz = out.reshape(len(clean), -1, 3)
+            xyz[rng.random(xyz.shape[:2]) < self.occlusion] = np.nan
+        return [{"markers": out[i]} for i in range(len(clean))]
 
     def values(self, frame: Frame) -> FloatArray:
         """The noisy marker displacements (3M,)."""
@@ -383,7 +417,8 @@ def settings_items(
 
     ``(("BLOCK", ((kind, KIND), (setting, value), ...)), ...)`` with every
     default filled in; empty for plain ``markers``, so its runs keep their
-    keys.
+    keys (and a setting marked :data:`IF_SET` only where it is not its
+    default).
     """
     if name == DEFAULT and DEFAULT not in tables:
         return ()
@@ -394,6 +429,9 @@ def settings_items(
         dc = dataclasses.is_dataclass(model) and not isinstance(model, type)
         fields = dataclasses.asdict(model) if dc else {}
         fields.pop("requires", None)
+        for f in dataclasses.fields(model) if dc else ():
+            if f.metadata.get("identity") == IF_SET and fields[f.name] == f.default:
+                del fields[f.name]  # at its default: the keys it had without it
         items = tuple(sorted((k, _jsonable(v)) for k, v in fields.items()))
         out.append((block, (("kind", kind), *items)))
     return tuple(out)

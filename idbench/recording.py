@@ -30,7 +30,10 @@ A recording is a folder with two files::
 applied load as the fraction k/K of the scenario's end load (the load in the
 body's terms: step k of its manipulation), and for each frame k (1..K,
 ``FFFFF`` = ``k`` in five digits) the observation model's frame data
-``frame.FFFFF/NAME``: ``markers`` (3M,) the marker displacements; ``points``
+``frame.FFFFF/NAME``: ``markers`` (3M,) the marker displacements (NaN in
+x, y and z of a marker occluded in that frame: the estimators assimilate the
+visible ones, :mod:`idbench.occlusion`; a frame with every marker NaN is a
+step without observation); ``points``
 (N, 3) (N may differ from frame to frame), ``origin`` (3,) and ``sigma`` ()
 for a cloud (points in the body's coordinates, m; ``origin`` the camera
 centre; ``sigma`` the noise std along the rays); ``force`` (c,) in N; in a
@@ -169,7 +172,8 @@ def read(path: str | Path) -> Recording:
     RecordingError
         One line naming the recording, the frame and the problem: a missing
         or unreadable file, an unknown format or unit, frames out of order or
-        not one a step, non-finite cloud points, observed markers missing.
+        not one a step, non-finite cloud points, observed markers missing,
+        a marker NaN in some of its components only or infinite.
     """
     root = Path(path)
     for name in (MANIFEST, ARRAYS):
@@ -291,7 +295,11 @@ def _timeline(
 def _check_frame(
     where: str, k: int, data: Mapping[str, FloatArray], markers: int
 ) -> None:
-    """One frame's arrays: finite cloud points, observed markers all there."""
+    """One frame's arrays: finite cloud points, observed markers all there.
+
+    A marker may be occluded (NaN in x, y and z); a frame where all are is a
+    step without observation.
+    """
     for name, value in data.items():
         leaf = name.rpartition("/")[2]
         if leaf == "points":
@@ -310,12 +318,29 @@ def _check_frame(
                 f"{where}: frame {k}: {name} has {value.size} values; markers = "
                 f"{markers} needs {3 * markers} (x, y, z of each)"
             )
-        elif leaf == "markers" and not np.isfinite(value).all():
-            raise RecordingError(
-                f"{where}: frame {k}: observed {name} has NaN (occluded) values; an "
-                "estimator needs every marker of every frame: keep occluded tracks "
-                "in held_out/markers, or observe a cloud"
-            )
+        elif leaf == "markers":
+            _check_markers(where, k, name, value)
+
+
+def _check_markers(where: str, k: int, name: str, value: FloatArray) -> None:
+    """Observed markers (3M,): each finite, or occluded (NaN in x, y and z)."""
+    xyz = np.asarray(value, dtype=float).reshape(-1, 3)
+    nan = np.isnan(xyz)
+    partial = np.flatnonzero(nan.any(axis=1) & ~nan.all(axis=1))
+    if partial.size:
+        j = int(partial[0])
+        axes = ", ".join("xyz"[i] for i in np.flatnonzero(nan[j]))
+        raise RecordingError(
+            f"{where}: frame {k}: marker {j + 1} of {name} is NaN in {axes} only; "
+            "an occluded marker is NaN in all of x, y and z (a visible one in none)"
+        )
+    infinite = np.flatnonzero(np.isinf(xyz).any(axis=1))
+    if infinite.size:
+        j = int(infinite[0])
+        raise RecordingError(
+            f"{where}: frame {k}: marker {j + 1} of {name} is infinite; a value is "
+            "finite, or NaN in x, y and z where the marker is occluded"
+        )
 
 
 def check_frames(rec: Recording, observation: Any) -> None:

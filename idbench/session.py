@@ -252,18 +252,22 @@ class Session:
         :meth:`RunSpec.noise_key` (the same for every estimator, mesh, noise
         level and spacing of a sweep), scaled by the run's noise sigma; the
         spacing only selects steps. Another observation model: its frames
-        (:meth:`frames`) made into observations of the observed steps.
+        (:meth:`frames`) made into observations of the observed steps (a
+        frame whose values are all NaN, every marker occluded, is none).
         """
         if spec.observed_otherwise() or spec.setup.data:
             obs = self.observation_model(spec)
             stream: list[Observation | None] = []
             for k, frame in enumerate(self.frames(spec), start=1):
-                if spec.sparsity.observed(k):
-                    values = np.asarray(obs.values(frame), dtype=float)
-                    std = obs.noise_std(frame, spec.noise)
-                    stream.append(Observation(values, _noise(std), k))
-                else:
+                if not spec.sparsity.observed(k):
                     stream.append(None)
+                    continue
+                values = np.asarray(obs.values(frame), dtype=float)
+                if _occluded(values):  # every value occluded (NaN): unobserved
+                    stream.append(None)
+                    continue
+                std = obs.noise_std(frame, spec.noise)
+                stream.append(Observation(values, _noise(std), k))
             return stream
         truth = self.truth(spec)
         seq = np.random.SeedSequence(
@@ -484,6 +488,11 @@ class Session:
             states = simulate_path(model, self.theta_true(spec))
             self._direct[key] = np.array([model.grid(s) for s in states])
         return self._direct[key]
+
+
+def _occluded(values: FloatArray) -> bool:
+    """Every value NaN (a frame whose markers were all occluded): no observation."""
+    return bool(values.size) and bool(np.isnan(values).all())
 
 
 def _noise(std: Any) -> Any:

@@ -126,7 +126,8 @@ def _map_and_laplace(
             u = new[0]
             if k in target.obs:
                 y, r = target.obs[k]
-                res.append((y - np.asarray(model.observe(u), dtype=float)) / np.sqrt(r))
+                h = target.seen(k, np.asarray(model.observe(u), dtype=float))
+                res.append((y - h) / np.sqrt(r))
         return np.concatenate(res)
 
     lo, hi = target.xi_bounds()

@@ -41,6 +41,7 @@ class LogPosterior:
         The run's prior in natural units, mapped to xi by the transform.
     observations
         Entry k-1 is step k's observation or None; R_k = max(sigma_k, floor)^2.
+        NaN (occluded) values are left out of the likelihood (:meth:`seen`).
     settings
         ``transform``, ``sigma_floor`` and ``max_solves`` are used.
 
@@ -67,6 +68,7 @@ class LogPosterior:
                 f"{len(observations)} observations for a model of {model.n_steps} steps"
             )
         self.obs: dict[int, tuple[FloatArray, float | FloatArray]] = {}
+        self.masks: dict[int, np.ndarray] = {}  # visible values, if some are NaN
         for i, o in enumerate(observations, start=1):
             if o is None:
                 continue
@@ -78,7 +80,15 @@ class LogPosterior:
                 if std.ndim == 0
                 else np.maximum(std, settings.sigma_floor) ** 2
             )
-            self.obs[i] = (np.asarray(o.values, dtype=float), r)
+            y = np.asarray(o.values, dtype=float)
+            mask = ~np.isnan(y)
+            if not mask.all():  # occluded values: the visible ones only
+                if not mask.any():
+                    continue  # every value occluded: no observation
+                self.masks[i] = mask
+                y = y[mask]
+                r = r if np.ndim(r) == 0 else np.asarray(r)[mask]
+            self.obs[i] = (y, r)
         if not self.obs:
             raise ValueError("no observations: the posterior is the prior")
         self.last = max(self.obs)
@@ -87,6 +97,11 @@ class LogPosterior:
         self.budget = settings.max_solves
         self.used = 0
         self.failed = 0
+
+    def seen(self, k: int, h: FloatArray) -> FloatArray:
+        """The predicted observation ``h`` of step k at its visible values."""
+        mask = self.masks.get(k)
+        return h if mask is None else h[mask]
 
     def theta(self, xi: FloatArray) -> FloatArray:
         """Natural parameters of xi (any shape)."""
@@ -148,7 +163,7 @@ class LogPosterior:
             if k in self.obs:
                 y, r = self.obs[k]
                 for i in np.flatnonzero(alive):
-                    h = np.asarray(model.observe(states[i]), dtype=float)
+                    h = self.seen(k, np.asarray(model.observe(states[i]), float))
                     if np.ndim(r) == 0:
                         ll[i] -= 0.5 * float(np.sum((y - h) ** 2)) / r
                     else:  # one variance per value

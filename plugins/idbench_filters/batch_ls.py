@@ -23,6 +23,10 @@ factor C_j of R + Sigma(h_j), r_j = C_j^-1 (y_j - h_j(xi)): Sigma is
 evaluated at the states of the starting point and kept through a fit, then
 once more at the first fit's states for a second fit (two passes).
 
+An occluded observation (NaN entries, :class:`idbench.Filter`) keeps its
+mask: its residuals, Jacobian rows and Sigma are those of its visible entries
+at every later fit (:class:`idbench.MaskedModel`).
+
 ``refit="end"`` (default) fits once at the last step K and reports the prior
 before; ``refit="each"`` refits, warm-started, at every observed step.
 """
@@ -36,7 +40,15 @@ import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.optimize import least_squares
 
-from idbench import Analysis, Diverged, Filter, ForwardModel, Observation, Prior
+from idbench import (
+    Analysis,
+    Diverged,
+    Filter,
+    ForwardModel,
+    MaskedModel,
+    Observation,
+    Prior,
+)
 from idbench_filters._common import FloatArray, advance, check_choice, check_positive
 
 REFITS = ("end", "each")
@@ -103,6 +115,7 @@ class BatchLs(Filter):
         self._mu, self._P = self.prior_xi(prior)
         self._xi, self._cov = self._mu.copy(), self._P.copy()
         self._obs: list[tuple[int, FloatArray, float]] = []  # (k, y, sigma)
+        self._seen: list[ForwardModel] = []  # each one's model (masked if occluded)
         self._cache: tuple[bytes, int, list[FloatArray]] | None = None
         self._chol: list[FloatArray] | None = None
         spec = model.parameters
@@ -127,32 +140,33 @@ class BatchLs(Filter):
 
     def _residuals(self, xi: FloatArray, n: int) -> FloatArray:
         states = self._simulate(xi, n)
-        observe = self.model.observe
+        seen = self._seen
         if self._chol is not None:  # corrected model: whitened by chol(R + Sigma)
             return np.concatenate([
-                solve_triangular(c, y - observe(states[k - 1]), lower=True)
-                for (k, y, _), c in zip(self._obs, self._chol, strict=True)
+                solve_triangular(c, y - h.observe(states[k - 1]), lower=True)
+                for (k, y, _), h, c in zip(self._obs, seen, self._chol, strict=True)
             ])  # fmt: skip
-        return np.concatenate(
-            [(y - observe(states[k - 1])) / s for k, y, s in self._obs]
-        )
+        return np.concatenate([
+            (y - h.observe(states[k - 1])) / s
+            for (k, y, s), h in zip(self._obs, seen, strict=True)
+        ])  # fmt: skip
 
     def _jacobian(self, xi: FloatArray, n: int) -> FloatArray:
-        model = self.model
+        seen = self._seen
         states = self._simulate(xi, n)
         theta, scale = self.to_theta(xi), self.dtheta_dxi(xi)
         if self._chol is not None:
             return np.vstack([
                 -solve_triangular(
-                    c, np.asarray(model.sensitivity(theta, k, states[k - 1])),  # type: ignore[attr-defined]
+                    c, np.asarray(h.sensitivity(theta, k, states[k - 1])),  # type: ignore[attr-defined]
                     lower=True,
                 ) * scale
-                for (k, _, _), c in zip(self._obs, self._chol, strict=True)
+                for (k, _, _), h, c in zip(self._obs, seen, self._chol, strict=True)
             ])  # fmt: skip
         rows = [
-            -np.asarray(model.sensitivity(theta, k, states[k - 1])) * scale  # type: ignore[attr-defined]
+            -np.asarray(h.sensitivity(theta, k, states[k - 1])) * scale  # type: ignore[attr-defined]
             / np.reshape(s, (-1, 1))
-            for k, _, s in self._obs
+            for (k, _, s), h in zip(self._obs, seen, strict=True)
         ]
         return np.vstack(rows)
 
@@ -160,9 +174,9 @@ class BatchLs(Filter):
         """Lower Cholesky factors of R + Sigma at each observed step's state at xi."""
         states = self._simulate(xi, n)
         out = []
-        for k, y, s in self._obs:
-            cov = s**2 * np.eye(y.size) + self.extra_cov(states[k - 1])  # type: ignore[operator]
-            out.append(np.linalg.cholesky(cov))
+        for (k, y, s), h in zip(self._obs, self._seen, strict=True):
+            sigma = np.asarray(h.observation_cov(states[k - 1]), dtype=float)  # type: ignore[attr-defined]
+            out.append(np.linalg.cholesky(s**2 * np.eye(y.size) + sigma))
         return out
 
     def _fit(self, k: int) -> FloatArray:
@@ -205,6 +219,9 @@ class BatchLs(Filter):
         if observation is not None:
             y = np.asarray(observation.values, dtype=float)
             self._obs.append((k, y, np.sqrt(self.noise_var(observation))))
+            model = self.run.model  # this observation's: masked by its own entries
+            mask = self.visible
+            self._seen.append(model if mask is None else MaskedModel(model, mask))  # type: ignore[arg-type]
         fit_now = bool(self._obs) and (
             k == self.model.n_steps if self.refit == "end" else observation is not None
         )

@@ -16,7 +16,9 @@ The sigma points are advanced in one call of the model's ``step_many`` when it
 has one (shared factorizations; see :class:`idbench.BatchModel`), else one
 ``step`` each, as filterpy's own ``fx`` loop would. With ``correction =
 "approximation-error"`` (:class:`idbench.Filter`) h is the corrected model's
-and R the matrix R + Sigma at the forecast mean.
+and R the matrix R + Sigma at the forecast mean. An occluded observation
+(NaN entries) is updated with its visible entries only (:class:`idbench.Filter`
+masks h and R).
 """
 
 from __future__ import annotations
@@ -219,8 +221,8 @@ class Ukf(Filter):
             sigma = self.extra_cov(ukf.x[: self._nu])
             if sigma is not None:  # corrected model: R + Sigma at the forecast mean
                 R = self.noise_cov(observation, ukf.x[: self._nu])
-            elif np.ndim(R):
-                R = noise_matrix(R, z.size)
+            elif np.ndim(R) or z.size != ukf._dim_z:  # per value, or occluded
+                R = noise_matrix(R, z.size)  # (filterpy expands a float to dim_z)
             ukf.update(z, R=R, UT=weighted_transform)
             ukf.P = 0.5 * (ukf.P + ukf.P.T)
         nu = self._nu

@@ -281,3 +281,32 @@ def test_beam_posterior_mean_is_near_e_true():
     assert abs(post.mean[0] - E_TRUE) < 4 * post.std[0]
     lo, hi = post.quantile(0.025)[0], post.quantile(0.975)[0]
     assert lo < post.mean[0] < hi
+
+
+def test_occluded_values_are_left_out_of_the_likelihood():
+    """NaN entries: the posterior of the visible ones (grid p = 1, MCMC's MAP p = 2)."""
+    hidden = {2: [0], 3: [0, 1, 2], 5: [1, 2]}  # step 3: all NaN, no observation
+    for p in (1, 2):
+        model, prior, obs, _ = toy(p)
+        info = np.diag(1.0 / np.asarray(prior.std) ** 2)
+        rhs = info @ np.asarray(prior.mean)
+        stream = []
+        for k in range(1, model.n_steps + 1):
+            y = np.array(obs[k].values, dtype=float)
+            y[hidden.get(k, [])] = np.nan
+            stream.append(Observation(y, SIGMA, k))
+            seen = ~np.isnan(y)
+            J = model.jac(k)[seen]
+            info = info + J.T @ J / SIGMA**2
+            rhs = rhs + J.T @ y[seen] / SIGMA**2
+        P = np.linalg.inv(info)
+        mean = P @ rhs
+        if p == 1:
+            post = grid_posterior(model, prior, stream, IDENTITY)
+            sd = np.sqrt(P[0, 0])
+            np.testing.assert_allclose(post.mean, mean, rtol=0, atol=1e-4 * sd)
+            np.testing.assert_allclose(post.std, [sd], rtol=1e-6)
+        else:
+            post = mcmc_posterior(model, prior, stream, IDENTITY)
+            np.testing.assert_allclose(post.map, mean, rtol=1e-5)
+        assert np.all(np.isfinite(post.mean))

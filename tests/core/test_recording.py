@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 import pytest
+from helpers import registry_with
 
 import idbench
 from idbench import recording
@@ -180,6 +183,21 @@ def millimetres(d: dict[str, np.ndarray]) -> None:
             d[k] *= 1000.0
 
 
+def partial_nan_marker(d: dict[str, np.ndarray]) -> None:
+    d["frame.00002/markers"][4] = np.nan  # marker 2's y only
+
+
+def infinite_marker(d: dict[str, np.ndarray]) -> None:
+    d["frame.00003/markers"][0] = np.inf
+
+
+def occlude(d: dict[str, np.ndarray]) -> None:
+    """Marker 1 hidden at frame 2, marker 2 at frame 4, both at frame 3."""
+    d["frame.00002/markers"][0:3] = np.nan
+    d["frame.00003/markers"][:] = np.nan
+    d["frame.00004/markers"][3:6] = np.nan
+
+
 BAD = [
     ("markers", swap_times, None, "frame 3: time 2 s is not after frame 2's 3 s"),
     ("markers", swap_times, None, "frames out of order"),
@@ -198,6 +216,9 @@ BAD = [
      "frame 1: markers has 6 values; markers = 3 needs 9"),
     ("cloud", None, lambda t: t.replace('observe = "cloud"', 'observe = "force"'),
      "frame 1: observe 'force' cannot read it (KeyError"),
+    ("markers", partial_nan_marker, None,
+     "frame 2: marker 2 of markers is NaN in y only; an occluded marker is NaN in"),
+    ("markers", infinite_marker, None, "frame 3: marker 1 of markers is infinite"),
 ]  # fmt: skip
 
 
@@ -270,3 +291,115 @@ def test_a_recording_written_by_hand_as_the_readme_says(tmp_path, monkeypatch):
     # the coarse beam identifies about what it identifies from markers
     assert abs(runs.E_final.iloc[0] / markers.E_final.iloc[0] - 1) < 0.05
     assert traces.tre_mm.notna().all() and traces.heldout_mm.notna().all()
+
+
+ALL = ("batch-ls", "enkf", "etkf", "lms", "rls", "ro-ukf", "ukf")
+
+
+def test_occluded_markers_are_assimilated_visible_only(recordings, tmp_path):
+    """NaN markers round-trip through compare --data: finite, and they count."""
+    occluded = edited(recordings / "markers", tmp_path / "occluded", occlude)
+    frames = recording.read(occluded).frames
+    assert np.isnan(frames[2].data["markers"]).all()
+    runs = {}
+    for name, folder in (("full", recordings / "markers"), ("occluded", occluded)):
+        out = tmp_path / name
+        argv = ["compare", "--data", str(folder), "--meshes", MESH, "--estimators",
+                ",".join(ALL), "--seeds", "1", "--obs-every", "1",
+                "--out", str(out)]  # fmt: skip
+        assert main(argv) == 0
+        runs[name] = pd.read_parquet(out / "runs.parquet").set_index("estimator")
+        traces = pd.read_parquet(out / "traces.parquet")
+    full, occ = runs["full"], runs["occluded"]
+    assert (occ.status == "ok").all(), occ.error.tolist()
+    assert np.isfinite(occ.E_final).all() and np.isfinite(occ.E_ref).all()
+    assert (occ.heldout_final_mm > 0).all()
+    # fewer values seen: a different answer (a masked NaN would be no answer)
+    assert not np.allclose(occ.E_final, full.E_final, rtol=1e-9)
+    # frame 3 (every marker hidden) is a step without observation
+    by_step = traces.groupby("step")["observed"].agg(["all", "any"])
+    assert list(by_step["all"]) == list(by_step["any"]) == [True, True, False, True]
+    ro_ukf = traces[traces.run_id == occ.loc["ro-ukf", "run_id"]]
+    nis = ro_ukf.set_index("step").nis
+    assert np.isfinite(nis[[1, 2, 4]]).all() and np.isnan(nis[3])
+
+
+@dataclass
+class PriorOnly:
+    """An estimator on the bare protocol (not idbench.Filter): the prior."""
+
+    def start(self, model, prior):  # type: ignore[no-untyped-def]
+        self.model, self.state = model, model.reset()
+        self.mean, self.std = np.asarray(prior.mean), np.asarray(prior.std)
+
+    def update(self, k, observation):  # type: ignore[no-untyped-def]
+        self.state = self.model.step(self.mean, k, self.state)
+        return idbench.Estimate(self.mean, self.std, self.model.cost(), self.state)
+
+
+class PriorOnlyPlugin:
+    @idbench.hookimpl
+    def register_estimators(self, register: Any) -> None:
+        register("prior-only", PriorOnly)
+
+
+def test_an_estimator_off_filter_is_refused_occluded_markers(recordings, tmp_path):
+    occluded = edited(recordings / "markers", tmp_path / "occluded", occlude)
+    registry = registry_with({"prior-only": PriorOnlyPlugin()})
+    config = CompareConfig(meshes=(MESH,), estimators=("prior-only",), seeds=1,
+                           obs_every=(1,), data=str(occluded))  # fmt: skip
+    runs, _ = compare(config, registry=registry)
+    (row,) = runs.to_dict("records")
+    assert row["status"] == "skipped"
+    assert len(row["error"].splitlines()) == 1
+    assert "'prior-only' cannot take occluded (NaN) observation entries" in row["error"]
+    assert "(steps 2, 4)" in row["error"]  # step 3, all hidden, is no observation
+    # the same recording without NaN: it runs
+    config = dataclasses.replace(config, data=str(recordings / "markers"))
+    runs, _ = compare(config, registry=registry)
+    assert list(runs.status) == ["ok"], runs.error.tolist()
+
+
+def test_simulated_occlusion_round_trips_through_a_recording(tmp_path, monkeypatch):
+    """``markers.occlusion``: seeded NaN markers; the recording gives the same runs."""
+    monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    hide = {"markers": {"occlusion": 0.4}}
+    argv = ["simulate", "--mesh", TRUTH, "--scenario", "bend-y", "--steps",
+            str(STEPS), "--noise", "1e-4", "--obs-points", "4",
+            "--observe-option", "markers.occlusion=0.4",
+            "--record", str(tmp_path / "rec")]  # fmt: skip
+    assert main(argv) == 0
+    rec = recording.read(tmp_path / "rec")
+    markers = np.array([f.data["markers"] for f in rec.frames]).reshape(STEPS, 4, 3)
+    hidden = np.isnan(markers).all(axis=2)
+    assert (np.isnan(markers).any(axis=2) == hidden).all()  # whole markers only
+    assert 0 < hidden.sum() < hidden.size  # some hidden, some seen
+    # the visible values are those without occlusion (drawn after the noise)
+    argv[argv.index("markers.occlusion=0.4")] = "markers.occlusion=0"
+    argv[-1] = str(tmp_path / "plain")
+    assert main(argv) == 0
+    plain = recording.read(tmp_path / "plain").frames
+    seen = np.array([f.data["markers"] for f in plain]).reshape(STEPS, 4, 3)
+    np.testing.assert_array_equal(markers[~hidden], seen[~hidden])
+    synthetic, _ = compare(CompareConfig(
+        truth_mesh=TRUTH, meshes=(MESH,), estimators=ALL,
+        **base(observe=("markers",), observe_settings=hide, obs_points=(4,)),
+    ))  # fmt: skip
+    recorded, _ = compare(CompareConfig(
+        meshes=(MESH,), estimators=ALL, seeds=1, obs_every=(1,),
+        data=str(tmp_path / "rec"),
+    ))  # fmt: skip
+    assert list(recorded.status) == ["ok"] * len(ALL), recorded.error.tolist()
+    assert np.isfinite(recorded.E_final).all()
+    np.testing.assert_allclose(recorded.E_final, synthetic.E_final, rtol=1e-9)
+    np.testing.assert_allclose(recorded.E_ref, synthetic.E_ref, rtol=1e-9)
+
+
+def test_a_bad_occlusion_is_one_line(tmp_path, capsys):
+    argv = ["simulate", "--mesh", TRUTH, "--scenario", "bend-y", "--steps", "2",
+            "--observe-option", "markers.occlusion=1.5",
+            "--record", str(tmp_path / "rec")]  # fmt: skip
+    assert main(argv) != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert "occlusion = 1.5 is not allowed" in err and "0 <= occlusion < 1" in err
