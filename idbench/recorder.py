@@ -5,8 +5,9 @@ estimators (:meth:`idbench.session.Session.frames`: the same truth, noise
 draws and observation model), so ``compare --data`` on the recording gives
 the numbers of the synthetic comparison. Held out: the truth's noise-free
 marker displacements, where the model has them its targets, and with a
-cloud observed a noise-free cloud of the same camera on the truth (other
-pixels, no holes or outliers; :func:`held_out_points`).
+cloud observed a noise-free cloud of the same camera on the truth (pixels
+drawn independently of the frames', so some may coincide with theirs; no
+holes, outliers or noise; :func:`held_out_points`).
 """
 
 from __future__ import annotations
@@ -111,8 +112,9 @@ def held_out_points(session: Session, spec: Any, cloud: Cloud, seed: int) -> Any
     """(K, N, 3) noise-free points of ``cloud``'s camera on the truth, per step.
 
     Pixels drawn independently of the frames' (generator seeded by ``seed``
-    and :data:`HELD_OUT_STREAM`), no holes, outliers or noise: a surface the
-    estimators never see, for ``heldout_points_mm``.
+    and :data:`HELD_OUT_STREAM`; some may be pixels a frame also drew), no
+    holes, outliers or noise: the truth's surface without the frames' noise,
+    for ``heldout_points_mm``.
     """
     truth = session.truth(spec)
     model = session.model(spec, spec.setup.truth_mesh, role="truth")
