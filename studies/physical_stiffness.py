@@ -47,7 +47,7 @@ SEEDS = 3
 STEPS = 20
 CALIBRATION: dict[str, Any] = {}  # CalibrationSettings fields (defaults)
 # the design's: its fine paths start at the prior's 20% quantile of E, 30
-# steps (10 paths x 30 / 20 = 15 fine path simulations per coarse mesh)
+# steps (14 paths x 30 / 20 = 21 fine path simulations per coarse mesh)
 DESIGN_CALIBRATION: dict[str, Any] = {"quantile": 0.2, "scaled_steps": 30}
 MODES = ("uncorrected", "used", "not used", "left out")
 
@@ -93,19 +93,20 @@ QUICK: dict[str, Any] = {
 BEND_TRACTION = 8.9  # Pa, as the registered bending and mixed paths
 STRETCH_TRACTION = 250.0  # Pa, as stretch-x
 
-# The beam's calibration design (mode "not used"): ten end tractions (Pa),
+# The beam's calibration design (mode "not used"): 14 end tractions (Pa),
 # none of them a path of SCENARIOS, whose cone holds every one of them (each
 # path's traction is a combination of them with coefficients >= 0). Six
 # along +x, -y and -z, each tilted by 0.2 of the bending traction towards the
 # other two axes, one way (cal-x, cal-y, cal-z) and the other (cal-x2, cal-y2,
 # cal-z2). The x components of the bending ones stay at +-0.5 Pa: an end
-# compression beyond a few Pa buckles the beam at the prior's low E. Four
-# combine a moderate axial pull with bending at the bending traction, 15 and
-# 75 deg from +x towards -y (cal-xy15, cal-xy75, tilted by 0.2 of it towards
-# +z and -z) and towards -z (cal-xz15, cal-xz75, tilted towards +y and -y):
-# the beam's response to a pull with bending is not the sum of its responses
-# to the two (tension stiffens it in bending), and the mixed paths lie
-# between these.
+# compression beyond a few Pa buckles the beam at the prior's low E. Eight
+# combine a moderate axial pull with bending, at the bending traction 15 and
+# 75 deg from +x towards -y (cal-xy15, cal-xy75), tilted by 0.2 of it
+# towards +z and (suffix b) -z, and likewise towards -z (cal-xz15, cal-xz75),
+# tilted towards +y and -y: the beam's response to a pull with bending is not
+# the sum of its responses to the two (tension stiffens it in bending), and
+# the mixed paths (a small pull with bending, in the x-y plane) lie in the
+# cone of the four x-y ones alone.
 _T = 0.2 * BEND_TRACTION
 
 
@@ -128,6 +129,10 @@ DESIGN: dict[str, tuple[float, ...]] = {
     "cal-xy75": _pull_bend(75.0, 0, -_T),
     "cal-xz15": _pull_bend(15.0, 1, _T),
     "cal-xz75": _pull_bend(75.0, 1, -_T),
+    "cal-xy15b": _pull_bend(15.0, 0, -_T),
+    "cal-xy75b": _pull_bend(75.0, 0, _T),
+    "cal-xz15b": _pull_bend(15.0, 1, -_T),
+    "cal-xz75b": _pull_bend(75.0, 1, _T),
 }
 
 
