@@ -9,10 +9,12 @@ own design (:mod:`idbench.discrepancy`; never the comparison's truth data),
 and the estimate is the *physical* E. For each coarse mesh and load path:
 
 - ``uncorrected``: today's default;
-- ``used``: calibrated on every path of the design, the identified one too
-  (its direction, at load states of the prior's draws, not its data);
-- ``not used``: calibrated on the other paths only (leave one out): how far
-  the correction transfers to a direction it did not see.
+- ``used``: calibrated on every path of the comparison, the identified one
+  too (its direction, at load states of the prior's draws, not its data);
+- ``not used``: calibrated on the design ``DESIGN`` only (14 end tractions,
+  none a path of the comparison, whose cone holds them all): how far the
+  correction transfers to directions it did not see;
+- ``left out`` (``--left-out``): calibrated on the comparison's other paths.
 
 The paths: the five registered beam paths and two new directions
 (``mixed-45``, in the x-y plane; ``bend-yz``, the y-z diagonal). Reported per
