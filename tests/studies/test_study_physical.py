@@ -57,6 +57,7 @@ def test_the_beam_design_spans_the_mixed_paths_with_pulls_in_bending(study):
         if 0.1 * bend < d[0] < 0.1 * module.STRETCH_TRACTION
         and np.hypot(d[1], d[2]) > 0.1 * bend
     ]  # fmt: skip
+    assert pulls_in_bending, "no design traction combines a pull with bending"
     for name in ("mixed-30", "mixed-45", "mixed-60"):
         assert _in_cone(paths[name], pulls_in_bending), name
     # the calibration's cost: fine path simulations per coarse mesh (bound 50)
