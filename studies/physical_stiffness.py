@@ -9,10 +9,12 @@ own design (:mod:`idbench.discrepancy`; never the comparison's truth data),
 and the estimate is the *physical* E. For each coarse mesh and load path:
 
 - ``uncorrected``: today's default;
-- ``used``: calibrated on every path of the design, the identified one too
-  (its direction, at load states of the prior's draws, not its data);
-- ``not used``: calibrated on the other paths only (leave one out): how far
-  the correction transfers to a direction it did not see.
+- ``used``: calibrated on every path of the comparison, the identified one
+  too (its direction, at load states of the prior's draws, not its data);
+- ``not used``: calibrated on the design ``DESIGN`` only (14 end tractions,
+  none a path of the comparison, whose cone holds them all): how far the
+  correction transfers to directions it did not see;
+- ``left out`` (``--left-out``): calibrated on the comparison's other paths.
 
 The paths: the five registered beam paths and two new directions
 (``mixed-45``, in the x-y plane; ``bend-yz``, the y-z diagonal). Reported per
@@ -47,7 +49,7 @@ SEEDS = 3
 STEPS = 20
 CALIBRATION: dict[str, Any] = {}  # CalibrationSettings fields (defaults)
 # the design's: its fine paths start at the prior's 20% quantile of E, 30
-# steps (6 paths x 30 / 20 = 9 fine path simulations per coarse mesh)
+# steps (14 paths x 30 / 20 = 21 fine path simulations per coarse mesh)
 DESIGN_CALIBRATION: dict[str, Any] = {"quantile": 0.2, "scaled_steps": 30}
 MODES = ("uncorrected", "used", "not used", "left out")
 
@@ -93,21 +95,46 @@ QUICK: dict[str, Any] = {
 BEND_TRACTION = 8.9  # Pa, as the registered bending and mixed paths
 STRETCH_TRACTION = 250.0  # Pa, as stretch-x
 
-# The beam's calibration design (mode "not used"): six end tractions (Pa),
+# The beam's calibration design (mode "not used"): 14 end tractions (Pa),
 # none of them a path of SCENARIOS, whose cone holds every one of them (each
-# path's traction is a combination of them with coefficients >= 0): along +x,
-# -y and -z each tilted by 0.2 of the bending traction towards the other two
-# axes, one way (cal-x, cal-y, cal-z) and the other (cal-x2, cal-y2, cal-z2).
-# The x components of the bending ones stay at +-0.5 Pa: an end compression
-# beyond a few Pa buckles the beam at the prior's low E.
+# path's traction is a combination of them with coefficients >= 0). Six
+# along +x, -y and -z, each tilted by 0.2 of the bending traction towards the
+# other two axes, one way (cal-x, cal-y, cal-z) and the other (cal-x2, cal-y2,
+# cal-z2). The x components of the bending ones stay at +-0.5 Pa: an end
+# compression beyond a few Pa buckles the beam at the prior's low E. Eight
+# combine a moderate axial pull with bending, at the bending traction 15 and
+# 75 deg from +x towards -y (cal-xy15, cal-xy75), tilted by 0.2 of it
+# towards +z and (suffix b) -z, and likewise towards -z (cal-xz15, cal-xz75),
+# tilted towards +y and -y: the beam's response to a pull with bending is not
+# the sum of its responses to the two (tension stiffens it in bending), and
+# the mixed paths (a small pull with bending, in the x-y plane) lie in the
+# cone of the four x-y ones alone.
 _T = 0.2 * BEND_TRACTION
-DESIGN: dict[str, tuple[float, float, float]] = {
+
+
+def _pull_bend(angle_deg: float, bend_axis: int, tilt: float) -> tuple[float, ...]:
+    """A traction ``angle_deg`` from +x towards -(y, z)[bend_axis], tilted."""
+    a = math.radians(angle_deg)
+    t = [BEND_TRACTION * math.cos(a), tilt, tilt]
+    t[1 + bend_axis] = -BEND_TRACTION * math.sin(a)
+    return tuple(t)
+
+
+DESIGN: dict[str, tuple[float, ...]] = {
     "cal-x": (STRETCH_TRACTION, _T, _T),
     "cal-y": (-0.5, -BEND_TRACTION, _T),
     "cal-z": (-0.5, _T, -BEND_TRACTION),
     "cal-x2": (STRETCH_TRACTION, -_T, -_T),
     "cal-y2": (0.5, -BEND_TRACTION, -_T),
     "cal-z2": (0.5, -_T, -BEND_TRACTION),
+    "cal-xy15": _pull_bend(15.0, 0, _T),
+    "cal-xy75": _pull_bend(75.0, 0, -_T),
+    "cal-xz15": _pull_bend(15.0, 1, _T),
+    "cal-xz75": _pull_bend(75.0, 1, -_T),
+    "cal-xy15b": _pull_bend(15.0, 0, -_T),
+    "cal-xy75b": _pull_bend(75.0, 0, _T),
+    "cal-xz15b": _pull_bend(15.0, 1, -_T),
+    "cal-xz75b": _pull_bend(75.0, 1, _T),
 }
 
 

@@ -44,7 +44,9 @@ def test_load_scaling_detected_on_the_beam_and_refused_when_declared_false():
     assert not scaling_holds(model)
 
 
-def test_calibration_cost_and_cache_with_a_digest(caplog):
+def test_calibration_cost_and_cache_with_a_digest(caplog, tmp_path, monkeypatch):
+    # a cache of its own: the session's may hold other tests' calibrations
+    monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path / "c"))
     first = _calibration()
     # one fine path of scaled_steps steps per scenario: 12 / K = 3 paths
     assert first.cost == pytest.approx(12 / 4)

@@ -24,6 +24,7 @@ CASES = [
     (["startup.py", "--repeat", "1"], "ms"),
     (["sweep.py", "--quick", "--repeat", "1"], "speedup / bound"),
     (["observe.py", "--quick", "--repeat", "1"], "ms per sigma point"),
+    (["correction.py", "--quick", "--repeat", "1"], "corrected / uncorrected"),
     pytest.param(
         ["organs.py", "--quick", "--repeat", "1", "--only", "liver"],
         "fact/step",

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import numpy as np
+import scipy.optimize
+
+from idbench import build_registry
+
 
 def test_the_corrected_filter_covers_e_true_where_the_uncorrected_cannot(
     study, tmp_path
@@ -23,3 +28,38 @@ def test_the_corrected_filter_covers_e_true_where_the_uncorrected_cannot(
             assert row["median_abs_err"] < 0.25 * plain["median_abs_err"], (body, mode)
     module.plot(runs, tmp_path / "physical_stiffness.png")
     assert (tmp_path / "physical_stiffness.png").stat().st_size > 1000
+
+
+def _traction(scenario):
+    return np.asarray(scenario.load["direction"]) * scenario.load["magnitude"]
+
+
+def _in_cone(t, generators) -> bool:
+    """``t`` is a combination of ``generators`` with coefficients >= 0."""
+    _, residual = scipy.optimize.nnls(np.column_stack(generators), t)
+    return bool(residual <= 1e-9 * np.linalg.norm(t))
+
+
+def test_the_beam_design_spans_the_mixed_paths_with_pulls_in_bending(study):
+    # the beam responds to a pull with bending not as to the two apart: the
+    # mixed paths (a small pull plus bending) must lie between design
+    # tractions that combine the two, and the design repeats no path
+    module = study("physical_stiffness")
+    registry = module.new_paths(build_registry())
+    design = {n: np.asarray(t, dtype=float) for n, t in module.DESIGN.items()}
+    paths = {n: _traction(registry.scenario(n)) for n in module.SCENARIOS}
+    for name, t in paths.items():
+        assert _in_cone(t, list(design.values())), name
+        assert not any(np.allclose(t, d, rtol=1e-3) for d in design.values()), name
+    bend = module.BEND_TRACTION
+    pulls_in_bending = [
+        d for d in design.values()
+        if 0.1 * bend < d[0] < 0.1 * module.STRETCH_TRACTION
+        and np.hypot(d[1], d[2]) > 0.1 * bend
+    ]  # fmt: skip
+    assert pulls_in_bending, "no design traction combines a pull with bending"
+    for name in ("mixed-30", "mixed-45", "mixed-60"):
+        assert _in_cone(paths[name], pulls_in_bending), name
+    # the calibration's cost: fine path simulations per coarse mesh (bound 50)
+    steps = module.DESIGN_CALIBRATION["scaled_steps"]
+    assert len(design) * steps / module.STEPS <= 50
