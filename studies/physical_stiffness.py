@@ -61,8 +61,9 @@ LIVER_MESHES = ("500", "1000")
 LIVER_TRUTH = "4000"  # the example's truth; also the calibration mesh
 LIVER_SCENARIOS = ("grasp-lift", "lateral-push", "sag-90")
 LIVER_DESIGN = ("cal-grasp-a", "cal-grasp-b", "cal-grasp-c", "cal-push-up",
-                "cal-push-down", "cal-push-in", "cal-push-out", "cal-tilt-a",
-                "cal-tilt-b")  # fmt: skip
+                "cal-push-down", "cal-push-in", "cal-push-out", "cal-push-front",
+                "cal-push-back", "cal-tilt-a", "cal-tilt-b", "cal-tilt-c",
+                "cal-tilt-d")  # fmt: skip
 LIVER_STEPS = 20
 LIVER_SEEDS = 3
 LIVER_CALIBRATION: dict[str, Any] = {"quantile": 0.25, "scaled_steps": 40,
