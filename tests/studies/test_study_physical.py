@@ -96,8 +96,8 @@ def test_the_liver_design_spans_its_manipulations_without_containing_them(study)
                for m in caps)  # fmt: skip
     shifts = [np.asarray(m.region.sphere[0]) - centre for m in caps]
     for axis in range(3):  # pairs either way, the nearest within 0.2 radius
-        along = sorted(s[axis] for s in shifts
-                       if np.count_nonzero(np.abs(s) > 1e-9) == 1 and abs(s[axis]) > 1e-9)
+        along = sorted(s[axis] for s in shifts if abs(s[axis]) > 1e-9
+                       and np.count_nonzero(np.abs(s) > 1e-9) == 1)
         assert along and np.allclose(along, [-a for a in reversed(along)]), axis
         assert min(np.abs(along)) <= 0.2 * radius, axis
     assert all(0 < np.linalg.norm(s) < radius for s in shifts)
