@@ -55,17 +55,21 @@ MODES = ("uncorrected", "used", "not used", "left out")
 
 # The liver (examples/liver/body.toml: neo-Hookean, E = 4 kPa, 8 anterior
 # markers), its three manipulations; "not used" is calibrated on the design
-# body examples/liver/calibration.toml (other grasp forces, shifted pressure
-# caps, tilted gravity) whose loads span the three without containing them.
+# body examples/liver/calibration.toml (three other grasp forces, 18 pressure
+# caps shifted 4, 8 and 12 mm either way along x, y and z from
+# lateral-push's, four gravities tilted 20 deg from -x in x-y and x-z) whose
+# loads span the three without containing them.
 LIVER_MESHES = ("500", "1000")
 LIVER_TRUTH = "4000"  # the example's truth; also the calibration mesh
 LIVER_SCENARIOS = ("grasp-lift", "lateral-push", "sag-90")
-LIVER_DESIGN = ("cal-grasp-a", "cal-grasp-b", "cal-grasp-c", "cal-push-up",
-                "cal-push-down", "cal-push-in", "cal-push-out", "cal-tilt-a",
-                "cal-tilt-b")  # fmt: skip
+LIVER_CAPS = tuple(f"cal-push-{side}{shift}" for shift in ("", "2", "3")
+                   for side in ("up", "down", "in", "out", "front", "back"))
+LIVER_DESIGN = ("cal-grasp-a", "cal-grasp-b", "cal-grasp-c", *LIVER_CAPS,
+                "cal-tilt-a", "cal-tilt-b", "cal-tilt-c", "cal-tilt-d")  # fmt: skip
 LIVER_STEPS = 20
 LIVER_SEEDS = 3
-LIVER_CALIBRATION: dict[str, Any] = {"quantile": 0.25, "scaled_steps": 40,
+# 25 design paths x 30 / 20 steps: 37.5 fine path simulations per coarse mesh
+LIVER_CALIBRATION: dict[str, Any] = {"quantile": 0.25, "scaled_steps": 30,
                                      "features": "linear"}
 LIVER_OBSERVATION: dict[str, Any] = {
     "obs_points": (8,), "obs_every": (2,), "noise": (1e-4,), "prior": (2000.0, 2000.0),

@@ -63,3 +63,46 @@ def test_the_beam_design_spans_the_mixed_paths_with_pulls_in_bending(study):
     # the calibration's cost: fine path simulations per coarse mesh (bound 50)
     steps = module.DESIGN_CALIBRATION["scaled_steps"]
     assert len(design) * steps / module.STEPS <= 50
+
+
+def test_the_liver_design_spans_its_manipulations_without_containing_them(study):
+    # sag-90's -x gravity between gravities tilted both ways in x-y and in
+    # x-z, grasp-lift's force between the grasps, lateral-push's cap the mean
+    # of pairs of caps of its radius shifted a little either way along every
+    # axis; no design manipulation is one of the liver's, and the cost is
+    # within the bound of 50 fine path simulations per coarse mesh
+    from idbench_fem.bodies.catalog import get_body
+
+    module = study("physical_stiffness")
+    body = {m.name: m for m in get_body(str(module.LIVER_DESIGN_BODY)).manipulations}
+    liver = {m.name: m for m in get_body("liver").manipulations}
+    design = [body[n] for n in module.LIVER_DESIGN]
+
+    def of(kind):
+        return [m for m in design if m.kind == kind]
+
+    g = np.asarray(liver["sag-90"].vector, dtype=float)
+    gravities = [np.asarray(m.vector, dtype=float) for m in of("gravity")]
+    for axis in (1, 2):  # the x-y and the x-z plane, tilted both ways
+        plane = [v for v in gravities if v[3 - axis] == 0 and v[axis] != 0]
+        assert {np.sign(v[axis]) for v in plane} == {-1.0, 1.0}, axis
+        assert _in_cone(g, plane), axis
+    f = np.asarray(liver["grasp-lift"].vector, dtype=float)
+    assert _in_cone(f, [np.asarray(m.vector, dtype=float) for m in of("grasp")])
+    push = liver["lateral-push"]
+    centre, radius = np.asarray(push.region.sphere[0]), push.region.sphere[1]
+    caps = of("pressure")
+    assert all(m.pressure == push.pressure and m.region.sphere[1] == radius
+               for m in caps)  # fmt: skip
+    shifts = [np.asarray(m.region.sphere[0]) - centre for m in caps]
+    for axis in range(3):  # pairs either way, the nearest within 0.2 radius
+        along = sorted(s[axis] for s in shifts if abs(s[axis]) > 1e-9
+                       and np.count_nonzero(np.abs(s) > 1e-9) == 1)
+        assert along and np.allclose(along, [-a for a in reversed(along)]), axis
+        assert min(np.abs(along)) <= 0.2 * radius, axis
+    assert all(0 < np.linalg.norm(s) < radius for s in shifts)
+    for m in design:
+        same = liver.get(m.name)
+        assert same is None or same.vector != m.vector
+    cost = len(design) * module.LIVER_CALIBRATION["scaled_steps"] / module.LIVER_STEPS
+    assert cost <= 50
