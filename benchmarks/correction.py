@@ -27,7 +27,11 @@ from _timing import one_blas_thread, parser, ratio
 
 import idbench
 from idbench import ModelSpec, Observation, Prior
-from idbench.discrepancy import CalibrationSettings, CorrectedModel, fit_discrepancy
+from idbench.calibrate.discrepancy import (
+    CalibrationSettings,
+    CorrectedModel,
+    fit_discrepancy,
+)
 from idbench_filters import RoUkf
 
 E_TRUE = 5000.0

@@ -37,7 +37,7 @@ from _timing import one_blas_thread, parser, ratio
 
 import idbench
 from idbench import ModelSpec, Observation, Prior
-from idbench.testing import WithoutStepMany
+from idbench.registry.testing import WithoutStepMany
 from idbench_filters import RoUkf, Ukf
 
 E_TRUE = 5000.0

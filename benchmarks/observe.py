@@ -1,11 +1,11 @@
 """The cost of observing by point cloud (issue 27's targets).
 
 1. One cloud prediction h(x) (each point's gated signed distance to the
-   deformed surface, :func:`idbench.depth_camera.point_to_surface`) of
+   deformed surface, :func:`idbench.observe.cloud.point_to_surface`) of
    ``--points`` points on the liver at about ``--nodes`` nodes, CPU time per
    sigma point (target <= 1 ms for 2,000 points on ~1,000 nodes): a fresh
    KD-tree query at every state (the cost before associations were reused)
-   against the reused :class:`~idbench.depth_camera.Association`: a
+   against the reused :class:`~idbench.observe.cloud.Association`: a
    frame's first evaluation, its others (states at E x 0.97 and x 1.03, as
    sigma points), and their mean over the RO-UKF's p + 1 evaluations a
    frame; best of ``--repeat`` means.
@@ -29,9 +29,10 @@ import time
 import numpy as np
 
 import idbench
-from idbench import depth_camera, observe
-from idbench.depth_camera import Cloud, point_to_surface
-from idbench.observed_model import ObservedModel
+from idbench.observe import cloud as depth_camera
+from idbench.observe import kinds as observe
+from idbench.observe.cloud import Cloud, point_to_surface
+from idbench.observe.observed_model import ObservedModel
 from idbench_filters.ro_ukf import RoUkf
 
 

@@ -41,9 +41,9 @@ from pathlib import Path
 
 from _timing import one_blas_thread, parser, ratio
 
-from idbench.config import CompareConfig
-from idbench.session import Session
-from idbench.sweep import plan, prepare
+from idbench.plan.config import CompareConfig
+from idbench.run.compare import plan, prepare
+from idbench.run.session import Session
 
 SMALL = {
     "truth_mesh": "40x5x5",
@@ -64,8 +64,8 @@ TINY = {
 CHILD = """
 import sys, time
 from pathlib import Path
-from idbench.config import CompareConfig
-from idbench.sweep import compare
+from idbench.plan.config import CompareConfig
+from idbench.run.compare import compare
 config = CompareConfig(**eval(sys.argv[1]))
 start = time.perf_counter()
 runs, _ = compare(config, Path(sys.argv[2]), jobs=int(sys.argv[3]))

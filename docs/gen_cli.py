@@ -11,7 +11,7 @@ import os
 
 import mkdocs_gen_files
 
-from idbench.cli_parser import build_parser
+from idbench.cli.parser import build_parser
 
 
 def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:

@@ -5,11 +5,8 @@ The public API is what this module exports; plugins import only from here.
 
 from __future__ import annotations
 
-from typing import Any
-
-from idbench.config import ConfigError
-from idbench.filter import Analysis, Filter, noise_matrix
-from idbench.interfaces import (
+from idbench.calibrate.effective import effective_path
+from idbench.core.interfaces import (
     BatchModel,
     BoundingBoxModel,
     CellDataModel,
@@ -35,9 +32,14 @@ from idbench.interfaces import (
     TargetModel,
     VolumeModel,
 )
-from idbench.lowrank import LowRankCovariance
-from idbench.occlusion import MaskedModel
-from idbench.plugins import (
+from idbench.core.scenario import Scenario, Sparsity
+from idbench.core.version import __version__
+from idbench.estimate.filter import Analysis, Filter, noise_matrix
+from idbench.estimate.lowrank import LowRankCovariance
+from idbench.estimate.transforms import TRANSFORMS, IdentityTransform, LogTransform
+from idbench.observe.occlusion import MaskedModel
+from idbench.plan.config import CompareConfig, ConfigError
+from idbench.registry.registry import (
     Command,
     PluginError,
     Registry,
@@ -45,29 +47,9 @@ from idbench.plugins import (
     get_plugin_manager,
     hookimpl,
 )
-from idbench.scenario import Scenario, Sparsity
-from idbench.transforms import TRANSFORMS, IdentityTransform, LogTransform
-
-__version__ = "0.1.0"
-
-_LAZY = {
-    "CompareConfig": "idbench.config",
-    "compare": "idbench.sweep",
-    "effective_path": "idbench.effective",
-    "shape_error": "idbench.metrics",
-    "simulate_path": "idbench.truth",
-    "simulate_truth": "idbench.truth",
-}
-
-
-def __getattr__(name: str) -> Any:
-    """The heavier parts of the public API, imported on first use."""
-    if name in _LAZY:
-        import importlib
-
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'idbench' has no attribute {name!r}")
-
+from idbench.run.compare import compare
+from idbench.score.metrics import shape_error
+from idbench.truth.simulate import simulate_path, simulate_truth
 
 __all__ = [
     "TRANSFORMS",

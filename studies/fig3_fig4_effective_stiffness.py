@@ -8,7 +8,7 @@ views of its effective Young's modulus per load step:
 - the RO-UKF's estimate from sparse noisy marker data (the study's Fig. 3), as
   a mean over seeds;
 - the best constant E at each load level, fitted noise-free on the whole
-  shape-error grid (:func:`idbench.effective.effective_path`): what the filter
+  shape-error grid (:func:`idbench.calibrate.effective.effective_path`): what the filter
   would track with perfect data.
 
 Fig. 4 shows the same per-level values as a heat map over the positions the
@@ -26,8 +26,8 @@ import numpy as np
 import pandas as pd
 
 from idbench import CompareConfig, effective_path
-from idbench.session import Session
-from idbench.sweep import plan
+from idbench.run.compare import plan
+from idbench.run.session import Session
 
 FULL = {
     "meshes": ("20x4x4",),

@@ -5,7 +5,7 @@ E_true at 240 and 525 nodes in bending) and every estimator is confidently
 wrong about the tissue. Corrected (``correction = "approximation-error"``),
 the estimator's observation model carries the coarse mesh's discrepancy
 against a finer mesh of the same body, calibrated offline on paths of its
-own design (:mod:`idbench.discrepancy`; never the comparison's truth data),
+own design (:mod:`idbench.calibrate.discrepancy`; never the comparison's truth data),
 and the estimate is the *physical* E. For each coarse mesh and load path:
 
 - ``uncorrected``: today's default;
@@ -36,8 +36,8 @@ import numpy as np
 import pandas as pd
 
 from idbench import Registry, Scenario, build_registry
-from idbench.config import CompareConfig
-from idbench.sweep import compare
+from idbench.plan.config import CompareConfig
+from idbench.run.compare import compare
 
 # Parameters (full size)
 MESHES = ("14x3x3", "20x4x4")  # 240, 525 nodes
@@ -289,7 +289,7 @@ def summarise(runs: pd.DataFrame, by: tuple[str, ...] = ("body", "mode",
 def plot(runs: pd.DataFrame, path: Path) -> None:
     import matplotlib.pyplot as plt
 
-    from idbench.figures import style
+    from idbench.report.figures import style
 
     ok = runs[(runs["status"] == "ok") & (runs["estimator"] == "ro-ukf")]
     fig, axs = plt.subplots(1, 2, figsize=(11, 4))

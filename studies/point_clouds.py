@@ -3,7 +3,7 @@
 For each body (examples/liver; examples/kidney with ``--bodies
 liver,kidney``: its tumour, parenchyma and tumour E identified) one
 comparison whose ``observe`` axis holds the baselines (8 markers, the tool
-force) and depth-camera variants (:mod:`idbench.depth_camera`): a base cloud
+force) and depth-camera variants (:mod:`idbench.observe.cloud`): a base cloud
 (:data:`BASE`, ``cloud-base``) and, from it, one realism knob varied at a
 time: points per frame (:data:`POINTS`), outlier fraction (:data:`OUTLIERS`)
 and noise along the ray (:data:`NOISE`), for :data:`ESTIMATORS` and
@@ -29,8 +29,8 @@ import _cli
 import numpy as np
 import pandas as pd
 
-from idbench.config import CompareConfig
-from idbench.sweep import compare
+from idbench.plan.config import CompareConfig
+from idbench.run.compare import compare
 
 BODIES = {"liver": "grasp-lift", "kidney": "grasp-pole"}
 """Each body's manipulation."""

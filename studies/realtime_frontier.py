@@ -4,7 +4,7 @@ For every (model mesh, estimator) the shape error reached at the last step
 (mean over seeds) is set against the estimator's wall time per load step,
 measured on this machine, with the 30 Hz and 60 Hz budgets: the table answers
 "which mesh and estimator give the lowest shape error within a real-time
-budget" (see :func:`idbench.report.frontier`).
+budget" (see :func:`idbench.report.write.frontier`).
 
 Wall time per step is the estimator's ``update`` time only (the harness's
 metrics solves are excluded): the larger of the median step and the total over
@@ -40,8 +40,8 @@ from pathlib import Path
 import _cli
 import pandas as pd
 
-from idbench.files import atomic_write, atomic_write_bytes
-from idbench.report import frontier, frontier_figure, parameter_names
+from idbench.report.write import frontier, frontier_figure, parameter_names
+from idbench.store.files import atomic_write, atomic_write_bytes
 
 SCENARIO = "bend-y"
 FULL = {

@@ -20,10 +20,11 @@ import _cli
 import numpy as np
 import pandas as pd
 
-from idbench import metrics, simulate_path
-from idbench.runspec import RunSpec
-from idbench.session import Session
-from idbench.sweep import runs_of as expand
+from idbench import simulate_path
+from idbench.plan.runspec import RunSpec
+from idbench.run.compare import runs_of as expand
+from idbench.run.session import Session
+from idbench.score import metrics
 
 ESTIMATOR = "ro-ukf"
 FULL = {

@@ -11,7 +11,7 @@ posterior's std. Coarse meshes of 90, 240 and 525 nodes against the
 
 The remedy (the RO-UKF's ``model_error`` setting, "ro-ukf+me"): R is widened
 by e^2, e the RMS marker misfit of the coarse mesh at its best constant E on
-the noise-free truth of the same path (:func:`idbench.posterior.model_error`;
+the noise-free truth of the same path (:func:`idbench.estimate.posterior.model_error`;
 a calibration on the very path later identified, so the best case for it).
 Reported: coverage of E_true before and after, and the cost in accuracy of
 the mean (|E_final - E_ref| / E_ref, shape error).
@@ -28,10 +28,11 @@ import _cli
 import numpy as np
 import pandas as pd
 
-from idbench import CompareConfig, compare, metrics
-from idbench.posterior import model_error
-from idbench.session import Session
-from idbench.sweep import runs_of
+from idbench import CompareConfig, compare
+from idbench.estimate.posterior import model_error
+from idbench.run.compare import runs_of
+from idbench.run.session import Session
+from idbench.score import metrics
 
 # Parameters (full size)
 MESHES = ("9x2x2", "14x3x3", "20x4x4")  # 90, 240, 525 nodes
@@ -187,7 +188,7 @@ def summarise(runs: pd.DataFrame) -> pd.DataFrame:
 def plot(table: pd.DataFrame, path: Path) -> None:
     import matplotlib.pyplot as plt
 
-    from idbench.figures import style
+    from idbench.report.figures import style
 
     cases = list(dict.fromkeys(table["case"]))
     nodes = table.groupby("case", sort=False)["model_nodes"].first()

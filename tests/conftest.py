@@ -13,7 +13,7 @@ from types import ModuleType
 
 import pytest
 
-from idbench.plugins import AUTOLOAD_ENV
+from idbench.registry.registry import AUTOLOAD_ENV
 
 STUDIES = Path(__file__).resolve().parent.parent / "studies"
 
@@ -110,15 +110,15 @@ def install(tmp_path, monkeypatch) -> Iterator[Callable[[str, str], None]]:
 
 @pytest.fixture
 def counted(monkeypatch) -> list[str]:
-    """The run ids :func:`idbench.executors.execute` runs (serial sweeps)."""
-    import idbench.executors
+    """The run ids :func:`idbench.run.executors.execute` runs (serial sweeps)."""
+    import idbench.run.executors
 
     executed: list[str] = []
-    real = idbench.executors.execute
+    real = idbench.run.executors.execute
 
     def wrapper(spec, session, phase=None):
         executed.append(spec.run_id)
         return real(spec, session, phase)
 
-    monkeypatch.setattr(idbench.executors, "execute", wrapper)
+    monkeypatch.setattr(idbench.run.executors, "execute", wrapper)
     return executed

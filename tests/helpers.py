@@ -12,7 +12,7 @@ from toymodels import LinearToy
 
 import idbench
 from idbench import CompareConfig, Observation, Prior
-from idbench.cli import main
+from idbench.cli.commands import main
 
 TRUTH, MODEL, STEPS = "12x3x3", "4x1x1", 5
 """The tiny comparison's truth mesh, model mesh and load steps."""

@@ -33,7 +33,7 @@ with e the RMS coarse-vs-fine marker misfit at the best constant parameters
 uncertainty; it cannot remove the bias of the mean.
 
 Corrected variant (``correction = "approximation-error"``, see
-:class:`idbench.Filter` and :mod:`idbench.discrepancy`): the model's
+:class:`idbench.Filter` and :mod:`idbench.calibrate.discrepancy`): the model's
 ``observe`` already adds the calibrated mean discrepancy mu(h(x_i)) to each
 sigma point's observation, and R becomes the full matrix
 R = (max(sigma, floor)^2 + e^2) I + Sigma(h(x)) at the forecast mean x, in

@@ -17,12 +17,12 @@ import pandas as pd
 import pytest
 
 import idbench
-import idbench.sweep
-from idbench.cli import main
-from idbench.config import CompareConfig, ConfigError
-from idbench.results import ResultsError
-from idbench.sweep import compare
-from idbench.sweep import runs_of as expand
+import idbench.run.compare
+from idbench.cli.commands import main
+from idbench.plan.config import CompareConfig, ConfigError
+from idbench.run.compare import compare
+from idbench.run.compare import runs_of as expand
+from idbench.store.results import ResultsError
 
 TRUTH = "20x3x3"
 COARSE, FINE = "6x2x2", "10x2x2"
@@ -278,8 +278,8 @@ def test_run_id_is_deterministic():
     assert expand(tiny(noise=(2e-4,)))[0].run_id not in a
     # and the same in another interpreter (no hash randomisation)
     code = (
-        "from idbench.config import CompareConfig;"
-        "from idbench.sweep import runs_of as expand;"
+        "from idbench.plan.config import CompareConfig;"
+        "from idbench.run.compare import runs_of as expand;"
         f"print(' '.join(r.run_id for r in expand(CompareConfig(truth_mesh={TRUTH!r},"
         f"meshes=({COARSE!r},{FINE!r}),estimators=('rls','batch-ls'),steps=6,"
         "seeds=1))))"
@@ -438,7 +438,7 @@ def test_toml_values_are_used(tmp_path, capsys):
 
 
 def test_toml_compare_table_keeps_estimators_next_to_settings(tmp_path):
-    from idbench.config import load_toml
+    from idbench.plan.config import load_toml
 
     fields = load_toml(write_toml(tmp_path, TOML))
     assert fields["estimators"] == ("rls", "batch-ls", "lms")
@@ -502,7 +502,7 @@ class Boom:
 
 def test_failing_estimator_is_isolated(tmp_path):
     reg = idbench.build_registry()
-    reg.estimators["boom"] = idbench.plugins.Entry("boom", Boom, "test")
+    reg.estimators["boom"] = idbench.registry.registry.Entry("boom", Boom, "test")
     cfg = tiny(estimators=("rls", "boom", "batch-ls"))
     runs, traces = compare(cfg, tmp_path / "out", registry=reg)
     by = runs.set_index("estimator")
@@ -523,7 +523,7 @@ def test_failing_estimator_is_isolated(tmp_path):
 
 def test_failure_at_the_first_step(tmp_path):
     reg = idbench.build_registry()
-    reg.estimators["boom"] = idbench.plugins.Entry("boom", Boom, "test")
+    reg.estimators["boom"] = idbench.registry.registry.Entry("boom", Boom, "test")
     cfg = tiny(estimators=("boom",), estimator_settings={"boom": {"fail_at": 1}})
     runs, traces = compare(cfg, tmp_path / "out", registry=reg)
     assert list(runs["status"]) == ["failed"]
@@ -532,8 +532,8 @@ def test_failure_at_the_first_step(tmp_path):
 
 
 def test_interleave_puts_runs_on_different_data_first():
-    from idbench.sweep import interleave
-    from idbench.sweep import runs_of as expand
+    from idbench.run.compare import interleave
+    from idbench.run.compare import runs_of as expand
 
     cfg = CompareConfig(meshes=("4x1x1",), seeds=3, estimators=("rls", "lms", "ro-ukf"))
     runs = expand(cfg)
@@ -545,9 +545,9 @@ def test_interleave_puts_runs_on_different_data_first():
 
 
 def test_a_worker_uses_the_reference_another_worker_fitted(tmp_path):
-    from idbench.harness import execute
-    from idbench.session import Session
-    from idbench.sweep import runs_of as expand
+    from idbench.run.compare import runs_of as expand
+    from idbench.run.harness import execute
+    from idbench.run.session import Session
 
     spec = expand(CompareConfig(truth_mesh="8x2x2", meshes=("4x1x1",), steps=4,
                                 seeds=1, estimators=("rls",)))[0]  # fmt: skip

@@ -1,7 +1,7 @@
-"""The core names no plugin and no physics (issue #12).
+"""The core names no plugin and no physics.
 
 Every string constant (docstrings excepted), name, attribute and argument in
-``idbench/*.py`` is scanned for the names the built-in plugins register (models,
+every module of ``idbench/`` is scanned for the names the built-in plugins register (models,
 scenarios, estimators, their default meshes) and for words that would assume
 the beam or elasticity. Defaults must come from what plugins register.
 """
@@ -105,7 +105,9 @@ def test_builtin_names_are_known():
     assert {"svk-beam", "bend-y", "ro-ukf", "batch-ls", "80x11x11"} <= names
 
 
-@pytest.mark.parametrize("path", sorted(CORE.glob("*.py")), ids=lambda p: p.name)
+@pytest.mark.parametrize(
+    "path", sorted(CORE.rglob("*.py")), ids=lambda p: str(p.relative_to(CORE))
+)
 def test_core_module_names_no_plugin_and_no_physics(path):
     banned = builtin_names() | set(PHYSICS)
     found = offences(path, banned)

@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from idbench import ConfigError, ModelFailure, ModelSpec, Observation, Prior
-from idbench.config import CompareConfig
-from idbench.discrepancy import (
+from idbench.calibrate.discrepancy import (
     CalibrationSettings,
     CorrectedModel,
     Discrepancy,
@@ -18,9 +17,10 @@ from idbench.discrepancy import (
     fit_discrepancy,
     scaling_holds,
 )
-from idbench.plugins import build_registry
-from idbench.sweep import compare
-from idbench.testing import check_model
+from idbench.plan.config import CompareConfig
+from idbench.registry.registry import build_registry
+from idbench.registry.testing import check_model
+from idbench.run.compare import compare
 
 REG = build_registry()
 BEAM = REG.model("svk-beam")
@@ -195,7 +195,7 @@ def test_a_fine_path_that_fails_at_high_load_keeps_the_states_it_reached(caplog)
 
 
 def test_a_correction_with_another_observation_model_is_refused(tmp_path, capsys):
-    from idbench.cli import main
+    from idbench.cli.commands import main
 
     toml = tmp_path / "c.toml"
     toml.write_text('[estimators.ro-ukf]\ncorrection = "approximation-error"\n')
@@ -260,7 +260,7 @@ def test_the_corrected_grid_and_targets_carry_the_discrepancy_and_its_covariance
     from pathlib import Path
 
     from idbench import Scenario
-    from idbench.truth import simulate_truth
+    from idbench.truth.simulate import simulate_truth
 
     solid = REG.model("solid")
     body = str(Path(__file__).resolve().parents[2] / "examples/liver/calibration.toml")

@@ -19,9 +19,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from idbench.config import CompareConfig, ConfigError
-from idbench.executors import ClusterLost
-from idbench.sweep import compare
+from idbench.plan.config import CompareConfig, ConfigError
+from idbench.run.compare import compare
+from idbench.run.executors import ClusterLost
 
 distributed = pytest.importorskip("distributed")
 pytestmark = pytest.mark.dask  # run last (tests/conftest.py)
@@ -160,7 +160,7 @@ def closed_port() -> str:
 def test_failed_connection_leaves_the_folder_usable(cache, tmp_path, monkeypatch):
     """Nothing stored: no manifest, so other settings may use the folder; runs
     stored before: kept, with their manifest."""
-    monkeypatch.setattr("idbench.executors.dask.CONNECT_TIMEOUT_S", 1)
+    monkeypatch.setattr("idbench.run.executors.dask.CONNECT_TIMEOUT_S", 1)
     out = tmp_path / "out"
     with pytest.raises(ConfigError, match="cannot connect"):
         compare(tiny(), out, scheduler=closed_port())
@@ -210,19 +210,19 @@ def test_lost_scheduler_stops_and_resumes(
     """The scheduler closed after ``after`` stored runs (0: before any came
     back): one error naming it and the count, no run recorded as failed for
     it, no manifest when nothing is stored, and a rerun completes the sweep."""
-    import idbench.sweep
+    import idbench.run.compare
 
     config = tiny(seeds=3)
     out = tmp_path / "lost"
     address = threads_cluster.scheduler_address
     if after == 0:
-        prepare = idbench.sweep.prepare
+        prepare = idbench.run.compare.prepare
 
         def prepare_then_close(runs, session):
             prepare(runs, session)
             threads_cluster.close()
 
-        monkeypatch.setattr(idbench.sweep, "prepare", prepare_then_close)
+        monkeypatch.setattr(idbench.run.compare, "prepare", prepare_then_close)
 
     def progress(done, total, row):
         if done == after:
@@ -262,8 +262,8 @@ def dask_log_levels():
 def test_cli_says_a_lost_scheduler_in_one_line(
     threads_cluster, cache, tmp_path, monkeypatch, capfd, dask_log_levels
 ):
-    from idbench.cli import main
-    from idbench.results import ResultStore
+    from idbench.cli.commands import main
+    from idbench.store.results import ResultStore
 
     write = ResultStore.write
     writes: list[str] = []

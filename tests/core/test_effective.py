@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from idbench.effective import effective_path
-from idbench.interfaces import ModelSpec
-from idbench.plugins import build_registry
-from idbench.truth import simulate_path, simulate_truth
+from idbench.calibrate.effective import effective_path
+from idbench.core.interfaces import ModelSpec
+from idbench.registry.registry import build_registry
+from idbench.truth.simulate import simulate_path, simulate_truth
 
 E_TRUE = 5000.0
 

@@ -23,9 +23,9 @@ import pandas as pd
 import pytest
 from helpers import MODEL, STEPS, TRUTH, tiny
 
-from idbench.cli import main
-from idbench.config import ConfigError
-from idbench.sweep import compare
+from idbench.cli.commands import main
+from idbench.plan.config import ConfigError
+from idbench.run.compare import compare
 
 TINY = ["--truth-mesh", TRUTH, "--meshes", MODEL, "--steps", str(STEPS), "--seeds",
         "1"]  # fmt: skip
@@ -403,12 +403,12 @@ def test_other_commands_bad_paths_and_garbage_are_one_line(tmp_path, capsys):
 
 
 def test_a_failed_write_is_one_line(tmp_path, capsys, monkeypatch):
-    import idbench.results
+    import idbench.store.results
 
     def full(*args: Any, **kwargs: Any) -> None:
         raise OSError(27, "File too large")
 
-    monkeypatch.setattr(idbench.results, "atomic_write_parquet", full)
+    monkeypatch.setattr(idbench.store.results, "atomic_write_parquet", full)
     err = _one_line(capsys, ["compare", *TINY, "--out", str(tmp_path / "o")])
     assert "File too large" in err
 
@@ -469,7 +469,7 @@ def test_truth_cache_rejects_altered_or_misshapen_entries(
     tmp_path, monkeypatch, caplog
 ):
     from idbench import ModelSpec, build_registry
-    from idbench.truth import cache_dir, simulate_truth
+    from idbench.truth.simulate import cache_dir, simulate_truth
 
     monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path / "cache"))
     reg = build_registry()

@@ -23,9 +23,9 @@ from helpers import registry_with
 from toymodels import SensitiveLinearToy
 
 import idbench
-from idbench.session import Session
-from idbench.settings import estimator_arguments, public_settings
-from idbench.sweep import compare, runs_of
+from idbench.core.settings import estimator_arguments, public_settings
+from idbench.run.compare import compare, runs_of
+from idbench.run.session import Session
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 TUTORIAL = DOCS / "tutorials" / "estimator-plugin.md"

@@ -21,10 +21,10 @@ from pathlib import Path
 
 import pytest
 
-from idbench.cli import main
-from idbench.files import temporary_prefix
-from idbench.lock import FolderBusy, acquire, release
-from idbench.results import ResultStore
+from idbench.cli.commands import main
+from idbench.store.files import temporary_prefix
+from idbench.store.lock import FolderBusy, acquire, release
+from idbench.store.results import ResultStore
 
 TINY = ["--truth-mesh", "12x3x3", "--meshes", "4x1x1", "--steps", "5", "--seeds",
         "1", "--estimators", "rls"]  # fmt: skip
@@ -32,7 +32,7 @@ TINY = ["--truth-mesh", "12x3x3", "--meshes", "4x1x1", "--steps", "5", "--seeds"
 HOLDER = textwrap.dedent(
     """
     import sys
-    from idbench.results import ResultStore
+    from idbench.store.results import ResultStore
     store = ResultStore(sys.argv[1], {"holder": 1}, {})
     print("held", flush=True)
     sys.stdin.read()  # until the test closes our stdin
@@ -113,7 +113,7 @@ def test_report_is_refused_while_a_compare_writes(tmp_path, spawn, capsys):
     out = tmp_path / "out"
     assert main(["compare", *TINY, "--out", str(out), "-q"]) == 0
     writer = spawn(
-        "import sys; from idbench.lock import acquire; acquire(sys.argv[1]);"
+        "import sys; from idbench.store.lock import acquire; acquire(sys.argv[1]);"
         "print('held', flush=True); sys.stdin.read()",
         str(out),
     )
@@ -131,7 +131,7 @@ def test_wait_waits_until_the_holder_is_done(tmp_path, holder, spawn):
     out = tmp_path / "out"
     proc = holder(out)
     code = (
-        "import sys; from idbench.cli import main;"
+        "import sys; from idbench.cli.commands import main;"
         "sys.exit(main(['compare', *sys.argv[2:], '--out', sys.argv[1], '--wait',"
         " '-q']))"
     )

@@ -1,6 +1,6 @@
 """Runs are isolated from each other: a plugin cannot corrupt the model of later runs.
 
-Each run gets a private copy of its model (:mod:`idbench.isolation`); the FE
+Each run gets a private copy of its model (:mod:`idbench.run.isolation`); the FE
 models' constants are read-only; after a run the copy and the master are
 checked against the master's fingerprint. A hostile estimator's run fails,
 naming it, and every other run gives the numbers it gives without it:
@@ -15,12 +15,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from idbench.config import CompareConfig
-from idbench.harness import execute
-from idbench.isolation import changes, fingerprint, private_copy
-from idbench.plugins import build_registry
-from idbench.session import Session
-from idbench.sweep import compare, plan, prepare
+from idbench.plan.check import plan
+from idbench.plan.config import CompareConfig
+from idbench.registry.registry import build_registry
+from idbench.run.compare import compare, prepare
+from idbench.run.harness import execute
+from idbench.run.isolation import changes, fingerprint, private_copy
+from idbench.run.session import Session
 
 HOSTILE = '''
     """Estimators that write into the model they are given, then answer the prior."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from idbench import metrics
+from idbench.score import metrics
 
 
 @pytest.fixture(autouse=True)

@@ -15,13 +15,14 @@ from helpers import registry_with
 from toymodels import SensitiveLinearToy
 
 import idbench
-from idbench import depth_camera, observe
-from idbench.cli import main
-from idbench.config import CompareConfig, ConfigError
-from idbench.depth_camera import Cloud, point_to_surface, render
-from idbench.interfaces import Observation
-from idbench.session import Session
-from idbench.sweep import compare, runs_of
+from idbench.cli.commands import main
+from idbench.core.interfaces import Observation
+from idbench.observe import cloud as depth_camera
+from idbench.observe import kinds as observe
+from idbench.observe.cloud import Cloud, point_to_surface, render
+from idbench.plan.config import CompareConfig, ConfigError
+from idbench.run.compare import compare, runs_of
+from idbench.run.session import Session
 
 CUBE = np.array(
     [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
@@ -270,7 +271,7 @@ def test_markers_keep_todays_stream_and_run_ids():
     session = Session()
     truth = session.truth(plain)
     seq = np.random.SeedSequence(
-        [plain.seed, int(idbench.files.stable_hash(plain.noise_key()), 16)]
+        [plain.seed, int(idbench.store.files.stable_hash(plain.noise_key()), 16)]
     )
     noise = np.random.default_rng(seq).standard_normal(truth.observations.shape)
     for k, obs in enumerate(session.observations(plain), start=1):
@@ -430,7 +431,7 @@ def test_a_model_without_surface_is_refused_for_a_cloud(driven):
 
 
 def test_toml_observe_axis_and_tables(tmp_path):
-    from idbench.config import build_config, load_toml
+    from idbench.plan.config import build_config, load_toml
 
     path = tmp_path / "c.toml"
     path.write_text(
@@ -446,8 +447,8 @@ def test_toml_observe_axis_and_tables(tmp_path):
 
 
 def test_a_low_rank_innovation_covariance_gives_the_dense_nis():
-    from idbench.lowrank import LowRankCovariance
-    from idbench.metrics import nis
+    from idbench.estimate.lowrank import LowRankCovariance
+    from idbench.score.metrics import nis
 
     rng = np.random.default_rng(0)
     low = LowRankCovariance(rng.uniform(0.5, 2.0, 40), rng.normal(size=(40, 3)))
@@ -485,7 +486,7 @@ def test_fe_surface_is_closed_and_outward_and_reaction_balances_the_load():
 
 
 def test_check_optional_members_catches_a_bad_surface():
-    from idbench.testing import check_optional_members
+    from idbench.registry.testing import check_optional_members
 
     toy = SensitiveLinearToy(n_steps=3)
     toy.surface = lambda state: (np.zeros((4, 3)), np.array([[0, 1, 7]]))  # type: ignore[attr-defined]

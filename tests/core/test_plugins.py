@@ -20,8 +20,8 @@ import pluggy
 import pytest
 
 import idbench
-from idbench import hookspecs
-from idbench.plugins import AUTOLOAD_ENV
+from idbench.registry import hookspecs
+from idbench.registry.registry import AUTOLOAD_ENV
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -364,7 +364,7 @@ def test_the_docs_document_every_hookspec() -> None:
 
 def test_import_idbench_loads_no_plugin() -> None:
     code = (
-        "import sys, idbench, idbench.plugins, idbench.cli\n"
+        "import sys, idbench, idbench.registry.registry, idbench.cli.commands\n"
         "plugins = ('idbench_fem', 'idbench_filters', 'idbench_skfem')\n"
         "bad = [m for m in plugins if m in sys.modules]\n"
         "assert not bad, bad\n"
@@ -538,7 +538,7 @@ def test_idbench_skfem_is_a_deprecated_alias_not_a_second_plugin() -> None:
         reg = idbench.build_registry()
         assert sorted(reg.models) == ["solid", "svk-beam"], reg.models
         assert {e.plugin for e in reg.models.values()} == {"fem"}
-        pm = idbench.plugins.get_plugin_manager()
+        pm = idbench.registry.registry.get_plugin_manager()
         names = {pm.get_name(p) for p in pm.get_plugins()}
         assert names == {"fem", "filters"}, names
         assert idbench_skfem not in pm.get_plugins()
@@ -552,7 +552,9 @@ def test_idbench_skfem_is_a_deprecated_alias_not_a_second_plugin() -> None:
 
 def test_the_registry_cache_lives_in_plugins_and_the_cli_uses_it() -> None:
     """One registry a process until reset; the command line reads that one."""
-    from idbench import cli, cli_parser, plugins
+    from idbench.cli import commands as cli
+    from idbench.cli import parser as cli_parser
+    from idbench.registry import registry as plugins
 
     plugins.reset_registry_cache()
     first = plugins.cached_registry()
@@ -604,7 +606,7 @@ def register_observations(register):
 def test_plugins_lists_the_core_and_the_plugins_observation_models(
     install: Any, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from idbench.cli import CORE, main
+    from idbench.cli.commands import CORE, main
 
     install("depthplug", OBSERVES_DEPTH)
     assert main(["plugins", "--json"]) == 0

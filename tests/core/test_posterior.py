@@ -15,7 +15,7 @@ from test_ensemble import SIGMA, BatchedToy, make_data
 from toymodels import LinearToy
 
 from idbench import Observation, Prior
-from idbench.posterior import (
+from idbench.estimate.posterior import (
     LEVELS,
     PosteriorSettings,
     grid_posterior,

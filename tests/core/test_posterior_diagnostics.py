@@ -14,10 +14,10 @@ import pytest
 from scipy.signal import lfilter
 
 from idbench import Observation, Prior
-from idbench.interfaces import ParameterSpec
-from idbench.posterior import PosteriorSettings
-from idbench.posterior.diagnostics import autocorr_time, split_rhat
-from idbench.posterior.target import LogPosterior
+from idbench.core.interfaces import ParameterSpec
+from idbench.estimate.posterior import PosteriorSettings
+from idbench.estimate.posterior.diagnostics import autocorr_time, split_rhat
+from idbench.estimate.posterior.target import LogPosterior
 
 
 def ar1(phi: float, chains: int, n: int, p: int = 1, seed: int = 0) -> np.ndarray:

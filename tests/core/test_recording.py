@@ -15,13 +15,13 @@ import pytest
 from helpers import registry_with
 
 import idbench
-from idbench import recording
-from idbench.cli import main
-from idbench.config import CompareConfig
-from idbench.depth_camera import heldout_points_mm
-from idbench.recorder import record
-from idbench.report import write_report
-from idbench.sweep import compare
+from idbench.cli.commands import main
+from idbench.observe.cloud import heldout_points_mm
+from idbench.plan.config import CompareConfig
+from idbench.report.write import write_report
+from idbench.run.compare import compare
+from idbench.run.record import record
+from idbench.store import recording
 
 TRUTH, MESH, STEPS = "20x3x3", "6x2x2", 4
 ESTIMATORS = ("rls", "ro-ukf")
@@ -248,9 +248,9 @@ def test_a_missing_frame_is_named(recordings, tmp_path):
 
 def test_a_recording_written_by_hand_as_the_readme_says(tmp_path, monkeypatch):
     """Clouds of a different size every frame, no idbench writer, no truth mesh."""
-    from idbench.session import Session
-    from idbench.sweep import runs_of
-    from idbench.truth import simulate_path
+    from idbench.run.compare import runs_of
+    from idbench.run.session import Session
+    from idbench.truth.simulate import simulate_path
 
     monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path / "cache"))
     spec = runs_of(CompareConfig(truth_mesh=TRUTH, meshes=(MESH,), **base()))[0]

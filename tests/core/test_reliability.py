@@ -27,10 +27,10 @@ import pytest
 from helpers import MODEL, STEPS, TRUTH, registry_with, tiny
 
 import idbench
-from idbench.cli import main
-from idbench.config import ConfigError
-from idbench.plugins import AUTOLOAD_ENV
-from idbench.sweep import compare
+from idbench.cli.commands import main
+from idbench.plan.config import ConfigError
+from idbench.registry.registry import AUTOLOAD_ENV
+from idbench.run.compare import compare
 from idbench_fem.bodies import box as meshes
 
 BUILTIN_ESTIMATORS = {"ro-ukf", "ukf", "enkf", "etkf", "rls", "lms", "batch-ls"}

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from idbench.cli import main
+from idbench.cli.commands import main
 
 
 @pytest.fixture()
@@ -86,7 +86,7 @@ def synthetic(steps=4):
 
 
 def test_frontier_on_known_points():
-    from idbench.report import frontier
+    from idbench.report.write import frontier
 
     runs, traces = synthetic()
     table = frontier(runs, traces).set_index(["model_nodes", "estimator"])
@@ -109,7 +109,7 @@ def test_frontier_on_known_points():
 
 
 def test_pareto_front_ties_and_nan():
-    from idbench.report import pareto_front
+    from idbench.report.write import pareto_front
 
     cost = [1.0, 1.0, 2.0, float("nan"), 0.5]
     error = [1.0, 1.0, 0.5, 0.0, 3.0]
@@ -118,7 +118,7 @@ def test_pareto_front_ties_and_nan():
 
 
 def test_write_report_draws_the_frontier(tmp_path):
-    from idbench.report import write_report
+    from idbench.report.write import write_report
 
     runs, traces = synthetic()
     runs["E_final"], runs["E_true"] = 4000.0, 5000.0

@@ -16,7 +16,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from idbench.cli import main
+from idbench.cli.commands import main
 
 TINY = ["--truth-mesh", "12x3x3", "--meshes", "4x1x1,6x2x2", "--steps", "4",
         "--seeds", "2"]  # fmt: skip
@@ -81,7 +81,7 @@ def test_progress_lines_when_not_a_terminal(piped):
 
 
 def test_rows_sort_by_nodes_numerically():
-    from idbench.report import summarise
+    from idbench.report.write import summarise
 
     runs = pd.DataFrame(
         {
@@ -124,7 +124,7 @@ def test_formats_for_scripts(piped, fmt):
 
 
 def test_terminal_table_abbreviates_headers_not_numbers(piped):
-    from idbench.report import summarise, summary_text
+    from idbench.report.write import summarise, summary_text
 
     out, _ = piped
     runs = pd.read_parquet(out / "runs.parquet")

@@ -17,9 +17,9 @@ import pytest
 from helpers import registry_with
 
 import idbench
-from idbench.config import CompareConfig
-from idbench.report import parameter_names, summarise, summary_text, write_report
-from idbench.sweep import compare
+from idbench.plan.config import CompareConfig
+from idbench.report.write import parameter_names, summarise, summary_text, write_report
+from idbench.run.compare import compare
 
 
 class SpringChain:
@@ -183,7 +183,7 @@ def test_two_parameters_get_small_multiples(registry, tmp_path):
     assert parameter_names(runs) == ["k_0", "k_1"]
     summary = summarise(runs)
     assert summary[["k_0_ratio", "k_1_ratio"]].notna().all().all()
-    from idbench.report import figures
+    from idbench.report.write import figures
 
     traces = pd.read_parquet(out / "traces.parquet")
     figs = figures(runs, traces)
@@ -210,8 +210,8 @@ def test_frontier_figure_without_ok_runs(tmp_path):
 
 
 def test_study_values_are_overlaid_and_labelled(registry, tmp_path):
-    from idbench.figures import STUDY_LABEL
-    from idbench.report import figures
+    from idbench.report.figures import STUDY_LABEL
+    from idbench.report.write import figures
 
     out, runs, traces = run(registry, tmp_path)
     study = pd.DataFrame(

@@ -11,8 +11,8 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from idbench.cli import main
-from idbench.sanitize import markdown_cell, printable
+from idbench.cli.commands import main
+from idbench.core.sanitize import markdown_cell, printable
 
 HOSTILE = "a|b\n<img src=x onerror=alert(1)>\x1b]8;;http://x\x07link\x1b]8;;\x07\x1b[2J"
 

@@ -20,11 +20,11 @@ import pandas as pd
 import pytest
 from helpers import MODEL, STEPS, TRUTH, tiny
 
-import idbench.executors
-import idbench.plugins
-from idbench.cli import main
-from idbench.results import ResultsError
-from idbench.sweep import compare, runs_of
+import idbench.registry.registry
+import idbench.run.executors
+from idbench.cli.commands import main
+from idbench.run.compare import compare, runs_of
+from idbench.store.results import ResultsError
 from idbench_fem.bodies.box import parse as beam_mesh
 
 ARGS = ["compare", "--truth-mesh", TRUTH, "--meshes", MODEL, "--steps", str(STEPS),
@@ -92,13 +92,13 @@ def test_a_body_file_changed_under_the_same_path_is_refused(tmp_path, monkeypatc
 
 
 def test_a_plugin_version_change_is_refused(tmp_path, monkeypatch, counted):
-    real = idbench.plugins.plugin_version
+    real = idbench.registry.registry.plugin_version
     version = {"filters": "0.0.1"}
 
     def fake(pm, name):
         return version.get(name) or real(pm, name)
 
-    monkeypatch.setattr(idbench.plugins, "plugin_version", fake)
+    monkeypatch.setattr(idbench.registry.registry, "plugin_version", fake)
     out = tmp_path / "out"
     compare(tiny(), out)
     recorded = json.loads((out / "manifest.json").read_text())["plugins"]

@@ -1,10 +1,10 @@
 """How a sweep plans, orders and shares its work (commit 2eda7a2).
 
-``estimate_solves`` of the built-in estimators and :func:`idbench.sweep.plan`'s
-cost guess, :func:`idbench.sweep.dispatch_order`, the products a
-:class:`~idbench.session.Session` shares (:meth:`~Session.shared`,
+``estimate_solves`` of the built-in estimators and :func:`idbench.plan.check.plan`'s
+cost guess, :func:`idbench.run.compare.dispatch_order`, the products a
+:class:`~idbench.run.session.Session` shares (:meth:`~Session.shared`,
 :meth:`~Session.adopt`) and how the worker pool passes them on, workers started
-ahead (:func:`idbench.executors.started`), and :meth:`ResultStore.scan` and
+ahead (:func:`idbench.run.executors.started`), and :meth:`ResultStore.scan` and
 :meth:`~ResultStore.consolidate`.
 
 Everything runs on tiny meshes (truth 10x2x2, models 4x1x1 and 6x2x2) with
@@ -31,15 +31,16 @@ import pandas as pd
 import pytest
 
 import idbench
-import idbench.session
-from idbench import executors
-from idbench.config import CompareConfig, ConfigError
-from idbench.executors import execute_all
-from idbench.plugins import Entry, Registry, build_registry
-from idbench.results import ResultStore
-from idbench.runspec import RunSpec
-from idbench.session import Session
-from idbench.sweep import Plan, compare, dispatch_order, interleave, plan, runs_of
+import idbench.run.session
+from idbench.plan.check import Plan, plan
+from idbench.plan.config import CompareConfig, ConfigError
+from idbench.plan.runspec import RunSpec
+from idbench.registry.registry import Entry, Registry, build_registry
+from idbench.run import executors
+from idbench.run.compare import compare, dispatch_order, interleave, runs_of
+from idbench.run.executors import execute_all
+from idbench.run.session import Session
+from idbench.store.results import ResultStore
 
 TRUTH = "10x2x2"
 MESHES = ("4x1x1", "6x2x2")
@@ -348,7 +349,7 @@ def test_an_adopting_session_computes_nothing(computed, registry, monkeypatch):
     assert second.known_reference(spec) is None
     second.adopt(first.shared())
     monkeypatch.setattr(Session, "model", refuse)
-    monkeypatch.setattr(idbench.session, "simulate_path", refuse)
+    monkeypatch.setattr(idbench.run.session, "simulate_path", refuse)
     np.testing.assert_array_equal(second.reference(spec), first.reference(spec))
     np.testing.assert_array_equal(second.direct(spec), first.direct(spec))
     np.testing.assert_array_equal(
@@ -717,7 +718,7 @@ def test_a_worker_starting_ignores_ctrl_c_until_the_parent_says(spawned, tmp_pat
     script = tmp_path / "ctrl_c.py"
     script.write_text(
         "import os, signal, time\n"
-        "from idbench import executors\n"
+        "from idbench.run import executors\n"
         "with executors.started(2):\n"
         "    time.sleep(0.3)\n"
         "    os.killpg(0, signal.SIGINT)\n"

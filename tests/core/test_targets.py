@@ -11,12 +11,12 @@ import pytest
 from helpers import registry_with
 
 import idbench
-from idbench import metrics, targets
-from idbench.config import CompareConfig
-from idbench.session import Session
-from idbench.summary import summarise
-from idbench.sweep import compare, runs_of
-from idbench.truth import simulate_path
+from idbench.plan.config import CompareConfig
+from idbench.report.summary import summarise
+from idbench.run.compare import compare, runs_of
+from idbench.run.session import Session
+from idbench.score import metrics, targets
+from idbench.truth.simulate import simulate_path
 
 TRUTH, MESH, STEPS = "20x3x3", "6x2x2", 4
 
@@ -52,7 +52,7 @@ def test_tre_equals_a_hand_computation_on_a_tiny_beam(tmp_path):
     assert expected[-1] > 0  # the coarse beam is not the truth
     assert runs.target_cov_method.iloc[0] == "jacobian"
     assert runs.tre_covered_final.iloc[0] in (0.0, 1.0)
-    assert "tre_final_mm" in idbench.summary.summarise(runs).columns  # type: ignore[attr-defined]
+    assert "tre_final_mm" in idbench.report.summary.summarise(runs).columns  # type: ignore[attr-defined]
 
 
 def test_the_95_region_against_a_constructed_covariance():

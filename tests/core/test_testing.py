@@ -1,4 +1,4 @@
-"""idbench.testing's conformance checks pass on good plugins and catch bad ones."""
+"""idbench.registry.testing's checks: pass on good plugins, catch bad ones."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 from toymodels import LinearToy, SensitiveLinearToy
 
 import idbench
-from idbench.testing import check_batch_model, check_estimator, check_model
+from idbench.registry.testing import check_batch_model, check_estimator, check_model
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +53,7 @@ def test_builtin_estimators_conform(registry, name):
 
 
 def test_beam_settings_and_probes_conform(registry):
-    from idbench.testing import check_model_settings, check_optional_members
+    from idbench.registry.testing import check_model_settings, check_optional_members
 
     check_model_settings(registry.models["svk-beam"].settings)
     spec = idbench.ModelSpec(mesh="4x1x1", scenario=registry.scenario("bend-y"),
@@ -65,7 +65,7 @@ def test_beam_settings_and_probes_conform(registry):
 
 
 def test_bad_probes_and_sizes_are_caught():
-    from idbench.testing import check_optional_members
+    from idbench.registry.testing import check_optional_members
 
     model = LinearToy(p=1)
     state = model.step(np.array([2.0]), 1, model.reset())
@@ -108,7 +108,7 @@ def test_execution_must_name_fields():
     import dataclasses
     from typing import ClassVar
 
-    from idbench.testing import check_model_settings
+    from idbench.registry.testing import check_model_settings
 
     @dataclasses.dataclass
     class Good:
@@ -130,7 +130,7 @@ def test_optional_members_are_declared_and_looked_up_in_one_place():
     import ast
     from pathlib import Path
 
-    from idbench import capabilities
+    from idbench.core import capabilities
 
     for name, protocol in capabilities.OPTIONAL.items():
         assert getattr(idbench, protocol.__name__) is protocol  # public API
@@ -154,7 +154,7 @@ def test_optional_members_are_declared_and_looked_up_in_one_place():
 
 
 def test_capabilities_give_each_member_or_none():
-    from idbench import capabilities as cap
+    from idbench.core import capabilities as cap
 
     model = SensitiveLinearToy(p=1)
     assert cap.probes_of(model) is None and cap.n_nodes_of(model) is None
@@ -175,7 +175,7 @@ def test_capabilities_give_each_member_or_none():
 
 
 def test_check_optional_members_checks_each_declared_member():
-    from idbench.testing import check_optional_members
+    from idbench.registry.testing import check_optional_members
 
     model = LinearToy(p=1)
     state = model.step(np.array([2.0]), 1, model.reset())
@@ -194,7 +194,7 @@ def test_check_optional_members_checks_each_declared_member():
 
 
 def test_the_beam_has_its_members_declared(registry):
-    from idbench import capabilities
+    from idbench.core import capabilities
 
     spec = idbench.ModelSpec(mesh="4x1x1", scenario=registry.scenario("bend-y"),
                              n_steps=2)  # fmt: skip

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import idbench
-from idbench import truth
-from idbench.cli import main
+from idbench.cli.commands import main
+from idbench.truth import simulate as truth
 
 
 @pytest.fixture()

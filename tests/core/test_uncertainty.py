@@ -10,9 +10,9 @@ import pytest
 from helpers import registry_with
 from test_report_models import SpringPlugin
 
-from idbench.config import CompareConfig
-from idbench.session import Session
-from idbench.sweep import compare, runs_of
+from idbench.plan.config import CompareConfig
+from idbench.run.compare import compare, runs_of
+from idbench.run.session import Session
 
 
 @pytest.fixture
@@ -168,14 +168,14 @@ def test_nis_on_observed_steps_of_filters_that_expose_an_innovation(scored):
 def test_a_posterior_that_did_not_converge_gives_no_distance(registry, monkeypatch):
     import dataclasses
 
-    import idbench.session
+    import idbench.run.session
 
-    real = idbench.session.reference_posterior
+    real = idbench.run.session.reference_posterior
 
     def unconverged(*args, **kw):
         return dataclasses.replace(real(*args, **kw), converged=False)
 
-    monkeypatch.setattr(idbench.session, "reference_posterior", unconverged)
+    monkeypatch.setattr(idbench.run.session, "reference_posterior", unconverged)
     config = chain(posterior=True, posterior_settings={"points": 31})
     runs, _ = compare(config, registry=registry)
     assert runs["status"].tolist() == ["ok"]
@@ -214,7 +214,7 @@ BEAM = [
 def test_bad_uncertainty_settings_exit_2_with_one_line(
     toml, expected, tmp_path, capsys
 ):
-    from idbench.cli import main
+    from idbench.cli.commands import main
 
     path = tmp_path / "x.toml"
     path.write_text(toml)
@@ -227,7 +227,7 @@ def test_bad_uncertainty_settings_exit_2_with_one_line(
 
 
 def test_summary_shows_coverage_as_a_fraction_over_seeds_and_mean_nees(scored):
-    from idbench.summary import summarise, summary_text
+    from idbench.report.summary import summarise, summary_text
 
     runs, _ = scored
     summary = summarise(runs).set_index(["mesh", "estimator"])
@@ -240,7 +240,7 @@ def test_summary_shows_coverage_as_a_fraction_over_seeds_and_mean_nees(scored):
 
 
 def test_results_of_an_older_version_without_posterior_settings_resume(tmp_path):
-    from idbench.results import ResultsError, ResultStore
+    from idbench.store.results import ResultsError, ResultStore
 
     old = {"seeds": 3, "noise": [1e-4]}  # a manifest written before #15
     ResultStore(tmp_path, old, {})

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from idbench.cli import main
+from idbench.cli.commands import main
 
 BASE = ["compare", "--dry-run", "--truth-mesh", "12x3x3", "--meshes", "4x1x1",
         "--steps", "4", "--seeds", "1"]  # fmt: skip

@@ -17,13 +17,13 @@ from helpers import registry_with
 from test_report_models import SpringChain, SpringPlugin
 
 import idbench
-from idbench.cli import main
-from idbench.config import CompareConfig, ConfigError
-from idbench.interfaces import Observation, ParameterSpec
-from idbench.report import summary_text
-from idbench.session import model_settings
-from idbench.sweep import compare, runs_of
-from idbench.truth import Truth
+from idbench.cli.commands import main
+from idbench.core.interfaces import Observation, ParameterSpec
+from idbench.plan.config import CompareConfig, ConfigError
+from idbench.report.write import summary_text
+from idbench.run.compare import compare, runs_of
+from idbench.run.session import model_settings
+from idbench.truth.simulate import Truth
 from idbench_fem.bodies import box as meshes
 from idbench_fem.bodies.mesh import from_arrays as solid_from_arrays
 
@@ -108,7 +108,7 @@ def test_a_spacing_longer_than_the_path_is_refused(capsys):
 
 
 def test_a_run_without_observations_is_flagged():
-    from idbench.validity import run_warning
+    from idbench.plan.validity import run_warning
 
     params = ParameterSpec(("k",), (1e-3,), (1e6,))
     truth = Truth(np.zeros((3, 1)), np.ones((3, 2)), np.zeros((3, 1, 1)), {})
@@ -138,7 +138,7 @@ def test_signal_below_the_noise_is_flagged_in_the_row_and_the_summary(
 
 
 def test_an_estimate_or_reference_at_a_bound_is_flagged():
-    from idbench.validity import run_warning
+    from idbench.plan.validity import run_warning
 
     params = ParameterSpec(("k",), (1e-3,), (1e6,))
     obs = [Observation(np.ones(2), 1e-4, 1)]

@@ -1,9 +1,9 @@
 """How worker processes start: forked from the planned parent, or spawned.
 
-:func:`idbench.executors.start_method` and what a forked worker leaves to
-its parent (:func:`idbench.executors.worker._forked`); the progress bar that lets the
-command line fork (no refresh thread with ``--jobs`` > 1); a comparison that
-gives the same numbers whichever way its workers start.
+:func:`idbench.run.executors.start_method` and what a forked worker leaves to
+its parent (:func:`idbench.run.executors.worker._forked`); the progress bar
+that lets the command line fork (no refresh thread with ``--jobs`` > 1); a
+comparison that gives the same numbers whichever way its workers start.
 """
 
 from __future__ import annotations
@@ -23,12 +23,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from idbench import executors
-from idbench.config import CompareConfig, ConfigError
-from idbench.plugins import build_registry
-from idbench.progress import CompareProgress
-from idbench.session import Session
-from idbench.sweep import compare, plan
+from idbench.cli.progress import CompareProgress
+from idbench.plan.check import plan
+from idbench.plan.config import CompareConfig, ConfigError
+from idbench.registry.registry import build_registry
+from idbench.run import executors
+from idbench.run.compare import compare
+from idbench.run.session import Session
 
 LINUX = sys.platform.startswith("linux")
 
@@ -69,9 +70,9 @@ def test_auto_forks_when_this_process_runs_one_thread(monkeypatch):
 
 AUTO = """
 import json, sys
-from idbench import executors
-from idbench.config import CompareConfig
-from idbench.sweep import compare
+from idbench.run import executors
+from idbench.plan.config import CompareConfig
+from idbench.run.compare import compare
 started = []
 new = executors.Worker.__init__
 def record(self, session=None):
@@ -344,6 +345,10 @@ def test_forked_and_spawned_workers_give_the_same_numbers(monkeypatch, tmp_path:
         new(self, session)
 
     monkeypatch.setattr(executors.Worker, "__init__", record)
+    # the same kernel and solver in the parent and in every worker, whatever
+    # earlier tests of the session chose (they differ in the last bits)
+    monkeypatch.setenv("IDBENCH_NUMBA", "0")
+    monkeypatch.setenv("IDBENCH_SOLVER", "scipy")
     for method in ("fork", "spawn"):
         monkeypatch.setenv(executors.START_METHOD_ENV, method)
         runs, _ = compare(CompareConfig(**SMALL), tmp_path / method, jobs=2)

@@ -9,7 +9,7 @@ from toymodels import LinearToy
 
 import idbench
 from idbench import ModelFailure, ModelSpec, Observation, Prior
-from idbench.testing import WithoutStepMany, check_batch_model
+from idbench.registry.testing import WithoutStepMany, check_batch_model
 from idbench_fem.bodies import box
 from idbench_fem.models.beam_scenarios import SCENARIOS
 from idbench_filters import RoUkf, Ukf

@@ -119,7 +119,7 @@ def test_beam_body_options_in_a_toml_body(tmp_path):
 
 def test_one_truth_serves_every_marker_count_and_grid():
     """The truth's cache key leaves out markers and grid (they do not change states)."""
-    from idbench.truth import truth_key
+    from idbench.truth.simulate import truth_key
 
     keys = set()
     for markers, grid in ((2, (20, 4, 4)), (6, (20, 4, 4)), (2, (10, 2, 2))):

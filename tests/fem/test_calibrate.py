@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from idbench.cli import main
-from idbench.config import ConfigError
+from idbench.cli.commands import main
+from idbench.plan.config import ConfigError
 from idbench_fem.tools.calibrate import (
     Calibration,
     CalibrationSettings,

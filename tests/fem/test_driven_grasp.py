@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from helpers import write_box_mesh
 
-from idbench.cli import main
-from idbench.config import CompareConfig, ConfigError
-from idbench.sweep import runs_of
+from idbench.cli.commands import main
+from idbench.plan.config import CompareConfig, ConfigError
+from idbench.run.compare import runs_of
 from idbench_fem.bodies.description import parse_body
 from idbench_fem.bodies.mesh import read_mesh
 from idbench_fem.fem.materials import make_material

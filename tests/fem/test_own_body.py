@@ -14,10 +14,10 @@ import pytest
 from helpers import write_box_mesh
 
 import idbench
-from idbench.cli import main
-from idbench.config import CompareConfig, ConfigError
-from idbench.session import Session
-from idbench.sweep import compare, runs_of
+from idbench.cli.commands import main
+from idbench.plan.config import CompareConfig, ConfigError
+from idbench.run.compare import compare, runs_of
+from idbench.run.session import Session
 
 L, W = 0.1, 0.02
 SIZES = {"box-coarse": 4, "box-mid": 6, "box-fine": 10}

@@ -9,7 +9,7 @@ import pytest
 
 import idbench
 from idbench import Observation, Prior
-from idbench.testing import check_batch_model, check_model_settings
+from idbench.registry.testing import check_batch_model, check_model_settings
 from idbench_fem.bodies.catalog import body_path
 from idbench_fem.fem import batched
 from idbench_fem.models.solid import make_model

@@ -8,7 +8,7 @@ import pytest
 from oracles import general_law
 
 import idbench
-from idbench.testing import check_model
+from idbench.registry.testing import check_model
 from idbench_fem.bodies import description as bodies
 from idbench_fem.bodies.box import parse as beam_mesh
 from idbench_fem.fem.law_assembly import LawAssembler
@@ -300,7 +300,7 @@ def test_scenarios_of_the_shipped_bodies_and_env(tmp_path, monkeypatch):
 
 def test_simulate_writes_the_liver_with_region_tags(tmp_path, capsys):
     pytest.importorskip("gmsh")
-    from idbench.cli import main
+    from idbench.cli.commands import main
 
     out = tmp_path / "liver.xdmf"
     code = main(["simulate", "--model", "solid", "--mesh", "200", "--scenario",

@@ -173,8 +173,8 @@ def test_one_models_helpers_run_at_a_time():
 
 
 def test_processes_leaves_run_ids_and_output_folders_alone(tmp_path):
-    from idbench.config import CompareConfig
-    from idbench.sweep import compare, runs_of
+    from idbench.plan.config import CompareConfig
+    from idbench.run.compare import compare, runs_of
 
     def config(**options):
         return CompareConfig(
@@ -202,9 +202,9 @@ def test_processes_leaves_run_ids_and_output_folders_alone(tmp_path):
 
 
 def test_processes_reach_the_model_and_pick_it_in_a_session():
-    from idbench.config import CompareConfig
-    from idbench.session import Session
-    from idbench.sweep import runs_of
+    from idbench.plan.config import CompareConfig
+    from idbench.run.compare import runs_of
+    from idbench.run.session import Session
 
     def spec(**options):
         config = CompareConfig(

@@ -15,7 +15,7 @@ from test_beam import E_TRUE, beam, observe_truth
 from toymodels import LinearToy
 
 from idbench import Diverged, ModelFailure, Prior
-from idbench.testing import check_estimator
+from idbench.registry.testing import check_estimator
 from idbench_filters import Enkf, Etkf
 
 SIGMA = 0.05

@@ -8,7 +8,7 @@ from test_ensemble import SIGMA, make_data
 from toymodels import LinearToy, SensitiveLinearToy
 
 from idbench import Observation, Prior
-from idbench.posterior import model_error
+from idbench.estimate.posterior import model_error
 from idbench_filters import RoUkf
 
 

@@ -137,7 +137,7 @@ class NewtonSolve:
         """A copy for one run: its own counters, caches and assembler object.
 
         idbench gives each run ``copy.copy`` of the model it built once
-        (:mod:`idbench.isolation`), so what a run assigns to its model stays
+        (:mod:`idbench.run.isolation`), so what a run assigns to its model stays
         in its copy. The copy shares the master's read-only arrays (see
         :func:`freeze`), its sparse pattern and its linear solver (built here
         first, so that no run pays for them): every run's first solve

@@ -9,7 +9,7 @@ step from the load it applies, with no observations:
    -y), each ramped over K load levels up to a magnitude interpolated between
    the registered ``stretch-x`` and ``bend-y`` end tractions;
 2. at each (angle, level) fit the best constant E of the coarse model on the
-   truth's shape-error grid (:func:`idbench.effective.effective_path`);
+   truth's shape-error grid (:func:`idbench.calibrate.effective.effective_path`);
 3. interpolate log E_eff over (angle, load fraction) with monotone cubic
    (PCHIP) pieces: C1-smooth and without overshoot where E_eff changes fast.
 
@@ -344,7 +344,7 @@ def evaluate(
 ) -> pd.DataFrame:
     """Shape error on held-back manipulations, four ways of choosing E.
 
-    ``scenarios`` are registered names or :class:`~idbench.scenario.Scenario`
+    ``scenarios`` are registered names or :class:`~idbench.core.scenario.Scenario`
     objects (e.g. :meth:`Calibration.manipulation` at an angle off the grid).
     Methods: ``E_true`` (direct simulation), ``constant`` (one E for every
     manipulation, identified once on bending: the map at 90 degrees and full

@@ -1,0 +1,156 @@
+"""A forward model seen through an observation model: ``observe(state)`` is h(x).
+
+The estimators call ``model.observe(state)`` after stepping to k; with an
+observation model other than plain markers, the harness hands them an
+:class:`ObservedModel` instead of the bare model. Its state is the model's
+state with the load step it was solved with appended, ``[u (n,), k]``, and,
+for the blocks whose prediction needs theta itself (``needs_theta``, e.g.
+``force``: a force depends on theta even where u does not, as under
+displacement control), their prediction computed when the step is solved
+(theta known) carried in between: ``[u, carried (c,), k]``. ``step`` and
+``step_many`` solve the model from ``u`` and append them; ``observe``
+answers with the prediction of step k's frame (a cloud's points differ from
+frame to frame): the carried values, and the other blocks' predictions for
+``u``. The appended entries are carried by the filters like any state entry
+and overwritten at every step. It has no ``sensitivity``: estimators that
+need one use finite differences (each an extra forward solve, counted).
+:func:`model_state` recovers ``u`` (the harness does, for the shape error).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from idbench.core.capabilities import member
+from idbench.core.interfaces import FloatArray, ForwardModel
+from idbench.observe import kinds as observe
+
+
+class ObservedModel:
+    """``model`` whose ``observe`` is the observation model's h(x) for each step.
+
+    Parameters
+    ----------
+    model
+        The forward model.
+    observation
+        The :class:`~idbench.observe.kinds.ObservationModel`.
+    frames
+        The run's frame of each step 1..K.
+    """
+
+    def __init__(
+        self, model: ForwardModel, observation: Any, frames: Sequence[Any]
+    ) -> None:
+        self.model = model
+        self.observation = observation
+        self.frames = list(frames)
+        self._n = int(np.asarray(model.reset()).size)
+        self._combined = isinstance(observation, observe.Combined)
+        self._blocks = [b for _, b in observe.leaves(observation)]
+        self._carried = [getattr(b, "needs_theta", False) for b in self._blocks]
+        first = next((f for f in self.frames if f is not None), None)
+        parts = self._parts(first) if first is not None else []
+        self._sizes = [
+            len(b.values(f)) for b, f in zip(self._blocks, parts, strict=True)
+        ]
+        self._c = sum(n for n, c in zip(self._sizes, self._carried, strict=True) if c)
+        self._size = sum(self._sizes)
+
+    def __getattr__(self, name: str) -> Any:
+        if name in ("sensitivity", "model", "__setstate__"):
+            raise AttributeError(name)
+        return getattr(self.model, name)
+
+    @property
+    def parameters(self) -> Any:
+        """The model's parameters."""
+        return self.model.parameters
+
+    @property
+    def n_steps(self) -> int:
+        """The model's load steps."""
+        return self.model.n_steps
+
+    @property
+    def n_state(self) -> int:
+        """State size: the model's, plus the carried values and the step."""
+        return self._n + self._c + 1
+
+    def reset(self) -> FloatArray:
+        """The model's unloaded state, with zeros carried and step 0 appended."""
+        return np.concatenate([self.model.reset(), np.zeros(self._c + 1)])
+
+    def step(
+        self, theta: FloatArray, k: int, state: FloatArray, *, substeps: int = 1
+    ) -> FloatArray:
+        """The model's step from ``state``'s u, the carried values and k appended."""
+        u = np.asarray(state, dtype=float)[: self._n]
+        new = np.asarray(self.model.step(theta, k, u, substeps=substeps), float)
+        return np.concatenate([new, self._carry(theta, k, new), [float(k)]])
+
+    def step_many(self, thetas: FloatArray, k: int, states: FloatArray) -> FloatArray:
+        """The model's ``step_many`` (or r ``step`` calls), with what ``step`` adds."""
+        u = np.asarray(states, dtype=float)[:, : self._n]
+        many = member(self.model, "step_many")
+        if many is None:
+            new = np.stack(
+                [self.model.step(t, k, s) for t, s in zip(thetas, u, strict=True)]
+            )
+        else:
+            new = np.asarray(many(np.asarray(thetas), k, np.ascontiguousarray(u)))
+        carried = np.stack(
+            [self._carry(t, k, s) for t, s in zip(thetas, new, strict=True)]
+        )
+        ks = np.full((len(new), 1), float(k))
+        return np.concatenate([new, carried.reshape(len(new), -1), ks], axis=1)
+
+    def observe(self, state: FloatArray) -> FloatArray:
+        """h(x): the prediction of step k's frame for ``state`` = [u, carried, k]."""
+        state = np.asarray(state, dtype=float)
+        k = round(float(state[-1]))
+        if not 1 <= k <= len(self.frames):  # the unloaded state: only its size
+            return np.zeros(self._size)
+        u = state[: self._n]
+        carried = state[self._n : self._n + self._c]
+        nan = np.full(self.parameters.p, np.nan)  # what does not need theta
+        out, at = [], 0
+        parts = self._parts(self.frames[k - 1])
+        for block, frame, carry, n in zip(
+            self._blocks, parts, self._carried, self._sizes, strict=True
+        ):
+            if carry:
+                out.append(carried[at : at + n])
+                at += n
+            else:
+                out.append(
+                    np.asarray(block.predict(self.model, frame, nan, k, u), float)
+                )
+        return np.concatenate(out) if out else np.zeros(0)
+
+    def _parts(self, frame: Any) -> list[Any]:
+        """The frame of each block."""
+        return self.observation.split(frame) if self._combined else [frame]
+
+    def _carry(self, theta: FloatArray, k: int, u: FloatArray) -> FloatArray:
+        """The predictions of the blocks that need theta, at (theta, k, u)."""
+        if not self._c or not 1 <= k <= len(self.frames):
+            return np.zeros(self._c)
+        parts = self._parts(self.frames[k - 1])
+        return np.concatenate([
+            np.asarray(b.predict(self.model, f, np.asarray(theta, float), k, u), float)
+            for b, f, c in zip(self._blocks, parts, self._carried, strict=True)
+            if c
+        ])  # fmt: skip
+
+    def grid(self, state: FloatArray) -> FloatArray:
+        """The model's shape-error points at ``state``'s u."""
+        return self.model.grid(np.asarray(state, dtype=float)[: self._n])
+
+
+def model_state(state: FloatArray, n: int) -> FloatArray:
+    """The model's own state (n,) of a state an estimator kept (maybe extended)."""
+    return np.asarray(state)[:n]

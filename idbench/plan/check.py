@@ -1,0 +1,485 @@
+"""The door: a comparison's config checked and turned into a :class:`Plan`.
+
+Every name, value, file and combination of a :class:`~idbench.plan.config.
+CompareConfig` is validated here, once, before any run starts: unknown plugins
+and settings, meshes that cannot be built, a truth mesh that is not finer, a
+prior outside the bounds, observation models a model cannot serve, a recording
+that does not fit. What comes out is a :class:`Plan` whose runs the executors,
+sessions and the harness trust without checking again.
+
+:func:`plan` builds models to check them through a :class:`PlanSession`, a small
+protocol that the run room's session satisfies (the plan never imports it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from idbench.calibrate.discrepancy import CalibrationSettings
+from idbench.core.capabilities import bounds_of, n_nodes_of, needs_observed_of
+from idbench.core.interfaces import ConfigError, ForwardModel, ModelSpec
+from idbench.core.settings import (
+    build_settings,
+    execution_items,
+    model_settings,
+    proposed_scenarios,
+    settings_identity,
+    settings_items,
+    suggest,
+    true_values,
+)
+from idbench.estimate.posterior import PosteriorSettings, check_budget
+from idbench.observe import kinds as observe
+from idbench.plan.config import CompareConfig
+from idbench.plan.runspec import Items, RunSpec, Setup, expand
+from idbench.plan.validity import check_prior, check_truth_mesh
+from idbench.registry.registry import Registry, used_plugins
+from idbench.store import recording
+from idbench.store.files import stable_hash
+
+log = logging.getLogger(__name__)
+
+
+class PlanSession(Protocol):
+    """What :func:`plan` needs of a session: its registry and its models.
+
+    :class:`idbench.run.session.Session` satisfies it.
+    """
+
+    registry: Registry
+
+    def model(
+        self, spec: RunSpec, mesh: str, scenario: str | None = None, role: str = "est"
+    ) -> ForwardModel:
+        """The model of ``spec`` on ``mesh`` (built once, then shared)."""
+
+    def observation_model(self, spec: RunSpec) -> Any:
+        """The observation model of ``spec``."""
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A validated comparison: its runs and what they will cost.
+
+    Attributes
+    ----------
+    config
+        The resolved configuration.
+    runs
+        Every run, in table order.
+    nodes
+        Nodes per mesh (0 where the model does not say).
+    solves
+        The estimators' guess of the forward model steps of all runs.
+    work
+        Per run id, its guessed solves times its model's state size: a
+        relative cost, for starting the costliest runs first.
+    inputs
+        What each model of the comparison reads, one entry per model
+        (``key``, ``role``, ``mesh``, ``scenario`` and its ``describe()``),
+        for the manifest (see :func:`model_inputs`).
+    plugins
+        Plugin -> version of the plugins whose model, estimators and
+        scenarios the runs use.
+    """
+
+    config: CompareConfig
+    runs: list[RunSpec]
+    nodes: dict[str, int]
+    solves: int
+    work: dict[str, float] = field(default_factory=dict)
+    inputs: list[dict[str, Any]] = field(default_factory=list)
+    plugins: dict[str, str] = field(default_factory=dict)
+
+
+def plan(config: CompareConfig, session: PlanSession) -> Plan:
+    """Validate ``config`` against the registry, resolve it and build its runs.
+
+    Every default the config leaves open is filled from what the plugins
+    registered (:meth:`CompareConfig.resolve`); the true values from the
+    model's parameter defaults and ``config.true``.
+
+    Raises
+    ------
+    ConfigError
+        Naming the first bad value and what is allowed.
+    """
+    reg = session.registry
+    rec = None
+    if config.data:  # a recording fixes the data axes; there is no truth mesh
+        config, rec = configure(config)
+    config = config.resolve(reg)
+    assert config.model and config.scenarios and config.meshes and config.truth_mesh
+    _known("model", [config.model], reg.models, reg)
+    settings = model_settings(
+        reg, config.model, config.model_settings.get(config.model, {})
+    )
+    own = proposed_scenarios(settings, config.model)  # e.g. a body file's
+    if own:
+        reg = reg.with_scenarios(list(own), reg.models[config.model].plugin)
+    loads = [sc.name for sc in own] if own else list(reg.scenarios)
+    if rec is not None:
+        recording.check_body(rec, None, loads)
+    _known("estimator", config.estimators, reg.estimators, reg)
+    _known("scenario", config.scenarios, reg.scenarios, reg)
+    _known("reference estimator", [config.reference], reg.estimators, reg)
+    for name in config.scenarios:
+        target = reg.scenario(name).transfer
+        if target and target not in reg.scenarios:
+            raise ConfigError(
+                f"scenario {name!r} names transfer scenario {target!r}, which is not "
+                f"registered; allowed: {', '.join(sorted(reg.scenarios))}"
+            )
+    for name in config.model_settings:
+        _known("model (in model settings)", [name], reg.models, reg)
+        model_settings(reg, name, config.model_settings[name])
+    for name, given in config.estimator_settings.items():
+        _check_estimator_settings(reg, name, given)
+    probe = _build(reg, config, config.meshes[0], settings)
+    _check_posterior(config, probe.parameters.p)
+    _check_calibration(config, reg)
+    check_prior(probe.parameters, config.prior, config.model)  # type: ignore[arg-type]
+    setup = Setup(
+        model=config.model,
+        model_settings=settings_items(settings),
+        execution=execution_items(settings),
+        identity=settings_identity(settings),
+        truth_mesh=config.truth_mesh,
+        steps=config.steps,
+        true=(
+            true_values(probe.parameters, config.true, config.model)
+            if rec is None
+            else recording.true_values(rec, probe.parameters.names)
+        ),
+        prior=(float(config.prior[0]), float(config.prior[1])),  # type: ignore[index]
+        reference=config.reference,  # type: ignore[arg-type]
+        data=() if rec is None else (str(rec.path), rec.digest),
+    )
+    runs = expand(config, setup)
+    nodes: dict[str, int] = {}
+    models: dict[str, ForwardModel] = {}
+    for mesh in (*config.meshes, *([config.truth_mesh] if rec is None else [])):
+        role = "truth" if mesh == config.truth_mesh else "est"
+        build = functools.partial(session.model, runs[0], mesh, role=role)
+        models[mesh] = model = _build(reg, config, mesh, settings, build)
+        nodes[mesh] = int(n_nodes_of(model) or 0)
+    for mesh in config.meshes if rec is None else ():
+        truth = models[config.truth_mesh]
+        check_truth_mesh(truth, config.truth_mesh, models[mesh], mesh)
+    if rec is not None:
+        bounds = bounds_of(models[config.meshes[0]])
+        recording.check_body(rec, bounds, loads)
+        obs = observe.build(rec.observe, rec.observe_settings, reg)
+        recording.check_frames(rec, obs)
+    if config.observe != ("markers",) or config.observe_settings:
+        built = list(models.values())
+        runs = expand(config, setup, resolve(config, reg, built))
+    _check_corrected(runs, config)
+    runs, inputs = model_inputs(runs, session, config, settings, reg)
+    solves, work = 0, {}
+    for spec in runs:
+        model = session.model(spec, spec.mesh)
+        _check_observed(spec, model, session)
+        n_state = model.reset().size
+        guess = _guess_solves(reg, spec, n_state, model.parameters.p)
+        work[spec.run_id] = float(guess) * n_state
+        solves += guess
+    transfers = [reg.scenario(n).transfer for n in config.scenarios]
+    scenarios = {*config.scenarios, *transfers}
+    plugins = used_plugins(
+        reg,
+        ("models", [config.model]),
+        ("estimators", [*(config.estimators or ()), config.reference or ""]),
+        ("scenarios", sorted(n for n in scenarios if n)),
+    )
+    return Plan(config, runs, nodes, solves, work, inputs, plugins)
+
+
+TRUTH_MESH = "recording"
+"""The truth mesh name of a comparison on a recording (there is none)."""
+
+
+def configure(config: CompareConfig) -> tuple[CompareConfig, recording.Recording]:
+    """``config`` with what its recording (``config.data``) fixes, and the recording.
+
+    The recording sets the model, the scenario (its load), the steps, the
+    observation model and its settings, the markers and their noise, and the
+    true values it knows (others NaN); the model options are the recording's
+    updated with ``config``'s. The truth mesh is :data:`TRUTH_MESH`.
+    """
+    assert config.data, "a config with data"
+    rec = recording.read(config.data)
+    if config.model is not None and config.model != rec.model:
+        raise recording.RecordingError(
+            f"recording {str(rec.path)!r} is of model {rec.model!r}, not "
+            f"--model {config.model!r}"
+        )
+    settings = {**rec.model_settings, **config.model_settings.get(rec.model, {})}
+    out = dataclasses.replace(
+        config,
+        model=rec.model,
+        model_settings={**config.model_settings, rec.model: settings},
+        scenarios=(rec.scenario,),
+        steps=rec.steps,
+        truth_mesh=TRUTH_MESH,
+        observe=(rec.observe,),
+        observe_settings=rec.observe_settings,
+        obs_points=(rec.markers,),
+        noise=(rec.noise,),
+        obs_every=tuple(k for k in config.obs_every if k <= rec.steps) or (1,),
+        true={},
+    )
+    return out, rec
+
+
+def _check_observed(spec: RunSpec, model: ForwardModel, session: PlanSession) -> None:
+    """Refuse a run whose observation uses none of the members its model needs.
+
+    See :class:`~idbench.core.interfaces.ObservationNeedsModel` (a solid whose tool
+    moves by a prescribed displacement needs its ``reaction``: the force).
+
+    Raises
+    ------
+    ConfigError
+        One line naming the scenario and the observations that would do.
+    """
+    needs = needs_observed_of(model)
+    if not needs:
+        return
+    used = {m for _, b in observe.leaves(session.observation_model(spec))
+            for m in b.requires}  # fmt: skip
+    if used & set(needs):
+        return
+    would = []
+    for kind in sorted(observe.kinds(session.registry)):
+        try:
+            block = observe.build(kind, {}, session.registry)
+        except (ConfigError, TypeError, ValueError):  # a kind with required settings
+            continue
+        if set(block.requires) & set(needs):
+            would.append(kind)
+    fix = (
+        f"add --observe {would[0]} or markers+{would[0]}"
+        if would
+        else "use an observation model that does"
+    )
+    raise ConfigError(
+        f"scenario {spec.scenario!r}: its parameters are identifiable only if an "
+        f"observation uses the model's {' or '.join(f'{n}()' for n in needs)} "
+        f"(observe {spec.observe!r} does not: displacements alone do not depend "
+        f"on them); {fix}"
+    )
+
+
+def model_inputs(
+    runs: list[RunSpec],
+    session: PlanSession,
+    config: CompareConfig,
+    settings: Any,
+    reg: Registry,
+) -> tuple[list[RunSpec], list[dict[str, Any]]]:
+    """The runs with their ``inputs`` digest, and what each of their models read.
+
+    A model's ``describe()`` is everything its results depend on; a model
+    that reads files (a mesh, a body description and the files it names)
+    includes a digest of each file's content there (the protocol asks it to),
+    so the core learns their content without knowing what they are. A run's
+    digest covers the models of its mesh and of the truth mesh, on its
+    scenario and on its transfer scenario.
+
+    ``reg`` is the comparison's registry, with the scenarios the model's settings
+    propose (:func:`idbench.core.settings.proposed_scenarios`).
+
+    Returns
+    -------
+    runs
+        ``runs`` with :attr:`RunSpec.inputs` set.
+    entries
+        One per model: ``key`` (its model key), ``role`` (``est`` or
+        ``truth``), ``mesh``, ``scenario`` and ``describe``, JSON-able.
+    """
+    described: dict[str, dict[str, Any]] = {}
+    out = []
+    for spec in runs:
+        transfer = reg.scenario(spec.scenario).transfer
+        keys = []
+        for scenario in (spec.scenario, transfer) if transfer else (spec.scenario,):
+            pairs = [(spec.mesh, "est"), (spec.setup.truth_mesh, "truth")]
+            for mesh, role in pairs[: 1 if spec.setup.data else 2]:
+                key = spec.model_key(mesh, scenario, role)
+                if key not in described:
+                    build = functools.partial(session.model, spec, mesh, scenario, role)
+                    model = _build(reg, config, mesh, settings, build)
+                    desc = json.loads(json.dumps(model.describe(), default=str))
+                    described[key] = {
+                        "key": key, "role": role, "mesh": mesh, "scenario": scenario,
+                        "describe": desc,
+                    }  # fmt: skip
+                keys.append(key)
+        digest = stable_hash([described[k]["describe"] for k in keys])
+        out.append(dataclasses.replace(spec, inputs=digest))
+    return out, list(described.values())
+
+
+def _guess_solves(reg: Registry, spec: RunSpec, n_state: int, p: int) -> int:
+    """The estimator's own guess of a run's forward solves, else 2 a step.
+
+    A plugin that cannot say (or fails, or exits) is planned with the default;
+    the run itself will fail and say why.
+    """
+    steps = spec.setup.steps
+    try:
+        est = reg.estimator(spec.estimator)(**dict(spec.settings))
+        guess = getattr(est, "estimate_solves", None)
+        return int(guess(n_state, p, steps)) if guess else 2 * steps
+    except (Exception, SystemExit) as exc:
+        log.warning("estimator %r cannot estimate its cost: %r", spec.estimator, exc)
+        return 2 * steps
+
+
+def resolve(
+    config: CompareConfig, registry: Any, models: list[ForwardModel]
+) -> dict[str, Items]:
+    """Each ``config.observe`` name -> its resolved settings per block.
+
+    ``models`` are built models of the comparison (a model mesh and the
+    truth): each must have every member the observation models require.
+
+    Raises
+    ------
+    ConfigError
+        Naming the bad value and what is allowed.
+    """
+    tables = config.observe_settings
+    known = observe.kinds(registry)
+    used = {b for name in config.observe for b in observe.block_names(name)}
+    for table in tables:
+        if table not in used and table not in known:
+            raise ConfigError(
+                f"[observe.{table}] is not used: observe names "
+                f"{', '.join(config.observe)}"
+            )
+    out: dict[str, Items] = {}
+    for name in config.observe:
+        obs = observe.build(name, tables, registry)
+        for member in obs.requires:
+            for model in models:
+                if not callable(getattr(model, member, None)):
+                    raise ConfigError(
+                        f"observe {name!r} needs the model's {member}(); model "
+                        f"{config.model!r} ({type(model).__name__}) has none"
+                    )
+        out[name] = observe.settings_items(name, tables, registry)
+    return out
+
+
+def _build(
+    reg: Registry,
+    config: CompareConfig,
+    mesh: str,
+    settings: Any,
+    build: Callable[[], ForwardModel] | None = None,
+) -> ForwardModel:
+    """Build a model of ``mesh``; a failure is one :class:`ConfigError` line."""
+    assert config.model and config.scenarios
+    if build is None:
+
+        def build() -> ForwardModel:
+            spec = ModelSpec(
+                mesh=mesh,
+                scenario=reg.scenario(config.scenarios[0]),  # type: ignore[index]
+                n_steps=config.steps,
+                markers=config.obs_points[0],
+                settings=settings,
+            )
+            return reg.model(config.model)(spec)  # type: ignore[no-any-return,arg-type]
+
+    try:
+        return build()
+    except ConfigError:
+        raise
+    except (ValueError, OSError, RuntimeError) as exc:
+        text = str(exc)  # readers often name the mesh already
+        message = text if repr(mesh) in text else f"mesh {mesh!r}: {text}"
+        raise ConfigError(message) from None
+    except Exception as exc:  # a model plugin's own bug, still one clean line
+        raise ConfigError(
+            f"model {config.model!r} (plugin {reg.models[config.model].plugin!r}) "
+            f"raised {type(exc).__name__} building mesh {mesh!r}: {exc}"
+        ) from None
+
+
+def _check_estimator_settings(
+    reg: Registry, name: str, settings: dict[str, Any]
+) -> None:
+    _known("estimator (in settings)", [name], reg.estimators, reg)
+    try:
+        build_settings(reg.estimator(name), settings, f"estimator {name!r}")
+    except ConfigError:
+        raise
+    except Exception as exc:  # a plugin's own bug, still one clean line
+        raise ConfigError(
+            f"estimator {name!r} (plugin {reg.estimators[name].plugin!r}) "
+            f"raised {type(exc).__name__}: {exc}"
+        ) from None
+
+
+def _check_posterior(config: CompareConfig, p: int) -> None:
+    """Posterior settings that exist, are valid and whose budget can be met."""
+    given = config.posterior_settings
+    settings = build_settings(PosteriorSettings, given, "posterior")
+    if config.posterior:
+        try:
+            check_budget(settings, p, config.steps)
+        except ValueError as exc:
+            raise ConfigError(f"posterior: {exc}") from None
+
+
+def _check_calibration(config: CompareConfig, reg: Registry) -> None:
+    """Calibration settings that exist, are valid and name known scenarios."""
+    given = dict(config.calibration)
+    scenarios = given.pop("scenarios", ())
+    given.pop("mesh", None)
+    build_settings(CalibrationSettings, given, "calibration")
+    names = [scenarios] if isinstance(scenarios, str) else list(scenarios)
+    _known("scenario (in calibration)", names, reg.scenarios, reg)
+
+
+def _check_corrected(runs: list[RunSpec], config: CompareConfig) -> None:
+    """Refuse a correction the runs cannot use.
+
+    The approximation-error correction (:mod:`idbench.calibrate.discrepancy`) is
+    calibrated on the markers and the shape grid: an observation model other than plain
+    markers would see the uncorrected model (or a marker-sized covariance), and
+    a recording has no truth mesh to take the calibration mesh from.
+    """
+    for spec in runs:
+        if dict(spec.settings).get("correction", "none") == "none":
+            continue
+        if spec.observed_otherwise():
+            raise ConfigError(
+                f"estimator {spec.estimator!r}: correction = "
+                f"{dict(spec.settings)['correction']!r} needs observe = 'markers', "
+                f"got {spec.observe!r}; the calibration covers markers only"
+            )
+        if config.data is not None and not config.calibration.get("mesh"):
+            raise ConfigError(
+                f"estimator {spec.estimator!r}: a correction on a recording needs "
+                "a calibration mesh (--calibration-mesh): a recording has no truth mesh"
+            )
+
+
+def _known(kind: str, names: Any, table: dict[str, Any], reg: Registry) -> None:
+    for name in names:
+        if name not in table:
+            allowed = ", ".join(sorted(table)) or "none registered"
+            raise ConfigError(
+                f"unknown {kind} {name!r}{suggest(name, table)}; allowed: {allowed}"
+                f"{reg.broken()}"
+            )

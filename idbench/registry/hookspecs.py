@@ -1,0 +1,78 @@
+"""Hook specifications: what a plugin may contribute.
+
+Every hook receives a ``register`` callback owned by the core. The core checks
+each registration, rejects duplicate names (naming both plugins) and keeps the
+registry, so plugins never see each other.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import pluggy
+
+hookspec = pluggy.HookspecMarker("idbench")
+
+
+@hookspec
+def register_models(register: Callable[..., None]) -> None:
+    """Register forward-model factories.
+
+    Call ``register(name, factory, settings=Settings, defaults=ModelDefaults(...))``
+    once per model, where ``factory(spec)`` takes an :class:`idbench.ModelSpec`
+    and returns an object implementing :class:`idbench.ForwardModel` (and
+    optionally ``sensitivity``, ``probes``, ``n_nodes``, ``bounds``,
+    ``volume``). ``settings`` is the dataclass of the model's own settings (all
+    fields with defaults; set with ``--model-option NAME=VALUE`` or
+    ``[model.NAME]`` in TOML), ``defaults`` what a comparison uses when the user
+    does not say (:class:`idbench.ModelDefaults`); both optional. A settings
+    object may define ``proposed_defaults()`` (a ModelDefaults or None,
+    replacing ``defaults`` for those settings) and ``proposed_scenarios()``
+    (Scenarios that exist for those settings only; see
+    :func:`idbench.core.settings.proposed_scenarios`).
+    """
+
+
+@hookspec
+def register_estimators(register: Callable[[str, type], None]) -> None:
+    """Register estimator classes.
+
+    Call ``register(name, cls)`` once per estimator, where ``cls`` is a
+    dataclass whose fields are the estimator's settings (all with defaults) and
+    whose instances implement :class:`idbench.Estimator`.
+    """
+
+
+@hookspec
+def register_scenarios(register: Callable[[Any], None]) -> None:
+    """Register load paths.
+
+    Call ``register(scenario)`` once per :class:`idbench.Scenario`; its
+    ``name`` is the registry key.
+    """
+
+
+@hookspec
+def register_commands(register: Callable[[str, Any], None]) -> None:
+    """Register ``idbench`` subcommands.
+
+    Call ``register(name, idbench.Command(help, configure, run))`` once per
+    command: ``configure(parser)`` adds its arguments, ``run(args)`` executes
+    it and returns the exit status. Tools that only make sense for one model
+    (the beam's ``calibrate``) live in its plugin this way.
+    """
+
+
+@hookspec
+def register_observations(register: Callable[[str, type], None]) -> None:
+    """Register observation models (what a sensor makes of the body).
+
+    Call ``register(name, cls)`` once per observation model, where ``cls`` is
+    a frozen dataclass whose fields are its settings (all with defaults;
+    ``[observe.NAME]`` in TOML, ``--observe-option NAME.SETTING=VALUE``) and
+    whose instances implement :class:`idbench.observe.kinds.ObservationModel`
+    (``requires``, ``sense``, ``measure``, ``values``, ``noise_std``,
+    ``predict``, ``identity``). The core's own, ``markers``, ``cloud`` and
+    ``force``, cannot be replaced.
+    """

@@ -1,0 +1,4 @@
+"""An estimate judged against the truth.
+
+Shape, transfer and target errors.
+"""

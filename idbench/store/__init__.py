@@ -1,0 +1,5 @@
+"""What goes to disk.
+
+Result tables, recordings, the output folder's lock, stable hashes and atomic
+writes.
+"""

@@ -1,0 +1,5 @@
+"""The truth.
+
+The fine mesh's load path simulated with the true parameters, and its disk
+cache.
+"""
