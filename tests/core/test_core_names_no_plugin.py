@@ -1,9 +1,9 @@
 """The core names no plugin and no physics.
 
 Every string constant (docstrings excepted), name, attribute and argument in
-every module of ``idbench/`` is scanned for the names the built-in plugins register (models,
-scenarios, estimators, their default meshes) and for words that would assume
-the beam or elasticity. Defaults must come from what plugins register.
+every module of ``idbench/`` is scanned for the names the built-in plugins
+register (models, scenarios, estimators, their default meshes) and for words
+that would assume the beam or elasticity. Defaults must come from what plugins register.
 """
 
 from __future__ import annotations
