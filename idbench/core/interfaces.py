@@ -239,7 +239,10 @@ class ForwardModel(Protocol):
     (:class:`CellDataModel`) for ``idbench simulate``; ``surface``
     (:class:`SurfaceModel`, for the ``cloud`` observation) and ``reaction``
     (:class:`ReactionModel`, for ``force``) and ``targets``
-    (:class:`TargetModel`, hidden targets scored by their TRE). The core
+    (:class:`TargetModel`, hidden targets scored by their TRE);
+    ``observation_cov``, ``grid_cov``, ``targets_cov`` and ``extrapolated``
+    (:class:`DiscrepancyModel`, a model corrected by its calibration) and
+    ``load_scaling`` (:class:`LoadScalingModel`). The core
     looks them up in one place, :mod:`idbench.core.capabilities`;
     :func:`idbench.registry.testing.check_model` checks them.
 
@@ -458,6 +461,51 @@ class CellDataModel(ForwardModel, Protocol):
 
     def cell_data(self) -> dict[str, FloatArray]:
         """Arrays (T,) by name, written with every step of ``idbench simulate``."""
+        ...
+
+
+@runtime_checkable
+class DiscrepancyModel(ForwardModel, Protocol):
+    """A forward model corrected by a calibrated discrepancy (approximation error).
+
+    Optional: the model a run with ``correction = "approximation-error"`` is
+    handed (:mod:`idbench.calibrate.discrepancy`). Its predictions carry the
+    discrepancy's mean, and these members give its covariance, so that the
+    filters add it to R (:meth:`idbench.Filter.noise_cov`) and the scores to
+    the predicted spread (:mod:`idbench.score.targets`).
+    """
+
+    def observation_cov(self, state: FloatArray) -> FloatArray:
+        """Sigma (m, m): the discrepancy's covariance of the observation at state."""
+        ...
+
+    def grid_cov(self, state: FloatArray) -> FloatArray:
+        """The discrepancy's covariance (G, d, d) of each shape-error point."""
+        ...
+
+    def targets_cov(self, state: FloatArray) -> FloatArray:
+        """The discrepancy's covariance (T, 3, 3) of each hidden target."""
+        ...
+
+    @property
+    def extrapolated(self) -> int:
+        """Predictions so far asked beyond the calibrated load states (a warning)."""
+        ...
+
+
+@runtime_checkable
+class LoadScalingModel(ForwardModel, Protocol):
+    """A forward model that says whether its path scales with the load.
+
+    Optional: ``load_scaling`` True declares that the state at step k with
+    parameter theta (p = 1) depends on (k, theta) only through
+    (k / K) / theta; False that it does not. Without it a calibration checks
+    it on the model (:mod:`idbench.calibrate.discrepancy`).
+    """
+
+    @property
+    def load_scaling(self) -> bool:
+        """Whether the path depends on (k, theta) only through (k / K) / theta."""
         ...
 
 

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from idbench.core.capabilities import settings_member
 from idbench.core.interfaces import ConfigError, ModelDefaults, ParameterSpec
 from idbench.core.scenario import Scenario
 
@@ -265,7 +266,7 @@ def execution_names(settings: Any) -> tuple[str, ...]:
     ``identity()`` must leave them out of it, and the model out of its
     ``describe()`` (both key data and caches).
     """
-    return tuple(getattr(settings, "EXECUTION", ()))
+    return tuple(settings_member(settings, "EXECUTION"))
 
 
 def execution_items(settings: Any) -> tuple[tuple[str, Any], ...]:
@@ -278,8 +279,8 @@ def execution_items(settings: Any) -> tuple[tuple[str, Any], ...]:
 
 def settings_identity(settings: Any) -> tuple[Any, ...]:
     """What of ``settings`` identifies the data: its ``identity()`` or all of it."""
-    identity = getattr(settings, "identity", None)
-    if callable(identity):
+    identity = settings_member(settings, "identity")
+    if identity is not None:
         return tuple(identity())
     return tuple([list(item) for item in settings_items(settings)])
 
@@ -338,8 +339,8 @@ def proposed_scenarios(settings: Any, model: str) -> tuple[Scenario, ...]:
 
 def _ask(settings: Any, method: str, model: str) -> Any:
     """Call ``settings.method()`` if it exists; its errors as one ConfigError."""
-    call = getattr(settings, method, None)
-    if not callable(call):
+    call = settings_member(settings, method)
+    if call is None:
         return None
     try:
         return call()

@@ -20,6 +20,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from idbench.core.capabilities import observation_cov_of
 from idbench.core.interfaces import (
     Cost,
     Diverged,
@@ -208,7 +209,7 @@ class Filter(_Conventions):
 
     def start(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run on ``model`` from ``prior`` (cost counted from here)."""
-        if self.correction != "none" and not hasattr(model, "observation_cov"):
+        if self.correction != "none" and observation_cov_of(model) is None:
             raise ValueError(
                 f"correction = {self.correction!r} needs a corrected model (one "
                 "with observation_cov); idbench compare provides it"
@@ -334,7 +335,9 @@ class Filter(_Conventions):
         """
         if self.correction == "none":
             return None
-        cov = self.model.observation_cov  # type: ignore[attr-defined]
+        cov = observation_cov_of(self.model)
+        if cov is None:  # start() refuses such a model
+            raise ValueError("a corrected run's model lost its observation_cov")
         return np.asarray(cov(state), dtype=float)
 
     def noise_cov(

@@ -39,7 +39,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
-from idbench.core.capabilities import member
+from idbench.core.capabilities import member, needs_theta_of
 from idbench.core.interfaces import ConfigError, FloatArray, ForwardModel
 from idbench.core.settings import build_settings
 from idbench.observe.cloud import Cloud
@@ -285,7 +285,7 @@ class Combined:
     @property
     def needs_theta(self) -> bool:
         """Whether a block's prediction depends on theta itself."""
-        return any(getattr(b, "needs_theta", False) for _, b in self.blocks)
+        return any(needs_theta_of(b) for _, b in self.blocks)
 
     @property
     def requires(self) -> tuple[str, ...]:
@@ -346,7 +346,7 @@ DEFAULT = "markers"
 def kinds(registry: Any = None) -> dict[str, type]:
     """Observation model classes by kind: the built-ins and the plugins'."""
     out = dict(BUILTIN)
-    for name, entry in getattr(registry, "observations", {}).items():
+    for name, entry in ({} if registry is None else registry.observations).items():
         out.setdefault(name, entry.obj)
     return out
 

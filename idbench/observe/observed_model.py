@@ -24,13 +24,18 @@ from typing import Any
 
 import numpy as np
 
-from idbench.core.capabilities import member
+from idbench.core.capabilities import needs_theta_of, step_many_of
 from idbench.core.interfaces import FloatArray, ForwardModel
+from idbench.core.view import Absent, ModelView
 from idbench.observe import kinds as observe
 
 
-class ObservedModel:
+class ObservedModel(ModelView):
     """``model`` whose ``observe`` is the observation model's h(x) for each step.
+
+    It has no ``sensitivity`` and always a ``step_many``; the rest of the
+    protocol and of the optional members is the model's own
+    (:class:`~idbench.core.view.ModelView`).
 
     Parameters
     ----------
@@ -45,13 +50,13 @@ class ObservedModel:
     def __init__(
         self, model: ForwardModel, observation: Any, frames: Sequence[Any]
     ) -> None:
-        self.model = model
+        super().__init__(model)
         self.observation = observation
         self.frames = list(frames)
         self._n = int(np.asarray(model.reset()).size)
         self._combined = isinstance(observation, observe.Combined)
         self._blocks = [b for _, b in observe.leaves(observation)]
-        self._carried = [getattr(b, "needs_theta", False) for b in self._blocks]
+        self._carried = [needs_theta_of(b) for b in self._blocks]
         first = next((f for f in self.frames if f is not None), None)
         parts = self._parts(first) if first is not None else []
         self._sizes = [
@@ -60,20 +65,8 @@ class ObservedModel:
         self._c = sum(n for n, c in zip(self._sizes, self._carried, strict=True) if c)
         self._size = sum(self._sizes)
 
-    def __getattr__(self, name: str) -> Any:
-        if name in ("sensitivity", "model", "__setstate__"):
-            raise AttributeError(name)
-        return getattr(self.model, name)
-
-    @property
-    def parameters(self) -> Any:
-        """The model's parameters."""
-        return self.model.parameters
-
-    @property
-    def n_steps(self) -> int:
-        """The model's load steps."""
-        return self.model.n_steps
+    sensitivity = Absent()
+    """None: estimators that need one use finite differences."""
 
     @property
     def n_state(self) -> int:
@@ -95,7 +88,7 @@ class ObservedModel:
     def step_many(self, thetas: FloatArray, k: int, states: FloatArray) -> FloatArray:
         """The model's ``step_many`` (or r ``step`` calls), with what ``step`` adds."""
         u = np.asarray(states, dtype=float)[:, : self._n]
-        many = member(self.model, "step_many")
+        many = step_many_of(self.model)
         if many is None:
             new = np.stack(
                 [self.model.step(t, k, s) for t, s in zip(thetas, u, strict=True)]

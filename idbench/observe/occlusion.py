@@ -26,7 +26,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from idbench.core.capabilities import handles_nan, observation_cov_of, sensitivity_of
 from idbench.core.interfaces import FloatArray, ForwardModel, Observation
+from idbench.core.view import ModelView, lacks
 
 BoolArray = NDArray[np.bool_]
 
@@ -62,7 +64,7 @@ def refusal(name: str, estimator: Any, stream: Sequence[Observation | None]) -> 
     It can unless some observation has NaN entries and the estimator neither
     masks them (:class:`idbench.Filter`) nor declares ``handles_nan = True``.
     """
-    if getattr(estimator, "handles_nan", False):
+    if handles_nan(estimator):
         return ""
     steps = occluded_steps(stream)
     if not steps:
@@ -75,12 +77,13 @@ def refusal(name: str, estimator: Any, stream: Sequence[Observation | None]) -> 
     )
 
 
-class MaskedModel:
+class MaskedModel(ModelView):
     """``model`` whose observation is restricted to the visible entries ``mask``.
 
     ``observe`` returns ``h(x)[mask]``, ``sensitivity`` (if the model has it)
     ``J[mask, :]`` and ``observation_cov`` (a corrected model's Sigma, if it
-    has it) ``Sigma[mask][:, mask]``; everything else is the model's own.
+    has it) ``Sigma[mask][:, mask]``; the rest of the protocol and of the
+    optional members is the model's own (:class:`~idbench.core.view.ModelView`).
 
     Parameters
     ----------
@@ -91,39 +94,24 @@ class MaskedModel:
     """
 
     def __init__(self, model: ForwardModel, mask: BoolArray) -> None:
-        self._model = model
+        super().__init__(model)
         self._mask = np.asarray(mask, dtype=bool)
-
-    def __getattr__(self, name: str) -> Any:
-        if name in ("_model", "_mask") or name.startswith("__"):
-            raise AttributeError(name)
-        value = getattr(self._model, name)
-        if name == "sensitivity":
-            return self._rows(value)
-        if name == "observation_cov":
-            return self._block(value)
-        return value
 
     @property
     def mask(self) -> BoolArray:
         """The visible entries (m,) of the model's observation."""
         return self._mask
 
-    @property
-    def parameters(self) -> Any:
-        """The model's parameters."""
-        return self._model.parameters
-
-    @property
-    def n_steps(self) -> int:
-        """The model's load steps."""
-        return self._model.n_steps
-
     def observe(self, state: FloatArray) -> FloatArray:
         """h(x)[mask]: the model's observation of ``state``, visible entries."""
-        return np.asarray(self._model.observe(state), dtype=float)[self._mask]
+        return np.asarray(self.model.observe(state), dtype=float)[self._mask]
 
-    def _rows(self, sensitivity: Callable[..., Any]) -> Callable[..., FloatArray]:
+    @property
+    def sensitivity(self) -> Callable[[FloatArray, int, FloatArray], FloatArray]:
+        """The model's sensitivity (m, p), rows of the visible entries."""
+        sensitivity = sensitivity_of(self.model)
+        if sensitivity is None:
+            raise lacks(self, "sensitivity")
         mask = self._mask
 
         def rows(theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
@@ -132,7 +120,12 @@ class MaskedModel:
 
         return rows
 
-    def _block(self, cov: Callable[..., Any]) -> Callable[..., FloatArray]:
+    @property
+    def observation_cov(self) -> Callable[[FloatArray], FloatArray]:
+        """The model's Sigma (m, m), rows and columns of the visible entries."""
+        cov = observation_cov_of(self.model)
+        if cov is None:
+            raise lacks(self, "observation_cov")
         mask = self._mask
 
         def block(state: FloatArray) -> FloatArray:

@@ -22,7 +22,13 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from idbench.calibrate.discrepancy import CalibrationSettings
-from idbench.core.capabilities import bounds_of, n_nodes_of, needs_observed_of
+from idbench.core.capabilities import (
+    bounds_of,
+    estimate_solves_of,
+    n_nodes_of,
+    needs_observed_of,
+    requirement_met,
+)
 from idbench.core.interfaces import ConfigError, ForwardModel, ModelSpec
 from idbench.core.settings import (
     build_settings,
@@ -336,7 +342,7 @@ def _guess_solves(reg: Registry, spec: RunSpec, n_state: int, p: int) -> int:
     steps = spec.setup.steps
     try:
         est = reg.estimator(spec.estimator)(**dict(spec.settings))
-        guess = getattr(est, "estimate_solves", None)
+        guess = estimate_solves_of(est)
         return int(guess(n_state, p, steps)) if guess else 2 * steps
     except (Exception, SystemExit) as exc:
         log.warning("estimator %r cannot estimate its cost: %r", spec.estimator, exc)
@@ -370,7 +376,7 @@ def resolve(
         obs = observe.build(name, tables, registry)
         for member in obs.requires:
             for model in models:
-                if not callable(getattr(model, member, None)):
+                if not requirement_met(model, member):
                     raise ConfigError(
                         f"observe {name!r} needs the model's {member}(); model "
                         f"{config.model!r} ({type(model).__name__}) has none"

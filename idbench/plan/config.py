@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from idbench.core.capabilities import settings_member
 from idbench.core.interfaces import ConfigError, ModelDefaults
 from idbench.core.scenario import Sparsity
 from idbench.core.settings import build_settings, proposed_defaults, suggest
@@ -301,7 +302,7 @@ class CompareConfig:
         the bad value.
         """
         cls = registry.models[model].settings
-        if cls is None or not callable(getattr(cls, "proposed_defaults", None)):
+        if cls is None or settings_member(cls, "proposed_defaults") is None:
             return None
         given = self.model_settings.get(model, {})
         try:

@@ -15,7 +15,7 @@ from typing import Any
 
 
 def settings(obj: Any) -> list[dict[str, Any]]:
-    """The settings of ``obj``: a dataclass, or anything with a ``Settings`` one.
+    """The settings of ``obj``, a settings dataclass (none for anything else).
 
     Returns
     -------
@@ -23,7 +23,7 @@ def settings(obj: Any) -> list[dict[str, Any]]:
         ``name``, ``type`` (as annotated), ``default`` (None if required) and
         ``meaning`` per public field, in declaration order.
     """
-    target = obj if dataclasses.is_dataclass(obj) else getattr(obj, "Settings", None)
+    target = obj
     if not (isinstance(target, type) and dataclasses.is_dataclass(target)):
         return []
     rows = []
@@ -49,7 +49,7 @@ def settings(obj: Any) -> list[dict[str, Any]]:
 
 def summary_line(obj: Any) -> str:
     """The first sentence of ``obj``'s docstring, without reST markup."""
-    doc = (getattr(obj, "__doc__", None) or "").strip().splitlines()
+    doc = (obj.__doc__ or "").strip().splitlines()
     return _sentence(doc[0]) if doc else ""
 
 
@@ -59,7 +59,7 @@ def _meaning(cls: type, name: str) -> str:
     The class that declares the field is asked first, then the others of the
     MRO.
     """
-    owners = [c for c in cls.__mro__ if name in getattr(c, "__annotations__", {})]
+    owners = [c for c in cls.__mro__ if name in inspect.get_annotations(c)]
     for c in owners + [c for c in cls.__mro__ if c not in owners]:
         text = _doc_entries(c.__doc__ or "").get(name, "")
         if text and not text.lower().startswith("the shared settings"):

@@ -19,6 +19,7 @@ from typing import Any
 
 import pluggy
 
+from idbench.core.capabilities import is_reference, plugin_version_of
 from idbench.core.interfaces import ModelDefaults
 from idbench.core.scenario import Scenario
 from idbench.registry import hookspecs
@@ -37,7 +38,7 @@ class PluginError(RuntimeError):
 
 
 def _is_builtin(ep: importlib.metadata.EntryPoint) -> bool:
-    dist = getattr(ep, "dist", None)
+    dist = ep.dist
     return dist is not None and dist.metadata["Name"] == DISTRIBUTION
 
 
@@ -186,7 +187,7 @@ class Registry:
         ``reference = True`` (the best constant fit over the whole path).
         """
         flagged = [
-            n for n, e in self.estimators.items() if getattr(e.obj, "reference", False)
+            n for n, e in self.estimators.items() if is_reference(e.obj)
         ]
         if len(flagged) != 1:
             allowed = ", ".join(sorted(self.estimators)) or "none registered"
@@ -393,4 +394,4 @@ def plugin_version(pm: pluggy.PluginManager, name: str) -> str:
     if name in _versions(pm):
         return _versions(pm)[name]
     plugin = pm.get_plugin(name)
-    return str(getattr(plugin, "__version__", ""))
+    return plugin_version_of(plugin)

@@ -24,6 +24,7 @@ from idbench.core.capabilities import (
     present,
     probes_of,
     sensitivity_of,
+    settings_member,
     volume_of,
 )
 from idbench.core.interfaces import (
@@ -35,6 +36,7 @@ from idbench.core.interfaces import (
     ParameterSpec,
     Prior,
 )
+from idbench.core.view import Absent, ModelView
 
 
 def check_model(
@@ -231,7 +233,7 @@ def check_model_settings(cls: type) -> None:
         has = has or f.default_factory is not dataclasses.MISSING
         assert has, f"setting {f.name!r} needs a default"
         names.add(f.name)
-    unknown = set(getattr(cls, "EXECUTION", ())) - names
+    unknown = set(settings_member(cls, "EXECUTION")) - names
     assert not unknown, f"EXECUTION names settings that are not fields: {unknown}"
     cls()
 
@@ -324,10 +326,11 @@ def check_batch_model(
         assert err <= rtol, f"step_many of single rows differs by {err:.2e}"
 
 
-class WithoutStepMany:
+class WithoutStepMany(ModelView):
     """A model seen without its ``step_many``: estimators loop over ``step``.
 
-    Every other member is the wrapped model's. Run an estimator on a
+    Every other member is the wrapped model's
+    (:class:`~idbench.core.view.ModelView`). Run an estimator on a
     :class:`BatchModel` and on ``WithoutStepMany(model)`` to check (or time)
     that batching changes nothing but the speed.
 
@@ -337,10 +340,4 @@ class WithoutStepMany:
         The forward model to wrap.
     """
 
-    def __init__(self, model: ForwardModel) -> None:
-        self._model = model
-
-    def __getattr__(self, name: str) -> Any:
-        if name in ("step_many", "_model"):  # "_model": not yet set (a copy)
-            raise AttributeError(name)
-        return getattr(self._model, name)
+    step_many = Absent()

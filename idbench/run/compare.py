@@ -20,6 +20,7 @@ from typing import Any
 
 import pandas as pd
 
+from idbench.core.capabilities import tick_of
 from idbench.core.interfaces import ModelFailure
 from idbench.observe import kinds as observe
 from idbench.plan.check import Plan, plan
@@ -232,7 +233,7 @@ def _run(
             session,
             jobs=jobs if isolate else 1,
             timeout=config.timeout if isolate else None,
-            tick=getattr(progress, "tick", None),
+            tick=tick_of(progress),
         )
     order = [r.run_id for r in the_plan.runs]
     try:

@@ -20,7 +20,13 @@ from typing import Any
 
 import numpy as np
 
-from idbench.core.capabilities import n_nodes_of
+from idbench.core.capabilities import (
+    correction_of,
+    extrapolated_of,
+    innovation_of,
+    n_nodes_of,
+    state_of,
+)
 from idbench.core.interfaces import (
     Cost,
     Diverged,
@@ -186,7 +192,7 @@ def _checked(who: str, est: Any, p: int, k: int) -> tuple[FloatArray, FloatArray
             "numbers >= 0",
             step=k,
         )
-    state = getattr(est, "state", None)
+    state = state_of(est)
     if state is not None and not np.all(np.isfinite(np.asarray(state, dtype=float))):
         raise EstimatorError(
             f"{who} returned a non-finite state at step {k} (the model state it "
@@ -320,7 +326,7 @@ def _run_on(
             raise ConfigError(
                 f"estimator {spec.estimator!r}: {exc}; allowed settings: {allowed}"
             ) from None
-    if getattr(estimator, "correction", "none") != "none":
+    if correction_of(estimator) != "none":
         # the physical parameter: the coarse model corrected by its calibration
         model = session.corrected(spec, model)
         metrics_model = session.corrected(spec, metrics_model)
@@ -371,7 +377,7 @@ def _run_on(
         model.parameters, stream, truth, spec.noise, means[-1],
         np.array([row[f"{n}_ref"] for n in spec.setup.names]),
     )  # fmt: skip
-    beyond = getattr(model, "extrapolated", 0)
+    beyond = extrapolated_of(model)
     if beyond:  # a corrected model asked beyond its calibrated load states
         note = (f"the correction extrapolated ({beyond} predictions beyond the "
                 "calibrated load states)")  # fmt: skip
@@ -414,14 +420,13 @@ def _estimate(
         if not metrics_model.parameters.contains(mean):
             raise Diverged(f"estimate {mean} non-finite or outside bounds", step=k)
         means[k - 1], stds[k - 1] = mean, std
-        if est.state is not None:  # the model's part (see observed_model)
-            state = model_state(est.state, shadow.size)
+        own = state_of(est)
+        if own is not None:  # the model's part (see observed_model)
+            state = model_state(own, shadow.size)
         else:
             shadow = metrics_model.step(mean, k, shadow)
             state = shadow
-        innovation = getattr(est, "innovation", None)
-        if innovation is None:
-            innovation = getattr(estimator, "innovation", None)
+        innovation = innovation_of(est, estimator)
         trace = scoring.step_row(
             spec, k, obs, est, mean, std, metrics_model.grid(state), truth, direct,
             innovation,

@@ -47,7 +47,7 @@ def fingerprint(model: ForwardModel) -> dict[str, str]:
     spec = model.parameters
     default = None if spec.default is None else list(spec.default)
     out = {
-        "n_steps": repr(getattr(model, "n_steps", None)),
+        "n_steps": repr(_n_steps(model)),
         "parameters": stable_hash(
             [list(spec.names), list(spec.lower), list(spec.upper), default]
         ),
@@ -66,6 +66,14 @@ def changes(before: dict[str, str], after: dict[str, str]) -> list[str]:
     caches as it works (computed on first use).
     """
     return sorted(k for k in before if before[k] != after.get(k))
+
+
+def _n_steps(model: Any) -> Any:
+    """``model.n_steps``, or None if a run deleted it (a change too)."""
+    try:
+        return model.n_steps
+    except AttributeError:
+        return None
 
 
 def _attributes(model: Any) -> dict[str, Any]:

@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from idbench.core.capabilities import member
+from idbench.core.capabilities import ensemble_of, member
 from idbench.core.interfaces import FloatArray, ForwardModel, ModelFailure
 from idbench.score import metrics
 from idbench.truth.simulate import Truth, simulate_path
@@ -135,7 +135,7 @@ def final_columns(
     true = np.asarray(truth_targets, dtype=float).reshape(moved.shape)
     tre = metrics.target_registration_error(moved, true)
     cov, how = covariance(model, estimator, state.size, mean, std)
-    extra = getattr(model, "targets_cov", None)
+    extra = member(model, "targets_cov")
     if extra is not None:  # the corrected model's discrepancy at the targets
         cov = cov + np.asarray(extra(state), dtype=float).reshape(cov.shape)
     covered = [
@@ -168,7 +168,7 @@ def grid_columns(
     true = np.asarray(truth_grid, dtype=float).reshape(pred.shape)
     cov, _ = covariance(model, estimator, state.size, mean, std, _grid)
     disc = np.zeros_like(cov)
-    extra = getattr(model, "grid_cov", None)
+    extra = member(model, "grid_cov")
     if extra is not None:
         disc = np.asarray(extra(state), dtype=float).reshape(cov.shape)
     cov = cov + disc
@@ -252,7 +252,7 @@ def _moved(model: Any, state: FloatArray) -> FloatArray:
 def _ensemble(estimator: Any, n: int) -> FloatArray | None:
     """The members' model states (N, n), or None if the estimator shows none."""
     try:
-        rows = getattr(estimator, "ensemble", None)
+        rows = ensemble_of(estimator)
     except Exception:  # a property that fails: no ensemble to use
         return None
     if rows is None:

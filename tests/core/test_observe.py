@@ -492,3 +492,19 @@ def test_check_optional_members_catches_a_bad_surface():
     toy.surface = lambda state: (np.zeros((4, 3)), np.array([[0, 1, 7]]))  # type: ignore[attr-defined]
     with pytest.raises(AssertionError, match="do not exist"):
         check_optional_members(toy, toy.reset())
+
+
+def test_an_observed_model_has_no_sensitivity_and_the_models_other_members():
+    from idbench.core import capabilities as cap
+    from idbench.observe.observed_model import ObservedModel
+
+    model = SensitiveLinearToy(p=1, n_steps=3)
+    model.n_nodes = 7
+    frames = [observe.Frame(k, {"markers": np.zeros(3)}) for k in (1, 2, 3)]
+    seen = ObservedModel(model, observe.Markers(), frames)
+    assert cap.sensitivity_of(model) is not None and cap.sensitivity_of(seen) is None
+    assert not hasattr(seen, "sensitivity") and cap.n_nodes_of(seen) == 7
+    assert cap.step_many_of(seen) is not None  # its own: the model's r steps
+    u = seen.step(np.array([2.0]), 1, seen.reset())
+    np.testing.assert_array_equal(seen.observe(u), model.observe(u[:-1]))
+    assert seen.describe() == model.describe() and seen.cost() == model.cost()

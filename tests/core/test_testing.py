@@ -203,3 +203,28 @@ def test_the_beam_has_its_members_declared(registry):
     assert {"n_nodes", "probes", "sensitivity", "mesh", "displacement_field"} <= has
     for name in has:
         assert isinstance(model, capabilities.OPTIONAL[name]), name
+
+
+def test_a_view_passes_exactly_the_wrapped_models_members():
+    """Wrappers delegate the protocol and the declared optional members only."""
+    from idbench.core import capabilities as cap
+    from idbench.core.view import Delegated, ModelView
+    from idbench.registry.testing import WithoutStepMany
+
+    declared = {n for n, v in vars(ModelView).items() if isinstance(v, Delegated)}
+    assert declared == set(cap.OPTIONAL)
+    model = SensitiveLinearToy(p=1)
+    model.step_many = lambda thetas, k, states: states
+    model.volume = 2.0
+    view = ModelView(model)
+    assert isinstance(view, idbench.ForwardModel)
+    assert set(cap.present(view)) == set(cap.present(model))
+    assert cap.volume_of(view) == 2.0 and cap.bounds_of(view) is None
+    assert not hasattr(view, "bounds") and not hasattr(view, "A")  # no proxy
+    looped = WithoutStepMany(model)
+    assert cap.step_many_of(looped) is None and not hasattr(looped, "step_many")
+    assert set(cap.present(looped)) == set(cap.present(model)) - {"step_many"}
+    u = looped.step(np.array([2.0]), 1, looped.reset())
+    np.testing.assert_array_equal(looped.observe(u), model.observe(u))
+    assert looped.describe() == model.describe() and looped.n_steps == model.n_steps
+    check_model(looped, np.array([2.0]))
