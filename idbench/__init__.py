@@ -34,6 +34,7 @@ from idbench.core.interfaces import (
     TargetModel,
     VolumeModel,
 )
+from idbench.core.observation_model import ObservationModel
 from idbench.core.scenario import Scenario, Sparsity
 from idbench.core.version import __version__
 from idbench.estimate.filter import Analysis, Filter, noise_matrix
@@ -80,6 +81,7 @@ __all__ = [
     "ModelSpec",
     "NodeCountModel",
     "Observation",
+    "ObservationModel",
     "ObservationNeedsModel",
     "ParameterSpec",
     "PluginError",

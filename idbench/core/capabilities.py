@@ -19,6 +19,7 @@ model has; :class:`idbench.core.view.ModelView` passes them through a wrapper.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, cast
@@ -447,3 +448,43 @@ def tick_of(progress: Any) -> Callable[[], None] | None:
     )
     return value
 
+
+# --- whether a class implements a protocol ----------------------------------------
+
+
+
+def protocol_members(protocol: type) -> dict[str, bool]:
+    """The members a :class:`typing.Protocol` declares, own and inherited.
+
+    Name -> whether it is a method (else an attribute or a property); the
+    private ones left out.
+    """
+    out: dict[str, bool] = {}
+    for base in reversed(protocol.__mro__):
+        if base is object or base.__module__ == "typing":
+            continue
+        own = vars(base)
+        annotated = own.get("__annotations__", {})
+        for name in [*annotated, *own]:
+            value = own.get(name)
+            declared = name in annotated or isinstance(value, property)
+            if not name.startswith("_") and (declared or callable(value)):
+                out[name] = callable(value)
+    return out
+
+
+def lacking(cls: type, protocol: type) -> list[str]:
+    """The members of ``protocol`` that the class ``cls`` lacks (empty: none).
+
+    A method must be callable on the class; an attribute must be a class
+    attribute (a property, a field's default) or a dataclass field.
+    """
+    fields = set()
+    if dataclasses.is_dataclass(cls):
+        fields = {f.name for f in dataclasses.fields(cls)}
+    out = []
+    for name, method in protocol_members(protocol).items():
+        value = getattr(cls, name, None)
+        if (not callable(value)) if method else (value is None and name not in fields):
+            out.append(name)
+    return out

@@ -346,8 +346,8 @@ class ObservationNeedsModel(ForwardModel, Protocol):
 
     Optional: ``needs_observed`` names model members (``("reaction",)``) of
     which some observation block of every run must use one (require it, see
-    :class:`~idbench.observe.kinds.ObservationModel`); a comparison that observes
-    none of them is refused at plan time. A solid whose tool moves by a
+    :class:`~idbench.core.observation_model.ObservationModel`); a comparison
+    that observes none of them is refused at plan time. A solid whose tool moves by a
     prescribed displacement declares ``("reaction",)``: its displacements do
     not depend on a homogeneous E, only the tool's force does.
     """

@@ -23,10 +23,10 @@ Built in (model-agnostic; each needs the model members it names):
 
 Plugins add observation models with the ``register_observations`` hook
 (``register(name, cls)``, ``cls`` a settings dataclass implementing
-:class:`ObservationModel`); a comparison picks them with ``observe`` and
-configures them in ``[observe.NAME]`` tables (a table with ``kind = "cloud"``
-defines a variant, e.g. ``[observe.cloud500] kind = "cloud" points = 500``,
-so that realism knobs become a sweep axis).
+:class:`idbench.ObservationModel`, checked when it registers); a comparison
+picks them with ``observe`` and configures them in ``[observe.NAME]`` tables
+(a table with ``kind = "cloud"`` defines a variant, e.g. ``[observe.cloud500]
+kind = "cloud" points = 500``, so that realism knobs become a sweep axis).
 """
 
 from __future__ import annotations
@@ -35,91 +35,18 @@ import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar, Protocol, runtime_checkable
+from typing import Any, ClassVar
 
 import numpy as np
 
 from idbench.core.capabilities import member, needs_theta_of
 from idbench.core.interfaces import ConfigError, FloatArray, ForwardModel
+from idbench.core.observation_model import Frame
 from idbench.core.settings import build_settings
 from idbench.observe.cloud import Cloud
 
 COMBINE = "+"
 """Joins the blocks of a combined observation: ``cloud+force``."""
-
-
-@dataclass(frozen=True)
-class Frame:
-    """What a sensor delivered at one load step, before any model sees it.
-
-    The same type holds a simulated frame and a recorded one, so both go
-    through the same observation model.
-
-    Attributes
-    ----------
-    step
-        Load-step index k (1..K).
-    data
-        Arrays by name, the observation model's own (``markers`` (3M,) for
-        markers, ``points`` (N, 3) and ``origin`` (3,) for a cloud, ``force``
-        (c,) for force; ``"BLOCK/NAME"`` in a combination).
-    """
-
-    step: int
-    data: Mapping[str, FloatArray]
-
-
-@runtime_checkable
-class ObservationModel(Protocol):
-    """One way of observing a body: sensing, noise, and the model-side h(x).
-
-    Implementations are frozen dataclasses whose fields are their settings
-    (all with defaults); the core builds one per comparison from an
-    ``[observe.NAME]`` table.
-    """
-
-    requires: tuple[str, ...]
-    """Forward-model members it calls (checked before a sweep starts)."""
-
-    # optional: a class attribute ``needs_theta`` (default False): True when
-    # ``predict`` uses theta itself, not only the state (``force``).
-
-    def sense(
-        self, model: ForwardModel, theta: FloatArray, k: int, state: FloatArray
-    ) -> dict[str, FloatArray]:
-        """The noise-free reading of the truth (``model`` at ``theta``) at step k."""
-        ...
-
-    def measure(
-        self, clean: Sequence[Mapping[str, FloatArray]], rng: np.random.Generator,
-        noise: float,
-    ) -> list[dict[str, FloatArray]]:  # fmt: skip
-        """Frame data of every step (K,) from the clean readings, with noise.
-
-        ``rng`` is the run's generator for this observation (common random
-        numbers: the same for every estimator and mesh); ``noise`` is the
-        run's ``--noise`` sigma (a model may use it or its own setting).
-        """
-        ...
-
-    def values(self, frame: Frame) -> FloatArray:
-        """The observation vector y of a frame, shape (m,); m the same every frame."""
-        ...
-
-    def noise_std(self, frame: Frame, noise: float) -> float | FloatArray:
-        """Noise std of each value (a float: all the same), for R."""
-        ...
-
-    def predict(
-        self, model: ForwardModel, frame: Frame, theta: FloatArray, k: int,
-        state: FloatArray,
-    ) -> FloatArray:  # fmt: skip
-        """The prediction h(x) (m,) of ``frame`` for ``model`` at ``state`` (theta)."""
-        ...
-
-    def identity(self) -> list[Any]:
-        """What the noise draws of this observation depend on (not its sigma)."""
-        ...
 
 
 IF_SET = "if-set"

@@ -42,7 +42,7 @@ class ObservedModel(ModelView):
     model
         The forward model.
     observation
-        The :class:`~idbench.observe.kinds.ObservationModel`.
+        The :class:`~idbench.core.observation_model.ObservationModel`.
     frames
         The run's frame of each step 1..K.
     """

@@ -165,8 +165,9 @@ class RunSpec:
         noise sigma, selected by the spacing), so comparisons across them are
         paired. The markers stay in the key: they set the observation size.
         Each block of another observation model seeds its own generator from
-        this key and its :meth:`~idbench.observe.kinds.ObservationModel.identity`
-        (see :meth:`idbench.run.session.Session.frames`).
+        this key and its ``identity()``
+        (:class:`~idbench.core.observation_model.ObservationModel`, see
+        :meth:`idbench.run.session.Session.frames`).
         """
         s = self.setup
         return [

@@ -71,8 +71,8 @@ def register_observations(register: Callable[[str, type], None]) -> None:
     Call ``register(name, cls)`` once per observation model, where ``cls`` is
     a frozen dataclass whose fields are its settings (all with defaults;
     ``[observe.NAME]`` in TOML, ``--observe-option NAME.SETTING=VALUE``) and
-    whose instances implement :class:`idbench.observe.kinds.ObservationModel`
+    whose instances implement :class:`idbench.ObservationModel`
     (``requires``, ``sense``, ``measure``, ``values``, ``noise_std``,
-    ``predict``, ``identity``). The core's own, ``markers``, ``cloud`` and
-    ``force``, cannot be replaced.
+    ``predict``, ``identity``), checked when it registers. The core's own,
+    ``markers``, ``cloud`` and ``force``, cannot be replaced.
     """

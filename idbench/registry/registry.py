@@ -19,8 +19,13 @@ from typing import Any
 
 import pluggy
 
-from idbench.core.capabilities import is_reference, plugin_version_of
+from idbench.core.capabilities import (
+    is_reference,
+    lacking,
+    plugin_version_of,
+)
 from idbench.core.interfaces import ModelDefaults
+from idbench.core.observation_model import ObservationModel
 from idbench.core.scenario import Scenario
 from idbench.registry import hookspecs
 
@@ -304,6 +309,12 @@ def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
     def observation_cb(plugin: str) -> Callable[[str, type], None]:
         def register(name: str, cls: type) -> None:
             _check_dataclass(cls, plugin, f"observation model {name!r}")
+            missing = lacking(cls, ObservationModel)
+            if missing:
+                raise PluginError(
+                    f"plugin {plugin!r}: observation model {name!r} is no "
+                    f"idbench.ObservationModel: it lacks {', '.join(missing)}"
+                )
             if name in ("markers", "cloud", "force"):
                 raise PluginError(
                     f"plugin {plugin!r}: observation model {name!r} is idbench's own"

@@ -291,7 +291,7 @@ class Session:
         return stream
 
     def observation_model(self, spec: RunSpec) -> Any:
-        """The run's :class:`~idbench.observe.kinds.ObservationModel`."""
+        """The run's :class:`~idbench.core.observation_model.ObservationModel`."""
         return observe.from_items(spec.observe, spec.observe_settings, self.registry)
 
     def frames(self, spec: RunSpec) -> list[observe.Frame]:

@@ -620,3 +620,33 @@ def test_plugins_lists_the_core_and_the_plugins_observation_models(
     table = capsys.readouterr().out
     assert "observations" in table
     assert "depth-probe" in table and "cloud, force, markers" in table
+
+
+def test_an_observation_model_is_checked_against_the_protocol(
+    pm: pluggy.PluginManager, add_plugin: Callable[[object, str], object]
+) -> None:
+    from idbench.observe.kinds import Markers
+
+    @dataclass(frozen=True)
+    class NoPrediction:
+        requires: tuple[str, ...] = ("observe",)
+
+        def sense(self, model: Any, theta: Any, k: int, state: Any) -> Any:
+            return {}
+
+    class Plugin:
+        @idbench.hookimpl
+        def register_observations(self, register: Any) -> None:
+            register("half", NoPrediction)
+
+    add_plugin(Plugin(), "half-plug")
+    reg = idbench.build_registry(pm)
+    message = reg.errors["half-plug"]
+    assert message == (
+        "plugin 'half-plug': observation model 'half' is no "
+        "idbench.ObservationModel: it lacks measure, values, noise_std, predict, "
+        "identity"
+    )
+    assert "half" not in reg.observations
+    assert isinstance(Markers(), idbench.ObservationModel)
+    assert "ObservationModel" in idbench.__all__
