@@ -235,6 +235,11 @@ class Member:
 
 
 ESTIMATOR_OPTIONAL: dict[str, Member] = {
+    "abstract": Member(
+        False,
+        "class attribute (idbench.Filter's class keyword abstract=True): a base "
+        "for other estimators, not one itself; it cannot be registered",
+    ),
     "reference": Member(
         False,
         "class attribute: True marks the estimator whose fit on a run's data is "
@@ -450,6 +455,11 @@ def tick_of(progress: Any) -> Callable[[], None] | None:
 
 
 # --- whether a class implements a protocol ----------------------------------------
+
+
+def is_placeholder(value: Any) -> bool:
+    """Whether a class member is marked ``@abc.abstractmethod`` (abc's own test)."""
+    return bool(getattr(value, "__isabstractmethod__", False))
 
 
 

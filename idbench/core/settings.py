@@ -62,6 +62,55 @@ def public_settings(cls: type) -> list[str]:
     ]
 
 
+def is_classvar(hint: Any) -> bool:
+    """Whether an annotation (maybe a string) declares a ``ClassVar`` or ``InitVar``.
+
+    Neither is a setting: the first is a class constant, the second an
+    argument of ``__post_init__``.
+    """
+    if isinstance(hint, str):
+        head = hint.split("[", 1)[0].strip().rsplit(".", 1)[-1]
+        return head in ("ClassVar", "InitVar")
+    origin = typing.get_origin(hint) or hint
+    return origin is typing.ClassVar or isinstance(hint, dataclasses.InitVar)
+
+
+def has_default(value: Any) -> bool:
+    """Whether a class attribute gives its field a default.
+
+    Any value does, a :func:`dataclasses.field` only with ``default`` or
+    ``default_factory``, :data:`dataclasses.MISSING` (no attribute) not.
+    """
+    if isinstance(value, dataclasses.Field):
+        return (
+            value.default is not dataclasses.MISSING
+            or value.default_factory is not dataclasses.MISSING
+        )
+    return value is not dataclasses.MISSING
+
+
+def undeclared_settings(cls: type) -> list[str]:
+    """The settings of a settings dataclass that are no dataclass fields.
+
+    A setting is an annotated public class attribute (not ``ClassVar``) of
+    ``cls`` or of a dataclass among its bases; one that is no field of
+    ``dataclasses.fields(cls)`` was declared in a class not decorated with
+    ``@dataclass``, so ``cls(setting=...)`` cannot set it. Named
+    ``Class.setting``.
+    """
+    fields = set()
+    if dataclasses.is_dataclass(cls):
+        fields = {f.name for f in dataclasses.fields(cls)}
+    out = []
+    for base in cls.__mro__:
+        if base is cls or dataclasses.is_dataclass(base):
+            for name, hint in vars(base).get("__annotations__", {}).items():
+                public = not name.startswith("_") and not is_classvar(hint)
+                if public and name not in fields:
+                    out.append(f"{base.__name__}.{name}")
+    return out
+
+
 def build_settings(cls: type, given: dict[str, Any], what: str) -> Any:
     """``cls(**given)`` for a settings dataclass, or one ConfigError line.
 

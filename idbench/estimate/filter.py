@@ -10,17 +10,25 @@ subclass writes only ``begin`` (set up a run) and ``assimilate`` (advance to
 step k, assimilate the observation), working on xi = transform(theta)
 (:mod:`idbench.estimate.transforms`) and returning an :class:`Analysis`. Estimators
 that do not subclass it keep working: the protocol is the contract.
+
+A subclass is checked when it is defined (:meth:`Filter.__init_subclass__`):
+one that lacks a method, takes the wrong arguments or declares settings that
+cannot be dataclass fields raises TypeError naming itself, so a broken
+estimator plugin fails when it is imported. A base for other estimators that
+is none itself says so: ``class EnsembleFilter(Filter, abstract=True)``.
 """
 
 from __future__ import annotations
 
+import inspect
 import math
-from dataclasses import dataclass, field
-from typing import ClassVar
+from abc import abstractmethod
+from dataclasses import MISSING, dataclass, field
+from typing import Any, ClassVar
 
 import numpy as np
 
-from idbench.core.capabilities import observation_cov_of
+from idbench.core.capabilities import is_placeholder, observation_cov_of
 from idbench.core.interfaces import (
     Cost,
     Diverged,
@@ -30,7 +38,12 @@ from idbench.core.interfaces import (
     Observation,
     Prior,
 )
-from idbench.core.settings import check_choice
+from idbench.core.settings import (
+    check_choice,
+    has_default,
+    is_classvar,
+    undeclared_settings,
+)
 from idbench.estimate.transforms import TRANSFORMS, IdentityTransform
 from idbench.observe.occlusion import BoolArray, MaskedModel, restrict
 from idbench.observe.occlusion import visible as visible_mask
@@ -87,6 +100,7 @@ class _Conventions:
     :class:`Filter` for their meaning.
     """
 
+    abstract: ClassVar[bool] = False
     reference: ClassVar[bool] = False
     handles_nan: ClassVar[bool] = False
     seed: int | None = None
@@ -121,10 +135,17 @@ class Filter(_Conventions):
     A subclass is a dataclass whose fields are its settings (each with a
     default); it implements :meth:`begin` and :meth:`assimilate`. Validate
     settings in ``__post_init__`` (call ``super().__post_init__()``), raising
-    ValueError naming the value and what is allowed.
+    ValueError naming the value and what is allowed. The class is checked
+    when it is defined (:meth:`__init_subclass__`).
 
     Attributes
     ----------
+    abstract
+        Class keyword, default False: ``class Base(Filter, abstract=True)``
+        declares a base for other estimators that is none itself. It need not
+        implement :meth:`begin` and :meth:`assimilate` (nor the methods of its
+        own it marks ``@abc.abstractmethod``, which its concrete subclasses
+        must implement), and it cannot be registered.
     transform
         ``"log"`` (xi = ln theta, default) or ``"identity"``.
     sigma_floor
@@ -192,8 +213,34 @@ class Filter(_Conventions):
             )
         check_choice("correction", self.correction, CORRECTIONS)
 
+    def __init_subclass__(cls, *, abstract: bool = False, **kwargs: Any) -> None:
+        """Check a subclass when it is defined (as DAPPER checks its methods).
+
+        Raises
+        ------
+        TypeError
+            Naming the class and what is wrong: a method marked
+            ``@abc.abstractmethod`` (:meth:`begin`, :meth:`assimilate`, or one
+            of an abstract base) not implemented (unless ``abstract=True``);
+            one of those or :meth:`estimate_solves` not a method that takes
+            the arguments the base passes; an ``__init__`` of its own (the
+            settings are dataclass fields); a setting without a default; a
+            public class attribute neither annotated (a field) nor
+            ``ClassVar``; a base whose settings are no dataclass fields (not
+            decorated with ``@dataclass``).
+        """
+        super().__init_subclass__(**kwargs)
+        cls.abstract = abstract
+        wrong = subclass_problems(cls)
+        if wrong:
+            raise TypeError(
+                f"estimator class {cls.__name__} ({cls.__module__}): "
+                + "; ".join(wrong)
+            )
+
     # --- what a subclass writes --------------------------------------------
 
+    @abstractmethod
     def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Set up the run's own state (the estimator's part of :meth:`start`).
 
@@ -201,6 +248,7 @@ class Filter(_Conventions):
         """
         raise NotImplementedError
 
+    @abstractmethod
     def assimilate(self, k: int, observation: Observation | None) -> Analysis:
         """Advance to step ``k``, assimilate ``observation`` if any; the analysis."""
         raise NotImplementedError
@@ -378,3 +426,80 @@ def noise_matrix(var: float | FloatArray, m: int) -> FloatArray:
     if np.ndim(var) == 0:
         return var * np.eye(m)
     return np.diag(np.broadcast_to(np.asarray(var, dtype=float), (m,)))
+
+
+CALLED = ("begin", "assimilate", "estimate_solves")
+"""The methods :class:`Filter` calls on a subclass, with its own arguments."""
+
+
+def subclass_problems(cls: type[Filter]) -> list[str]:
+    """What is wrong with a subclass of :class:`Filter` (empty: nothing).
+
+    See :meth:`Filter.__init_subclass__`.
+    """
+    out = []
+    missing = [] if cls.abstract else unimplemented(cls)
+    if missing:
+        out.append(
+            f"lacks {', '.join(missing)} (implement them, or declare a base for "
+            f"other estimators: class {cls.__name__}(Filter, abstract=True))"
+        )
+    for name in CALLED:
+        if name in vars(cls):
+            out.extend(_signature_problem(name, vars(cls)[name]))
+    out.extend(_settings_problems(cls))
+    for base in cls.__mro__[1:-1]:
+        unfielded = undeclared_settings(base) if issubclass(base, Filter) else []
+        if unfielded:
+            out.append(
+                f"base {base.__name__} is not a dataclass (settings "
+                f"{', '.join(unfielded)} are no fields): decorate it with @dataclass"
+            )
+    return out
+
+
+def unimplemented(cls: type) -> list[str]:
+    """The methods marked ``@abc.abstractmethod`` that ``cls`` does not implement."""
+    marked = {n for b in cls.__mro__ for n, v in vars(b).items() if is_placeholder(v)}
+    found = {n: next(vars(b)[n] for b in cls.__mro__ if n in vars(b)) for n in marked}
+    return sorted(n for n, v in found.items() if is_placeholder(v))
+
+
+def _signature_problem(name: str, method: Any) -> list[str]:
+    """Why ``method`` cannot stand for :class:`Filter`'s ``name`` (empty: it can)."""
+    if not inspect.isfunction(method):
+        return [f"{name} is no method ({type(method).__name__})"]
+    base = vars(Filter).get(name) or vars(_Conventions)[name]
+    args = list(inspect.signature(base).parameters)
+    try:
+        inspect.signature(method).bind(*args)
+    except TypeError:
+        return [f"{name} must take ({', '.join(args)}) as the base calls it"]
+    return []
+
+
+def _settings_problems(cls: type) -> list[str]:
+    """Why the settings a class declares cannot all be dataclass fields."""
+    own = vars(cls)
+    annotated = own.get("__annotations__", {})
+    conventions = [n for n, hint in vars(_Conventions)["__annotations__"].items()
+                   if is_classvar(hint)]  # fmt: skip
+    out = []
+    if "__init__" in own:
+        out.append(
+            "defines __init__: its settings must be dataclass fields (validate "
+            "them in __post_init__)"
+        )
+    for name, hint in annotated.items():
+        setting = not name.startswith("_") and not is_classvar(hint)
+        if setting and not has_default(own.get(name, MISSING)):
+            out.append(f"setting {name!r} has no default")
+    for name, value in own.items():
+        method = callable(value) or isinstance(value, property | classmethod)
+        known = name.startswith("_") or name in annotated or name in conventions
+        if not (method or known):
+            out.append(
+                f"{name} = {value!r} is no dataclass field: annotate it (a "
+                "setting) or declare it ClassVar"
+            )
+    return out

@@ -20,6 +20,7 @@ from typing import Any
 import pluggy
 
 from idbench.core.capabilities import (
+    estimator_member,
     is_reference,
     lacking,
     plugin_version_of,
@@ -27,6 +28,7 @@ from idbench.core.capabilities import (
 from idbench.core.interfaces import ModelDefaults
 from idbench.core.observation_model import ObservationModel
 from idbench.core.scenario import Scenario
+from idbench.core.settings import undeclared_settings
 from idbench.registry import hookspecs
 
 log = logging.getLogger(__name__)
@@ -302,6 +304,18 @@ def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
     def estimator_cb(plugin: str) -> Callable[[str, type], None]:
         def register(name: str, cls: type) -> None:
             _check_dataclass(cls, plugin, f"estimator {name!r}")
+            unfielded = undeclared_settings(cls)
+            if unfielded:
+                raise PluginError(
+                    f"plugin {plugin!r}: estimator {name!r} has settings that are "
+                    f"no dataclass fields ({', '.join(unfielded)}): decorate their "
+                    "class with @dataclass"
+                )
+            if estimator_member(cls, "abstract"):
+                raise PluginError(
+                    f"plugin {plugin!r}: estimator {name!r} is an abstract base "
+                    f"({cls.__name__}, abstract=True): register its subclasses"
+                )
             _add(reg.estimators, "estimator", name, cls, plugin)
 
         return register

@@ -15,7 +15,7 @@ import types
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pytest
@@ -280,3 +280,132 @@ def test_builtin_filters_use_the_core_base() -> None:
     for cls in (BatchLs, Enkf, Etkf, Lms, Rls, RoUkf, Ukf):
         assert issubclass(cls, idbench.Filter), cls
     assert BatchLs.reference is True and RoUkf.reference is False
+
+
+# --- the base checks its subclasses when they are defined ---------------------
+
+
+def test_a_subclass_without_its_methods_fails_at_definition() -> None:
+    with pytest.raises(TypeError, match=r"NoMaths \(.*\): lacks assimilate, begin"):
+
+        @dataclass
+        class NoMaths(idbench.Filter):
+            pass
+
+
+def test_a_method_with_the_wrong_arguments_fails_at_definition() -> None:
+    with pytest.raises(
+        TypeError, match=r"Short .*assimilate must take \(self, k, observation\)"
+    ):
+
+        @dataclass
+        class Short(Scripted):
+            def assimilate(self, k: int) -> idbench.Analysis:  # type: ignore[override]
+                raise AssertionError
+
+    with pytest.raises(TypeError, match="estimate_solves must take"):
+
+        class Guess(Scripted):
+            def estimate_solves(self) -> int:  # type: ignore[override]
+                return 0
+
+    with pytest.raises(TypeError, match="begin is no method"):
+
+        class NotAMethod(Scripted):
+            begin = 3  # type: ignore[assignment]
+
+
+@pytest.mark.parametrize(
+    ("body", "message"),
+    [
+        ("alpha = 0.5", "alpha = 0.5 is no dataclass field: annotate it"),
+        ("alpha: float", "setting 'alpha' has no default"),
+        ("alpha: float = field()", "setting 'alpha' has no default"),
+        ("def __init__(self, alpha=0.5):\n        self.alpha = alpha",
+         "defines __init__: its settings must be dataclass fields"),
+    ],
+)
+def test_settings_that_cannot_be_fields_fail_at_definition(
+    body: str, message: str
+) -> None:
+    source = f"class Loose(Scripted):\n    {body}\n"
+    namespace = {"Scripted": Scripted, "field": __import__("dataclasses").field}
+    with pytest.raises(TypeError, match=rf"Loose \(.*{re.escape(message)}"):
+        exec(source, namespace)
+
+
+def test_class_constants_and_conventions_are_not_settings() -> None:
+    @dataclass
+    class Flagged(Scripted):
+        reference = True  # a convention of the base (a ClassVar there)
+        LIMIT: ClassVar[int] = 3
+
+    assert Flagged.reference is True and "LIMIT" not in public_settings(Flagged)
+
+
+def test_an_abstract_base_need_not_implement_and_its_subclasses_must() -> None:
+    from abc import abstractmethod
+
+    @dataclass
+    class Base(idbench.Filter, abstract=True):
+        width: int = 2
+
+        def begin(self, model: Any, prior: idbench.Prior) -> None:
+            self.xi, self.P = self.prior_xi(prior)
+
+        @abstractmethod
+        def analysis(self, xi: Any) -> Any: ...
+
+        def assimilate(self, k: int, observation: Any) -> idbench.Analysis:
+            return idbench.Analysis(self.analysis(self.xi), self.P)
+
+    with pytest.raises(TypeError, match=r"Partial .*lacks analysis"):
+
+        @dataclass
+        class Partial(Base):
+            pass
+
+    @dataclass
+    class Whole(Base):
+        def analysis(self, xi: Any) -> Any:
+            return xi
+
+    assert Base.abstract is True and Whole.abstract is False
+    reg = registry_with({"abstract-plug": types.SimpleNamespace(
+        register_estimators=idbench.hookimpl(
+            lambda register: register("base", Base)
+        )
+    )})  # fmt: skip
+    assert "is an abstract base (" in reg.errors["abstract-plug"]
+    assert "base" not in reg.estimators
+
+
+def test_a_base_that_is_no_dataclass_fails_its_subclasses_and_registration() -> None:
+    class Undecorated(Scripted):  # its setting would be no field
+        alpha: float = 0.5
+
+    with pytest.raises(TypeError, match="base Undecorated is not a dataclass"):
+
+        @dataclass
+        class Child(Undecorated):
+            pass
+
+    reg = registry_with({"loose-plug": types.SimpleNamespace(
+        register_estimators=idbench.hookimpl(
+            lambda register: register("loose", Undecorated)
+        )
+    )})  # fmt: skip
+    message = reg.errors["loose-plug"]
+    assert "plugin 'loose-plug': estimator 'loose'" in message
+    assert "Undecorated.alpha" in message and "@dataclass" in message
+
+
+def test_the_conventions_defaults_are_the_declared_ones() -> None:
+    from idbench.core.capabilities import ESTIMATOR_OPTIONAL, estimator_member
+
+    for name, declared in ESTIMATOR_OPTIONAL.items():
+        assert estimator_member(PriorOnly(), name) == declared.default, name
+        if name in ("correction", "ensemble", "estimate_solves", "handles_nan"):
+            continue  # a setting of the base, none, a method; it masks NaN
+        assert getattr(idbench.Filter, name) == declared.default, name
+    assert estimator_member(Scripted(), "handles_nan") is True
