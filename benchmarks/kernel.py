@@ -25,7 +25,7 @@ from idbench_fem.models.beam import build
 from idbench_fem.models.beam_scenarios import SCENARIOS
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from oracles.v01_kernel import old_element_tangents
+from support.oracles.v01_kernel import old_element_tangents
 
 
 def best(f, repeat=20):

@@ -18,13 +18,12 @@ from idbench.registry.registry import AUTOLOAD_ENV
 STUDIES = Path(__file__).resolve().parent.parent / "studies"
 
 # The tests live in folders that mirror the packages (core/, fem/, filters/,
-# studies/); what they share (helpers, toymodels, oracles) stays here, and a
-# test module may import another's fixtures and toy models by module name.
+# studies/); what they share (toy models, helpers, oracles, plugins) is the
+# package support/ here, which they import (``from support.toymodels import
+# LinearToy``); a test module never imports another.
 _TESTS = Path(__file__).resolve().parent
-for _folder in (_TESTS, *(p for p in sorted(_TESTS.iterdir()) if p.is_dir())):
-    if (_folder / "__init__.py").exists() or _folder.name.startswith((".", "_")):
-        continue
-    sys.path.insert(0, str(_folder))
+if str(_TESTS) not in sys.path:
+    sys.path.insert(0, str(_TESTS))
 
 
 @pytest.fixture(autouse=True)

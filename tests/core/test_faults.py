@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
-from helpers import MODEL, STEPS, TRUTH, tiny
+from support.helpers import MODEL, STEPS, TRUTH, tiny
 
 from idbench.cli.commands import main
 from idbench.plan.config import ConfigError

@@ -19,8 +19,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 import pytest
-from helpers import registry_with
-from toymodels import SensitiveLinearToy
+from support.helpers import registry_with
+from support.toymodels import SensitiveLinearToy
 
 import idbench
 from idbench.core.settings import estimator_arguments, public_settings

@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-from helpers import registry_with
-from toymodels import SensitiveLinearToy
+from support.helpers import registry_with
+from support.toymodels import SensitiveLinearToy
 
 import idbench
 from idbench.cli.commands import main

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy import integrate, stats
-from test_beam import E_TRUE, beam
-from test_ensemble import SIGMA, BatchedToy, make_data
-from toymodels import LinearToy
+from support.beam_runs import E_TRUE, beam
+from support.helpers import SIGMA, make_data
+from support.toymodels import BatchedToy, LinearToy
 
 from idbench import Observation, Prior
 from idbench.estimate.posterior import (

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
-from helpers import registry_with
+from support.helpers import registry_with
 
 import idbench
 from idbench.cli.commands import main

@@ -24,7 +24,7 @@ import meshio
 import numpy as np
 import pandas as pd
 import pytest
-from helpers import MODEL, STEPS, TRUTH, registry_with, tiny
+from support.helpers import MODEL, STEPS, TRUTH, registry_with, tiny
 
 import idbench
 from idbench.cli.commands import main

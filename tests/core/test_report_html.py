@@ -11,7 +11,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from helpers import compare_into
+from support.helpers import compare_into
 
 CHROMIUM_ARGS = [
     "--headless",

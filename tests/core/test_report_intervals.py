@@ -7,8 +7,8 @@ import io
 import numpy as np
 import pandas as pd
 import pytest
-from helpers import compare_into
 from scipy import stats
+from support.helpers import compare_into
 
 from idbench.cli.commands import main
 from idbench.report.intervals import excludes_zero, interval, method, seeds_needed

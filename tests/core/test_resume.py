@@ -18,7 +18,7 @@ from pathlib import Path
 import meshio
 import pandas as pd
 import pytest
-from helpers import MODEL, STEPS, TRUTH, tiny
+from support.helpers import MODEL, STEPS, TRUTH, tiny
 
 import idbench.registry.registry
 import idbench.run.executors
@@ -69,7 +69,7 @@ def test_a_mesh_file_changed_under_the_same_path_is_refused(tmp_path, capsys):
 
 def test_a_body_file_changed_under_the_same_path_is_refused(tmp_path, monkeypatch):
     """The solid model reads a body TOML (``--model-option body=FILE``)."""
-    from test_solid_model import write_beam_body
+    from support.bodies import write_beam_body
 
     body, _ = write_beam_body(tmp_path, spec="4x1x1")
     monkeypatch.setenv("IDBENCH_BODIES", str(body))  # registers its scenarios

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from helpers import registry_with
+from support.helpers import registry_with
 
 import idbench
 from idbench.plan.config import CompareConfig

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from toymodels import LinearToy, SensitiveLinearToy
+from support.toymodels import LinearToy, SensitiveLinearToy
 
 import idbench
 from idbench.registry.testing import check_batch_model, check_estimator, check_model

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import registry_with
-from test_report_models import SpringPlugin
+from support.helpers import registry_with
+from support.springs import SpringPlugin
 
 from idbench.plan.config import CompareConfig
 from idbench.run.compare import compare, runs_of

@@ -5,7 +5,7 @@ from __future__ import annotations
 import tomllib
 
 import numpy as np
-from helpers import write_box_mesh
+from support.helpers import write_box_mesh
 
 from idbench_fem.bodies.description import parse_body
 from idbench_fem.bodies.mesh import read_mesh

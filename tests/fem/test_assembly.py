@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from beams import beam_model
-from oracles import svk_forms, v01_kernel
+from support.beams import beam_model
+from support.oracles import svk_forms, v01_kernel
 
 import idbench
 from idbench_fem.bodies import box

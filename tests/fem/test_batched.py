@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from beams import beam_model
-from toymodels import LinearToy
+from support.beams import beam_model
+from support.toymodels import LinearToy
 
 import idbench
 from idbench import ModelFailure, ModelSpec, Observation, Prior

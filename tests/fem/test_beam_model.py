@@ -6,8 +6,8 @@ import json
 
 import numpy as np
 import pytest
-from beams import beam_model
-from oracles import svk_forms
+from support.beams import beam_model
+from support.oracles import svk_forms
 
 import idbench
 from idbench_fem.bodies import box

@@ -1,8 +1,8 @@
 """The beam preset (a body of the solid model) against independent references.
 
 Each step's displacement field within 1e-10 (relative to the largest
-displacement) of Newton on scikit-fem's SVK forms (tests/oracles), on 6x2x2
-and 9x2x2 meshes, for each beam scenario (the preset was checked equal to the
+displacement) of Newton on scikit-fem's SVK forms (tests/support/oracles), on
+6x2x2 and 9x2x2 meshes, for each beam scenario (the preset was checked equal to the
 ``SvkBeam`` class it replaced, to 1e-15, before that class was deleted).
 """
 
@@ -20,7 +20,7 @@ from idbench_fem.models.beam_settings import BeamSettings
 
 def _oracle_solution(points, tets, fixed, traction, n_steps, E, nu):
     """Displacements (N, 3) after each step by Newton on the scikit-fem forms."""
-    from tests.oracles import svk_forms
+    from support.oracles import svk_forms
 
     free = np.setdiff1d(np.arange(len(points)), fixed)
     f = svk_forms.end_traction(points, tets, traction)[free].ravel()

@@ -14,7 +14,7 @@ import tomllib
 
 import numpy as np
 import pytest
-from helpers import write_box_mesh
+from support.helpers import write_box_mesh
 
 from idbench.cli.commands import main
 from idbench.plan.config import CompareConfig, ConfigError

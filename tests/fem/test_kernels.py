@@ -7,7 +7,7 @@ import sys
 
 import numpy as np
 import pytest
-from beams import beam_model
+from support.beams import beam_model
 
 from idbench_fem.bodies import box as meshes
 from idbench_fem.bodies.mesh import region_nodes

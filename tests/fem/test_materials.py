@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from oracles import general_law, svk_forms
 from scipy.optimize import brentq, minimize_scalar
+from support.oracles import general_law, svk_forms
 
 from idbench_fem.fem.materials import (
     LAWS,

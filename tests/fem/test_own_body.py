@@ -11,7 +11,7 @@ import json
 
 import numpy as np
 import pytest
-from helpers import write_box_mesh
+from support.helpers import write_box_mesh
 
 import idbench
 from idbench.cli.commands import main

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from oracles import general_law
+from support.oracles import general_law
 
 from idbench_fem.bodies import description as bodies
 from idbench_fem.bodies import resolve

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 import pytest
-from beams import beam_model
+from support.beams import beam_model
 
 from idbench import ModelFailure, Observation, Prior
 from idbench_fem.bodies import box

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from toymodels import FailingToy, InverseToy, SensitiveLinearToy, simulate
+from support.toymodels import FailingToy, InverseToy, SensitiveLinearToy, simulate
 
 import idbench
 from idbench import Diverged, Estimator, Observation, Prior, Skipped

@@ -10,20 +10,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import linear_data, linear_posteriors
-from test_beam import E_TRUE, beam, observe_truth
-from toymodels import LinearToy
+from support.beam_runs import E_TRUE, beam, observe_truth
+from support.helpers import SIGMA, linear_posteriors, make_data
+from support.toymodels import BatchedToy, LinearToy
 
 from idbench import Diverged, ModelFailure, Prior
 from idbench.registry.testing import check_estimator
 from idbench_filters import Enkf, Etkf
 
-SIGMA = 0.05
 CASES = [(1, 1), (2, 1), (2, 2)]  # (p, observe every)
-
-
-def make_data(model: LinearToy, theta: np.ndarray, every: int, seed: int = 1):
-    return linear_data(model, theta, every, SIGMA, seed)
 
 
 def kalman(model: LinearToy, prior: Prior, obs: dict):
@@ -199,24 +194,6 @@ def test_innovation_is_kept_for_nis(cls):
 # --- the batched model step ----------------------------------------------------
 
 
-class BatchedToy(LinearToy):
-    """Linear toy with ``step_many``, counting batched calls."""
-
-    def __init__(self, *a, fail_rows=(), **kw):
-        super().__init__(*a, **kw)
-        self.batched = 0
-        self.fail_rows = set(fail_rows)
-
-    def step_many(self, thetas, k, states):
-        self.batched += 1
-        out = np.stack(
-            [self.step(t, k, s) for t, s in zip(thetas, states, strict=True)]
-        )
-        for i in self.fail_rows:
-            out[i] = np.nan
-        return out
-
-
 class RaisingBatchToy(BatchedToy):
     def step_many(self, thetas, k, states):
         self.batched += 1
@@ -248,7 +225,7 @@ def test_step_many_failures_fall_back_to_single_steps():
 
 
 def test_a_member_that_cannot_be_solved_diverges():
-    from toymodels import FailingToy
+    from support.toymodels import FailingToy
 
     model = FailingToy(fail_at=3, mode="raise")
     prior = Prior((2.0,), (0.5,))

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import linear_data, linear_posteriors
-from toymodels import LinearToy, SensitiveLinearToy
+from support.helpers import linear_data, linear_posteriors
+from support.toymodels import LinearToy, SensitiveLinearToy
 
 from idbench import Prior
 from idbench_filters import BatchLs, Rls, RoUkf, Ukf

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_ensemble import SIGMA, make_data
-from toymodels import LinearToy, SensitiveLinearToy
+from support.helpers import SIGMA, make_data
+from support.toymodels import LinearToy, SensitiveLinearToy
 
 from idbench import Observation, Prior
 from idbench.estimate.posterior import model_error

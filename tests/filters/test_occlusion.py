@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-from helpers import linear_data
-from toymodels import SensitiveLinearToy
+from support.helpers import linear_data
+from support.toymodels import SensitiveLinearToy
 
 from idbench import Filter, MaskedModel, Observation, Prior
 from idbench_filters import BatchLs, Enkf, Etkf, Lms, Rls, RoUkf, Ukf

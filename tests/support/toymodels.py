@@ -137,3 +137,21 @@ def simulate(model: _Toy, theta: np.ndarray) -> list[np.ndarray]:
         ys.append(model.observe(u))
     model._solves, model._its, model._lin, model.calls = cost
     return ys
+
+
+class BatchedToy(LinearToy):
+    """Linear toy with ``step_many``, counting batched calls."""
+
+    def __init__(self, *a, fail_rows=(), **kw):
+        super().__init__(*a, **kw)
+        self.batched = 0
+        self.fail_rows = set(fail_rows)
+
+    def step_many(self, thetas, k, states):
+        self.batched += 1
+        out = np.stack(
+            [self.step(t, k, s) for t, s in zip(thetas, states, strict=True)]
+        )
+        for i in self.fail_rows:
+            out[i] = np.nan
+        return out

@@ -8,11 +8,11 @@ from typing import Any
 
 import numpy as np
 import pytest
-from toymodels import LinearToy
 
 import idbench
 from idbench import CompareConfig, Observation, Prior
 from idbench.cli.commands import main
+from support.toymodels import LinearToy
 
 TRUTH, MODEL, STEPS = "12x3x3", "4x1x1", 5
 """The tiny comparison's truth mesh, model mesh and load steps."""
@@ -97,3 +97,14 @@ def write_box_mesh(path, n_x: int, length: float, width: float, n_yz: int = 3) -
         np.linspace(0, width, n_yz),
     )
     meshio.write(path, meshio.Mesh(m.p.T, [("tetra", m.t.T)]))
+
+
+SIGMA = 0.05
+"""The noise std of the linear toy's data in the ensemble and posterior tests."""
+
+
+def make_data(
+    model: LinearToy, theta: np.ndarray, every: int, seed: int = 1
+) -> dict[int, Observation]:
+    """:func:`linear_data` with noise std :data:`SIGMA`."""
+    return linear_data(model, theta, every, SIGMA, seed)
