@@ -96,7 +96,9 @@ class Run:
 class _Conventions:
     """The optional members the core looks for on an estimator, with defaults.
 
-    Declared outside the dataclass so that none of them is a setting; see
+    Declared, with the defaults the core takes without them, in
+    :data:`idbench.core.capabilities.ESTIMATOR_OPTIONAL`; given here as class
+    attributes outside the dataclass, so that none of them is a setting; see
     :class:`Filter` for their meaning.
     """
 
