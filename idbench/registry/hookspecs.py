@@ -76,3 +76,17 @@ def register_observations(register: Callable[[str, type], None]) -> None:
     ``predict``, ``identity``). The core's own, ``markers``, ``cloud`` and
     ``force``, cannot be replaced.
     """
+
+
+@hookspec
+def register_versions(register: Callable[[str, str], None]) -> None:
+    """Report the versions a plugin's results depend on.
+
+    Call ``register(package, version)`` once per package whose version can
+    change the numbers the plugin's models or estimators produce (the plugin's
+    libraries: a finite-element library, a sparse solver, a filter library).
+    A results folder's manifest records them beside the core's own, so the
+    core never names a plugin's packages. The plugin's own distribution
+    version is recorded without this hook.
+    """
+

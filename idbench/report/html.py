@@ -347,7 +347,7 @@ def _manifest(manifest: dict[str, Any]) -> str:
     if not manifest:
         return "<p>(no manifest.json)</p>"
     rows: list[tuple[str, str]] = []
-    for key in ("python", "platform", "cpu_count", "solver"):
+    for key in ("python", "platform", "cpu_count"):
         if key in manifest:
             rows.append((key, str(manifest[key])))
     for name, version in (manifest.get("versions") or {}).items():

@@ -14,7 +14,7 @@ import os
 import platform
 import sys
 import tempfile
-from collections.abc import Callable, Generator
+from collections.abc import Callable, Generator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -74,29 +74,25 @@ def _identity(config: CompareConfig, the_plan: Plan) -> dict[str, Any]:
     return settings
 
 
-def manifest(config: CompareConfig) -> dict[str, Any]:
-    """Versions, solver backend and thread settings, for the results folder."""
+def manifest(plugins: Mapping[str, str], reg: Registry) -> dict[str, Any]:
+    """Versions and machine settings, for the results folder.
+
+    The core's own packages, then the packages each plugin of ``plugins`` (the
+    plugins the runs use) reported through ``register_versions``; the plugins'
+    own versions are in ``plugins``.
+    """
     versions: dict[str, str | None] = {}
-    for dist in (
-        "idbench",
-        "numpy",
-        "scipy",
-        "scikit-fem",
-        "filterpy",
-        "pandas",
-        "pypardiso",
-        "pluggy",
-        "distributed",
-    ):
+    for dist in ("idbench", "numpy", "scipy", "pandas", "pluggy", "distributed"):
         try:
             versions[dist] = importlib.metadata.version(dist)
         except importlib.metadata.PackageNotFoundError:
             versions[dist] = None
+    for plugin in plugins:
+        versions.update(reg.packages.get(plugin, {}))
     return {
         "versions": versions,
         "python": sys.version.split()[0],
         "platform": platform.platform(),
-        "solver": os.environ.get("IDBENCH_SOLVER", "auto"),
         "threads": {k: os.environ.get(k) for k in THREAD_ENV},
         "cpu_count": os.cpu_count(),
     }
@@ -181,7 +177,7 @@ def _compare(
         out,
         _identity(config, the_plan),
         {
-            **manifest(config),
+            **manifest(the_plan.plugins, session.registry),
             "execution": execution,
             "plugins": the_plan.plugins,
             "inputs": the_plan.inputs,

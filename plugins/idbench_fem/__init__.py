@@ -45,6 +45,18 @@ def register_commands(register: Callable[[str, Any], None]) -> None:
     register("calibrate", CALIBRATE)
 
 
+@idbench.hookimpl
+def register_versions(register: Callable[[str, str], None]) -> None:
+    """Report the libraries the solutions depend on: scikit-fem and the solvers."""
+    import importlib.metadata
+
+    for package in ("scikit-fem", "pypardiso", "numba"):
+        try:
+            register(package, importlib.metadata.version(package))
+        except importlib.metadata.PackageNotFoundError:
+            continue
+
+
 BEAM_DEFAULTS = idbench.ModelDefaults(
     truth_mesh="80x11x11",
     meshes=("9x2x2", "14x3x3", "20x4x4"),

@@ -349,6 +349,7 @@ def test_hookspec_names() -> None:
         "register_scenarios",
         "register_commands",
         "register_observations",
+        "register_versions",
     }
 
 
