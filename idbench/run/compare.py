@@ -71,6 +71,8 @@ def _identity(config: CompareConfig, the_plan: Plan) -> dict[str, Any]:
         tables = settings.setdefault("model_settings", {})
         tables[config.model] = dict(setup.model_settings)  # without execution
         settings["true"] = dict(setup.true)
+        if setup.data:  # what the recording holds, not only where it lies
+            settings["data_sha256"] = setup.data[1]
     return settings
 
 
