@@ -59,8 +59,10 @@ BAD_ESTIMATORS = '''
 
         def update(self, k, observation):
             if k == self.at:
-                if self.marker:
-                    Path(self.marker).write_text(str(os.getpid()))
+                if self.marker:  # written whole, then renamed: never read empty
+                    part = Path(self.marker + ".part")
+                    part.write_text(str(os.getpid()))
+                    os.replace(part, self.marker)
                 self.misbehave()
             return self.answer()
 
