@@ -63,7 +63,7 @@ shape is the parameter's propagated covariance plus this one
 (:func:`idbench.score.targets.grid_columns`).
 
 The fitted :class:`Discrepancy` is cached on disk like the truth
-(:mod:`idbench.truth.simulate`'s folder, a hash of both models' descriptions, the
+(:mod:`idbench.truth.cache`'s folder, a hash of both models' descriptions, the
 prior, the settings and the version; atomic writes, a content digest
 checked on load), and so are its fine paths (as truths).
 """
@@ -93,15 +93,14 @@ from idbench.core.scenario import Scenario
 from idbench.core.settings import check_choice
 from idbench.estimate.transforms import LogTransform
 from idbench.store.files import digest, stable_hash
-from idbench.truth.simulate import (
-    _load,
-    _save,
+from idbench.truth.cache import (
     cache_dir,
-    probe,
     read_entry,
-    truth_key,
+    read_states,
     write_entry,
+    write_states,
 )
+from idbench.truth.simulate import probe, truth_key
 
 log = logging.getLogger(__name__)
 
@@ -554,7 +553,7 @@ def fine_path(model: ForwardModel, theta: FloatArray) -> FloatArray:
     key = truth_key(model, theta)
     full = cache_dir() / f"truth-{key}.npz"
     shape = (model.n_steps, model.reset().size)
-    states = _load(full, key, shape)
+    states = read_states(full, key, shape)
     if states is not None:
         return states
     part = cache_dir() / f"reached-{key}.npz"
@@ -562,14 +561,14 @@ def fine_path(model: ForwardModel, theta: FloatArray) -> FloatArray:
         try:
             with np.load(part, allow_pickle=False) as data:
                 rows = int(np.shape(data["states"])[0])
-        except Exception:  # damaged: _load warns and it is recomputed below
+        except Exception:  # damaged: read_states warns and it is recomputed below
             rows = 0
-        found = _load(part, key, (rows, shape[1]))
+        found = read_states(part, key, (rows, shape[1]))
         if found is not None and 0 < rows < shape[0]:
             return found
     log.info("simulating calibration path %s", key)
     states = _reach(model, theta, model.n_steps)
-    _save(full if len(states) == model.n_steps else part, key, states)
+    write_states(full if len(states) == model.n_steps else part, key, states)
     return states
 
 

@@ -13,7 +13,6 @@ from idbench.calibrate.discrepancy import (
     CalibrationSettings,
     CorrectedModel,
     Discrepancy,
-    cache_dir,
     fit_discrepancy,
     scaling_holds,
 )
@@ -21,6 +20,7 @@ from idbench.plan.config import CompareConfig
 from idbench.registry.registry import build_registry
 from idbench.registry.testing import check_model
 from idbench.run.compare import compare
+from idbench.truth.cache import cache_dir
 
 REG = build_registry()
 BEAM = REG.model("svk-beam")
