@@ -21,7 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from idbench.calibrate.discrepancy import CalibrationSettings
+from idbench.calibrate.design import CalibrationSettings
 from idbench.core.capabilities import bounds_of, n_nodes_of, needs_observed_of
 from idbench.core.interfaces import ConfigError, ForwardModel, ModelSpec
 from idbench.core.settings import (

@@ -14,12 +14,10 @@ from typing import Any
 
 import numpy as np
 
-from idbench.calibrate.discrepancy import (
-    CalibrationSettings,
-    CorrectedModel,
-    Discrepancy,
-    fit_discrepancy,
-)
+from idbench.calibrate.corrected import CorrectedModel
+from idbench.calibrate.design import CalibrationSettings
+from idbench.calibrate.discrepancy import Discrepancy
+from idbench.calibrate.fit import fit_discrepancy
 from idbench.core.interfaces import (
     ConfigError,
     FloatArray,
@@ -153,7 +151,7 @@ class Session:
 
         Computed on first use (fine paths of its own design, never the
         truth's data) and cached on disk
-        (:func:`idbench.calibrate.discrepancy.fit_discrepancy`).
+        (:func:`idbench.calibrate.fit.fit_discrepancy`).
 
         Raises
         ------

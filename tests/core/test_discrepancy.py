@@ -9,13 +9,10 @@ import numpy as np
 import pytest
 
 from idbench import ConfigError, ModelFailure, ModelSpec, Observation, Prior
-from idbench.calibrate.discrepancy import (
-    CalibrationSettings,
-    CorrectedModel,
-    Discrepancy,
-    fit_discrepancy,
-    scaling_holds,
-)
+from idbench.calibrate.corrected import CorrectedModel
+from idbench.calibrate.design import CalibrationSettings, scaling_holds
+from idbench.calibrate.discrepancy import Discrepancy
+from idbench.calibrate.fit import fit_discrepancy
 from idbench.plan.config import CompareConfig
 from idbench.registry.registry import build_registry
 from idbench.registry.testing import check_model
