@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from idbench.calibrate.discrepancy import Discrepancy
-from idbench.core.capabilities import member
+from idbench.core.capabilities import member, present
 from idbench.core.interfaces import Cost, FloatArray, ForwardModel
 
 
@@ -22,10 +22,18 @@ class CorrectedModel:
 
     ``observe(state) = h_c(state) + mu(h_c(state))``, ``grid`` likewise with
     the grid discrepancy, ``sensitivity`` by the chain rule
-    (I + d mu / d z) J_c; every other member is the coarse model's. An
+    (I + d mu / d z) J_c, ``targets`` (once calibrated) with the targets'
+    discrepancy; ``reset``, ``step`` and ``cost`` are the coarse model's, and
+    ``describe`` is its description with the calibration's. An
     estimator that knows it reads the extra observation covariance from
     :meth:`observation_cov` (``R + observation_cov(state)`` is its noise);
     one that does not still gets the corrected mean.
+
+    Of the optional members (:data:`idbench.core.capabilities.OPTIONAL`) it
+    has exactly those the coarse model has, looked up once, when wrapped,
+    through :func:`idbench.core.capabilities.present`; each is the coarse
+    model's own but for the two above. Nothing else of the coarse model is
+    reachable from here but through :attr:`coarse`.
 
     Parameters
     ----------
@@ -46,16 +54,13 @@ class CorrectedModel:
         self.parameters = model.parameters
         self.n_steps = model.n_steps
         self.extrapolated = 0
-        if member(model, "sensitivity") is not None:
-            self.sensitivity = self._sensitivity
-        if member(model, "targets") is not None and discrepancy.w_targets.size:
-            self.targets = self._targets
-
-    def __getattr__(self, name: str) -> Any:
-        # only called for what this class does not define: the coarse model's
-        if name == "coarse":
-            raise AttributeError(name)
-        return getattr(self.coarse, name)
+        optional = present(model)
+        if "sensitivity" in optional:
+            optional["sensitivity"] = self._sensitivity
+        if "targets" in optional and discrepancy.w_targets.size:
+            optional["targets"] = self._targets
+        for name, value in optional.items():
+            setattr(self, name, value)
 
     def reset(self) -> FloatArray:
         """The coarse model's unloaded state."""
@@ -102,7 +107,7 @@ class CorrectedModel:
         return self.n_obs * self.discrepancy.cov(z)
 
     def _sensitivity(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
-        sens = self.coarse.sensitivity  # type: ignore[attr-defined]
+        sens = member(self.coarse, "sensitivity")
         j = np.asarray(sens(theta, k, state), dtype=np.float64)
         z = np.asarray(self.coarse.observe(state), dtype=np.float64)
         return np.asarray(j + self.discrepancy.jacobian(z) @ j)
