@@ -31,8 +31,7 @@ from idbench.core.interfaces import (
     Skipped,
 )
 from idbench.core.settings import estimator_arguments, public_settings
-from idbench.observe import cloud as depth_camera
-from idbench.observe import occlusion
+from idbench.observe import occlusion, surface
 from idbench.observe.observed_model import model_state
 from idbench.plan.config import ConfigError
 from idbench.plan.runspec import RunSpec
@@ -437,7 +436,7 @@ def _estimate(
                 metrics_model, state, truth.observations[k - 1]
             )
             if truth.held_points is not None:  # and its held-out points
-                trace["heldout_points_mm"] = depth_camera.heldout_points_mm(
+                trace["heldout_points_mm"] = surface.heldout_points_mm(
                     metrics_model, state, truth.held_points[k - 1]
                 )
         trace.update(
