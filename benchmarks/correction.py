@@ -27,11 +27,9 @@ from _timing import one_blas_thread, parser, ratio
 
 import idbench
 from idbench import ModelSpec, Observation, Prior
-from idbench.calibrate.discrepancy import (
-    CalibrationSettings,
-    CorrectedModel,
-    fit_discrepancy,
-)
+from idbench.calibrate.corrected import CorrectedModel
+from idbench.calibrate.design import CalibrationSettings
+from idbench.calibrate.fit import fit_discrepancy
 from idbench_filters import RoUkf
 
 E_TRUE = 5000.0

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-from idbench.calibrate.discrepancy import CalibrationSettings
+from idbench.calibrate.design import CalibrationSettings
 from idbench.core.capabilities import bounds_of, n_nodes_of, needs_observed_of
 from idbench.core.interfaces import ConfigError, ForwardModel, ModelSpec
 from idbench.core.settings import (
@@ -36,7 +36,7 @@ from idbench.core.settings import (
     true_values,
 )
 from idbench.estimate.posterior import PosteriorSettings, check_budget
-from idbench.observe import kinds as observe
+from idbench.observe import kinds
 from idbench.plan.config import CompareConfig
 from idbench.plan.runspec import Items, RunSpec, Setup, expand
 from idbench.plan.validity import check_prior, check_truth_mesh
@@ -176,7 +176,7 @@ def plan(config: CompareConfig, session: PlanSession) -> Plan:
     if rec is not None:
         bounds = bounds_of(models[config.meshes[0]])
         recording.check_body(rec, bounds, loads)
-        obs = observe.build(rec.observe, rec.observe_settings, reg)
+        obs = kinds.build(rec.observe, rec.observe_settings, reg)
         recording.check_frames(rec, obs)
     if config.observe != ("markers",) or config.observe_settings:
         built = list(models.values())
@@ -306,14 +306,14 @@ def _check_observed(spec: RunSpec, model: ForwardModel, session: PlanSession) ->
     needs = needs_observed_of(model)
     if not needs:
         return
-    used = {m for _, b in observe.leaves(session.observation_model(spec))
+    used = {m for _, b in kinds.leaves(session.observation_model(spec))
             for m in b.requires}  # fmt: skip
     if used & set(needs):
         return
     would = []
-    for kind in sorted(observe.kinds(session.registry)):
+    for kind in sorted(kinds.kinds(session.registry)):
         try:
-            block = observe.build(kind, {}, session.registry)
+            block = kinds.build(kind, {}, session.registry)
         except (ConfigError, TypeError, ValueError):  # a kind with required settings
             continue
         if set(block.requires) & set(needs):
@@ -411,8 +411,8 @@ def resolve(
         Naming the bad value and what is allowed.
     """
     tables = config.observe_settings
-    known = observe.kinds(registry)
-    used = {b for name in config.observe for b in observe.block_names(name)}
+    known = kinds.kinds(registry)
+    used = {b for name in config.observe for b in kinds.block_names(name)}
     for table in tables:
         if table not in used and table not in known:
             raise ConfigError(
@@ -421,7 +421,7 @@ def resolve(
             )
     out: dict[str, Items] = {}
     for name in config.observe:
-        obs = observe.build(name, tables, registry)
+        obs = kinds.build(name, tables, registry)
         for member in obs.requires:
             for model in models:
                 if not callable(getattr(model, member, None)):
@@ -429,7 +429,7 @@ def resolve(
                         f"observe {name!r} needs the model's {member}(); model "
                         f"{config.model!r} ({type(model).__name__}) has none"
                     )
-        out[name] = observe.settings_items(name, tables, registry)
+        out[name] = kinds.settings_items(name, tables, registry)
     return out
 
 

@@ -22,17 +22,17 @@ import numpy as np
 import pandas as pd
 
 from idbench.core.sanitize import printable
-from idbench.report.intervals import format_interval, method
-from idbench.report.paired import paired_html
-from idbench.report.summary import (
+from idbench.report.columns import (
     format_cell,
     headers,
     interval_columns,
     legend,
-    parameter_names_of_summary,
     seeds_note,
     status_for_people,
 )
+from idbench.report.intervals import format_interval, method
+from idbench.report.paired import paired_html
+from idbench.report.summary import parameter_names_of_summary
 
 CAPTIONS = {
     "stiffness_vs_resolution": "Identified parameters against model resolution"

@@ -21,7 +21,7 @@ from typing import Any
 import pandas as pd
 
 from idbench.core.interfaces import ModelFailure
-from idbench.observe import kinds as observe
+from idbench.observe import kinds
 from idbench.plan.check import Plan, plan
 from idbench.plan.config import CompareConfig, ConfigError
 from idbench.plan.runspec import RunSpec
@@ -50,7 +50,7 @@ def runs_of(config: CompareConfig, registry: Registry | None = None) -> list[Run
 def sense(spec: RunSpec, session: Session) -> None:
     """Compute the run's noise-free readings now (a failure is a ConfigError)."""
     obs = session.observation_model(spec)
-    for name, block in observe.leaves(obs):
+    for name, block in kinds.leaves(obs):
         try:
             session.sensed(spec, block)
         except (ValueError, ArithmeticError) as exc:

@@ -44,7 +44,7 @@ body's ``[targets]``, and ``held_out/points`` (K, N, 3), a cloud per frame
 without correspondence (positions, m; NaN rows where a frame has fewer),
 scored per step as ``heldout_points_mm``, the mean distance of the points to
 the model's deformed surface
-(:func:`idbench.observe.cloud.heldout_points_mm`).
+(:func:`idbench.observe.surface.heldout_points_mm`).
 
 :func:`read` checks a recording and says what is wrong in one line naming the
 frame (:class:`RecordingError`); :func:`check_body` checks it against the

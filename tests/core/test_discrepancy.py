@@ -9,18 +9,16 @@ import numpy as np
 import pytest
 
 from idbench import ConfigError, ModelFailure, ModelSpec, Observation, Prior
-from idbench.calibrate.discrepancy import (
-    CalibrationSettings,
-    CorrectedModel,
-    Discrepancy,
-    cache_dir,
-    fit_discrepancy,
-    scaling_holds,
-)
+from idbench.calibrate.corrected import CorrectedModel
+from idbench.calibrate.design import CalibrationSettings, scaling_holds
+from idbench.calibrate.discrepancy import Discrepancy
+from idbench.calibrate.fit import fit_discrepancy
+from idbench.core.capabilities import present
 from idbench.plan.config import CompareConfig
 from idbench.registry.registry import build_registry
 from idbench.registry.testing import check_model
 from idbench.run.compare import compare
+from idbench.truth.cache import cache_dir
 
 REG = build_registry()
 BEAM = REG.model("svk-beam")
@@ -85,6 +83,22 @@ def test_the_correction_moves_the_coarse_observation_towards_the_fine_one():
 
 def test_the_corrected_model_passes_the_model_checks():
     check_model(CorrectedModel(BEAM(_spec()), _calibration()), np.array([3000.0]))
+
+
+def test_the_corrected_model_has_the_coarse_models_optional_members_only():
+    coarse = BEAM(_spec())
+    wrapped = CorrectedModel(coarse, _calibration())
+    assert present(wrapped).keys() == present(coarse).keys()
+    assert present(wrapped)["surface"] == coarse.surface  # the coarse model's own
+    assert present(wrapped)["sensitivity"] != coarse.sensitivity  # corrected
+    assert not hasattr(wrapped, "settings")  # no proxy: the rest is wrapped.coarse's
+
+    class Bare:  # the protocol and no optional member
+        parameters, n_steps = coarse.parameters, coarse.n_steps
+        reset, step, observe = coarse.reset, coarse.step, coarse.observe
+        grid, cost, describe = coarse.grid, coarse.cost, coarse.describe
+
+    assert present(CorrectedModel(Bare(), _calibration())) == {}
 
 
 def _zero(disc: Discrepancy) -> Discrepancy:

@@ -471,7 +471,8 @@ def test_truth_cache_rejects_altered_or_misshapen_entries(
     tmp_path, monkeypatch, caplog
 ):
     from idbench import ModelSpec, build_registry
-    from idbench.truth.simulate import cache_dir, simulate_truth
+    from idbench.truth.cache import cache_dir
+    from idbench.truth.simulate import simulate_truth
 
     monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path / "cache"))
     reg = build_registry()

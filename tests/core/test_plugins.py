@@ -553,17 +553,16 @@ def test_idbench_skfem_is_a_deprecated_alias_not_a_second_plugin() -> None:
 
 def test_the_registry_cache_lives_in_plugins_and_the_cli_uses_it() -> None:
     """One registry a process until reset; the command line reads that one."""
-    from idbench.cli import commands as cli
-    from idbench.cli import parser as cli_parser
-    from idbench.registry import registry as plugins
+    from idbench.cli import commands, parser
+    from idbench.registry import registry
 
-    plugins.reset_registry_cache()
-    first = plugins.cached_registry()
-    assert plugins.cached_registry() is first
-    assert cli_parser.registry is plugins.cached_registry
-    assert cli.registry is plugins.cached_registry
-    plugins.reset_registry_cache()
-    again = plugins.cached_registry()
+    registry.reset_registry_cache()
+    first = registry.cached_registry()
+    assert registry.cached_registry() is first
+    assert parser.registry is registry.cached_registry
+    assert commands.registry is registry.cached_registry
+    registry.reset_registry_cache()
+    again = registry.cached_registry()
     assert again is not first and set(again.models) == set(first.models)
 
 

@@ -16,7 +16,7 @@ from helpers import registry_with
 
 import idbench
 from idbench.cli.commands import main
-from idbench.observe.cloud import heldout_points_mm
+from idbench.observe.surface import heldout_points_mm
 from idbench.plan.config import CompareConfig
 from idbench.report.write import write_report
 from idbench.run.compare import compare

@@ -13,7 +13,8 @@ from scipy import stats
 from idbench.cli.commands import main
 from idbench.report.intervals import excludes_zero, interval, method, seeds_needed
 from idbench.report.paired import paired_differences, paired_text
-from idbench.report.summary import summarise, summary_text
+from idbench.report.summary import summarise
+from idbench.report.text import summary_text
 
 SAMPLES = [
     [3251.2, 3257.9, 3262.4],

@@ -227,7 +227,8 @@ def test_bad_uncertainty_settings_exit_2_with_one_line(
 
 
 def test_summary_shows_coverage_as_a_fraction_over_seeds_and_mean_nees(scored):
-    from idbench.report.summary import summarise, summary_text
+    from idbench.report.summary import summarise
+    from idbench.report.text import summary_text
 
     runs, _ = scored
     summary = summarise(runs).set_index(["mesh", "estimator"])
