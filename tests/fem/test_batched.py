@@ -13,7 +13,7 @@ from idbench.testing import WithoutStepMany, check_batch_model
 from idbench_fem.bodies import box
 from idbench_fem.models.beam_scenarios import SCENARIOS
 from idbench_filters import RoUkf, Ukf
-from idbench_filters._common import advance_many
+from idbench_filters.common import advance_many
 
 E_TRUE = 5000.0
 
