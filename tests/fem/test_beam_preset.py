@@ -83,7 +83,7 @@ def test_registered_beam_is_the_solid_model_and_svkbeam_is_deprecated():
 def test_beam_body_options_in_a_toml_body(tmp_path):
     """What the beam needs is a body option any TOML body can use."""
     from idbench_fem.bodies.description import parse_body
-    from idbench_fem.bodies.mesh import region_cells
+    from idbench_fem.bodies.regions import region_cells
 
     raw = {
         "mesh": {"truth": "x.vtu"},

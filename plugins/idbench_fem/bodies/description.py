@@ -102,10 +102,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench_fem.bodies.mesh import (
-    SELECTORS,
-    Region,
-)
+from idbench_fem.bodies.regions import SELECTORS, Region
 from idbench_fem.fem.materials import LAWS, lame, make_material
 
 FloatArray = NDArray[np.float64]

@@ -30,7 +30,8 @@ from idbench_fem.bodies.description import (
     MeshFiles,
     ShapeError,
 )
-from idbench_fem.bodies.mesh import Region, SolidMesh
+from idbench_fem.bodies.mesh import SolidMesh
+from idbench_fem.bodies.regions import Region
 from idbench_fem.fem.interpolation import marker_points
 from idbench_fem.models.beam_settings import DEFAULT_E, BeamSettings, EndTraction
 from idbench_fem.models.solid import SolidModel

@@ -72,12 +72,9 @@ from idbench_fem.bodies import resolve
 from idbench_fem.bodies.catalog import body_path, get_body, get_mesh, mesh_file
 from idbench_fem.bodies.description import Body, Markers, ShapeError
 from idbench_fem.bodies.loads import nodal_forces, traction_weights
-from idbench_fem.bodies.mesh import (
-    SolidMesh,
-    extent,
-    project_to_surface,
-    region_facets,
-)
+from idbench_fem.bodies.mesh import SolidMesh, extent
+from idbench_fem.bodies.regions import region_facets
+from idbench_fem.bodies.surface import project_to_surface
 from idbench_fem.fem.batched import BatchedSteps
 from idbench_fem.fem.interpolation import (
     barycentric,
