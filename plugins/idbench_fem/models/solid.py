@@ -67,7 +67,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from idbench import ConfigError, Cost, ModelSpec, ParameterSpec, Scenario
+from idbench import ConfigError, ModelSpec, ParameterSpec, Scenario
 from idbench_fem.bodies import resolve
 from idbench_fem.bodies.catalog import body_path, get_body, get_mesh, mesh_file
 from idbench_fem.bodies.description import Body, Markers, ShapeError
@@ -186,13 +186,13 @@ class SolidModel(Observables, BatchedSteps):
             self._init_driven(body, mesh, float(s.load_scale))
 
         # parameters: E per region; c_e = true modulus / its region's true value
-        self._regions = resolve.element_regions(body, mesh)
+        self.element_regions = resolve.element_regions(body, mesh)
         moduli = resolve.element_moduli(body, mesh)
         names = body.parameter_names
         true = np.array([
             _region_value(body, r) for r in range(len(names))
         ])  # fmt: skip
-        self._factors = moduli / true[self._regions]
+        self._factors = moduli / true[self.element_regions]
         lo, hi = body.parameter_bounds or (_BOUNDS[0] * E, _BOUNDS[1] * E)
         self.parameters = ParameterSpec(
             names, tuple(lo for _ in names), tuple(hi for _ in names),
@@ -293,7 +293,7 @@ class SolidModel(Observables, BatchedSteps):
             No convergence, a non-finite residual, or inverted elements that
             backtracking cannot avoid.
         """
-        modulus = self._modulus(theta, k)
+        modulus = self.element_moduli(theta, k)
         if not 1 <= k <= self.n_steps:
             raise ValueError(f"load step k = {k}: must be in 1..{self.n_steps}")
         if substeps < 1:
@@ -324,12 +324,12 @@ class SolidModel(Observables, BatchedSteps):
         asm = self._asm
         x = u[asm.unknown]
         if substeps == 1 and self.settings.path_reuse is not False:
-            self._prescribe(k)
+            self.prescribe(k)
             x = self._path_step(theta, k, x, modulus)
         else:
             self._last_path_step = None
             for j in range(1, substeps + 1):
-                self._prescribe(k, j / substeps)
+                self.prescribe(k, j / substeps)
                 x, _ = self._newton(modulus, self._load(k, j / substeps), x, k)
         self._remember_factorization(theta, x)
         return np.asarray(asm.embed(x))
@@ -356,7 +356,7 @@ class SolidModel(Observables, BatchedSteps):
             )
         if not 1 <= k <= self.n_steps:
             raise ValueError(f"load step k = {k}: must be in 1..{self.n_steps}")
-        self._prescribe(k)
+        self.prescribe(k)
         out = super().step_many(thetas, k, X[:, self._asm.unknown])
         return np.asarray(self._asm.embed(out))
 
@@ -401,24 +401,19 @@ class SolidModel(Observables, BatchedSteps):
         factorization of the step just solved plus one step of iterative
         refinement if it ended with a Newton update, else K(u) factored.
         """
-        modulus = self._modulus(theta, k)
+        modulus = self.element_moduli(theta, k)
         u = np.asarray(state, dtype=np.float64)
         if self._driven is not None:  # on the unknowns; the tool's dofs do not move
             self._asm.values = u[self._asm.prescribed]
             u = u[self._asm.unknown]
-        g = self._asm.region_forces(
-            self._asm.kinematics(u, self._factors), self._regions, self.parameters.p
-        )
+        kin = self._asm.kinematics(u, self._factors)
+        g = self._asm.region_forces(kin, self.element_regions, self.parameters.p)
         du = self._state_sensitivity(theta, k, u, modulus, g, self.sensitivity_refine)
         if self._driven is not None:
             full = np.zeros((self.n_state, du.reshape(len(u), -1).shape[1]))
             full[self._asm.unknown] = du.reshape(len(u), -1)
             du = full
         return np.asarray(self._obs @ du.reshape(self.n_state, -1))
-
-    def cost(self) -> Cost:
-        """Cumulative forward solves, Newton iterations and linear solves."""
-        return Cost(*self._cost)
 
     def describe(self) -> dict[str, Any]:
         """JSON-serialisable description of everything the results depend on."""
@@ -460,7 +455,7 @@ class SolidModel(Observables, BatchedSteps):
 
     def cell_data(self) -> dict[str, FloatArray]:
         """Per-tet tags for ParaView: parameter ``region`` and ``E_factor`` c_e."""
-        return {"region": self._regions.astype(float), "E_factor": self._factors}
+        return {"region": self.element_regions.astype(float), "E_factor": self._factors}
 
     def displacement_field(self, state: FloatArray) -> FloatArray:
         """Displacement of every node (N, 3), zeros on the fixed ones."""
@@ -480,7 +475,7 @@ class SolidModel(Observables, BatchedSteps):
         The state's dofs: with a displacement-controlled grasp its prescribed
         ones too (where the tool's force is).
         """
-        modulus = self._modulus(theta, None)
+        modulus = self.element_moduli(theta, None)
         u = np.asarray(state, dtype=np.float64)
         asm = self._state_asm()
         return np.asarray(asm.forces(asm.kinematics(u, modulus)))
@@ -498,7 +493,7 @@ class SolidModel(Observables, BatchedSteps):
 
     def tangent(self, theta: FloatArray, state: FloatArray) -> Any:
         """The free-free tangent at ``state`` (scipy CSR; of the unknowns if driven)."""
-        modulus = self._modulus(theta, None)
+        modulus = self.element_moduli(theta, None)
         u = np.asarray(state, dtype=np.float64)
         if self._driven is not None:
             self._asm.values = u[self._asm.prescribed]
@@ -539,7 +534,7 @@ class SolidModel(Observables, BatchedSteps):
         mask[self._driven] = True
         return mask
 
-    def _prescribe(self, k: int, fraction: float = 1.0) -> None:
+    def prescribe(self, k: int, fraction: float = 1.0) -> None:
         """Set the prescribed dofs to their values ``fraction`` into step k."""
         if self._driven is not None:
             t = (k - 1 + fraction) / self.n_steps
@@ -566,7 +561,7 @@ class SolidModel(Observables, BatchedSteps):
         asm = self._asm
         true = np.asarray(self.parameters.default, dtype=float)
         u = asm.embed(np.zeros(asm.n_free), self._u_end / self.n_steps)
-        kin = asm.inner.kinematics(u, self._modulus(true, None))
+        kin = asm.inner.kinematics(u, self.element_moduli(true, None))
         return float(np.linalg.norm(asm.inner.forces(kin)[asm.unknown]))
 
     def _load(self, k: int, fraction: float) -> FloatArray:
@@ -582,9 +577,10 @@ class SolidModel(Observables, BatchedSteps):
         assert self._load_weights is not None
         return np.asarray(self._load_weights * traction[self._load_component])
 
-    def _modulus(self, theta: FloatArray, k: int | None) -> FloatArray:
+    def element_moduli(self, theta: FloatArray, k: int | None) -> FloatArray:
+        """The elements' moduli theta_{r(e)} c_e (T,); theta checked (step k)."""
         th = self._theta(theta, k)
-        return np.asarray(th[self._regions] * self._factors)
+        return np.asarray(th[self.element_regions] * self._factors)
 
 
 def _region_value(body: Body, r: int) -> float:
