@@ -258,6 +258,16 @@ class Body:
             for i, r in enumerate(self.parameter_regions)
         )
 
+    @property
+    def parameter_values(self) -> tuple[float, ...]:
+        """The true value (Pa) of each parameter: its region's ``E_regions``, else E."""
+        if not self.parameter_regions:
+            return (self.material.E,)
+        given = dict(self.material.E_regions)
+        return tuple(
+            given.get(r.name or "", self.material.E) for r in self.parameter_regions
+        )
+
 
 # -- parsing ---------------------------------------------------------------------
 
