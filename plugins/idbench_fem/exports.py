@@ -13,7 +13,7 @@ from typing import Any
 EXPORTS = {
     "models.solid": "SolidModel",
     "models.solid_settings": "SolidSettings",
-    "models.beam": "SvkBeam beam_body",
+    "models.beam": "beam_body",
     "models.beam_settings": "BeamSettings EndTraction end_traction",
     "bodies.description": "Body load_body parse_body",
     "bodies.catalog": "SHIPPED body_path get_body get_mesh",
