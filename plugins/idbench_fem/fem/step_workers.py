@@ -1,6 +1,7 @@
 """Helper processes that solve some of a batched step's pairs (option ``processes``).
 
-With ``processes = n > 1`` a model's :func:`~idbench_fem.fem.batched.step_many`
+With ``processes = n > 1`` a model's
+:meth:`~idbench_fem.fem.batched.BatchedSteps.step_many`
 splits the pairs it must iterate between ``n - 1`` helper processes and
 itself, in contiguous shares fixed by their order (so results do not depend
 on timing; see :mod:`idbench_fem.fem.batched` for which pairs and when). Each
