@@ -18,13 +18,9 @@ from idbench_fem.bodies.loads import (
     pressure_forces,
     traction_forces,
 )
-from idbench_fem.bodies.mesh import (
-    Region,
-    closest_on_triangles,
-    from_arrays,
-    inside,
-    read_mesh,
-)
+from idbench_fem.bodies.mesh import from_arrays, read_mesh
+from idbench_fem.bodies.regions import Region
+from idbench_fem.bodies.surface import closest_on_triangles, inside
 
 L, W, H = 0.2, 0.03, 0.04
 
