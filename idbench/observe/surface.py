@@ -62,10 +62,23 @@ def surface_of(model: ForwardModel, state: FloatArray) -> tuple[FloatArray, Any]
 
 def closest_on_triangles(
     p: FloatArray, a: FloatArray, b: FloatArray, c: FloatArray
-) -> FloatArray:
-    """Closest point (M, 3) to each p on triangle (a, b, c), all (M, 3).
+) -> tuple[FloatArray, FloatArray]:
+    """Closest point to each p on triangle (a, b, c), and its barycentric weights.
 
-    Ericson's region tests (Real-Time Collision Detection, 5.1.5), vectorised.
+    Ericson's region tests (Real-Time Collision Detection, 5.1.5), vectorised:
+    each row of ``p`` with the triangle of the same row (to test every point
+    against every triangle, repeat the points and tile the triangles).
+
+    Parameters
+    ----------
+    p, a, b, c
+        (M, 3) points and triangle corners.
+
+    Returns
+    -------
+    closest, bary
+        (M, 3) closest points and (M, 3) weights of a, b and c (the closest
+        point is a vertex itself where the weights are 1, 0, 0).
     """
     ab, ac, ap = b - a, c - a, p - a
     d1, d2 = _dot(ab, ap), _dot(ac, ap)
@@ -85,16 +98,23 @@ def closest_on_triangles(
         t_ab = d1 / (d1 - d3)
         m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
         out[m] = (a + ab * t_ab[:, None])[m]
+        v, w = np.where(m, t_ab, v), np.where(m, 0.0, w)
         t_ac = d2 / (d2 - d6)
         m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
         out[m] = (a + ac * t_ac[:, None])[m]
+        v, w = np.where(m, 0.0, v), np.where(m, t_ac, w)
         t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
         m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
         out[m] = (b + (c - b) * t_bc[:, None])[m]
-    out[(d1 <= 0) & (d2 <= 0)] = a[(d1 <= 0) & (d2 <= 0)]
-    out[(d3 >= 0) & (d4 <= d3)] = b[(d3 >= 0) & (d4 <= d3)]
-    out[(d6 >= 0) & (d5 <= d6)] = c[(d6 >= 0) & (d5 <= d6)]
-    return out
+        v, w = np.where(m, 1.0 - t_bc, v), np.where(m, t_bc, w)
+    for m, cv, cw, corner in (
+        ((d1 <= 0) & (d2 <= 0), 0.0, 0.0, a),
+        ((d3 >= 0) & (d4 <= d3), 1.0, 0.0, b),
+        ((d6 >= 0) & (d5 <= d6), 0.0, 1.0, c),
+    ):
+        out[m] = corner[m]
+        v, w = np.where(m, cv, v), np.where(m, cw, w)
+    return out, np.stack([1.0 - v - w, v, w], axis=-1)
 
 
 def point_to_surface(
@@ -135,7 +155,7 @@ def point_to_surface(
     j = np.asarray(j).reshape(len(points), k)
     flat = j.ravel()
     rep = np.repeat(points, k, axis=0)
-    q = closest_on_triangles(rep, p0[flat], p1[flat], p2[flat])
+    q, _ = closest_on_triangles(rep, p0[flat], p1[flat], p2[flat])
     dist = np.linalg.norm(rep - q, axis=1).reshape(-1, k)
     best = np.argmin(dist, axis=1)
     rows = np.arange(len(points))
