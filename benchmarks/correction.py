@@ -1,4 +1,4 @@
-"""Step cost of the corrected RO-UKF over the uncorrected one (issue #28: <= 1.2x).
+"""Step cost of the corrected RO-UKF over the uncorrected one (target: <= 1.2x).
 
 On the scikit-fem beam at each ``--meshes`` size, on ``--scenario`` (K =
 ``--steps``, an observation every step, noise 1e-4): the approximation-error

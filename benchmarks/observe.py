@@ -1,4 +1,4 @@
-"""The cost of observing by point cloud (issue 27's targets).
+"""The cost of observing by point cloud (against its targets).
 
 1. One cloud prediction h(x) (each point's gated signed distance to the
    deformed surface, :func:`idbench.observe.surface.point_to_surface`) of

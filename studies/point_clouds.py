@@ -1,4 +1,4 @@
-"""Point clouds against markers and force on the liver (and the kidney) (issue 27).
+"""Point clouds against markers and force on the liver (and the kidney).
 
 For each body (examples/liver; examples/kidney with ``--bodies
 liver,kidney``: its tumour, parenchyma and tumour E identified) one

@@ -117,7 +117,7 @@ BEAM_DEFAULTS = idbench.ModelDefaults(
     },
     primary=True,
 )
-"""The study's comparison (DESIGN.md section 7): what ``idbench compare`` runs."""
+"""The study's comparison (docs/design.md section 1): what ``idbench compare`` runs."""
 
 
 SOLID_DEFAULTS = idbench.ModelDefaults(

@@ -1,4 +1,4 @@
-"""Caches never poison themselves (issue #24, item 4).
+"""Caches never poison themselves.
 
 A generated mesh enters the mesh cache only whole and valid, a damaged one is
 generated again; a full disk (``ENOSPC``, simulated) while writing a mesh, a

@@ -1,4 +1,4 @@
-"""The approximation-error calibration and the corrected estimators (issue 28)."""
+"""The approximation-error calibration and the corrected estimators."""
 
 from __future__ import annotations
 

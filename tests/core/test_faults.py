@@ -1,4 +1,4 @@
-"""Faults of issue #16: misbehaving plugins, dead workers, bad folders, bad files.
+"""Faults: misbehaving plugins, dead workers, bad folders, bad files.
 
 Plugins that must reach worker processes are *installed* for real: a module
 and a ``*.dist-info`` folder (with its ``entry_points.txt``) in a temporary

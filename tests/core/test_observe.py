@@ -1,4 +1,4 @@
-"""Observation models (issue 27): the depth camera, its residual, force, combinations.
+"""Observation models: the depth camera, its residual, force, combinations.
 
 Small meshes (a 9x2x2 beam, a truth of 14x3x3) and few steps; the truth cache
 is per-session (conftest).

@@ -1,4 +1,4 @@
-"""How sure the comparison is (#29): intervals over seeds, paired differences."""
+"""How sure the comparison is: intervals over seeds, paired differences."""
 
 from __future__ import annotations
 
