@@ -14,6 +14,7 @@
   recording's manifest against the keys the recording reader knows; the
   ``key = value`` pairs of the body reference are keys a body table accepts.
 - No page or source file names an issue number or ``DESIGN.md``.
+- README's "about N tests" is within 10% of what pytest collects.
 """
 
 from __future__ import annotations
@@ -379,3 +380,24 @@ def _sources() -> list[Path]:
 def test_sources_name_no_issue_number_or_design_md() -> None:
     found = [hit for path in _sources() for hit in _stale(path)]
     assert not found, "\n".join(found)
+
+
+# --- the README's test count -------------------------------------------------
+
+
+@pytest.mark.slow
+def test_readme_test_count_is_about_right() -> None:
+    import subprocess
+    import sys
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    said = re.search(r"about ([\d,]+) tests", readme)
+    assert said, "README.md: say 'about N tests' (or drop the test count and this)"
+    done = subprocess.run(
+        [sys.executable, "-m", "pytest", "--co", "-q", "-p", "no:cacheprovider"],
+        cwd=ROOT, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    found = re.search(r"(\d+) tests? collected", done.stdout)
+    assert found, done.stdout[-2000:]
+    n, claimed = int(found.group(1)), int(said.group(1).replace(",", ""))
+    assert abs(claimed - n) <= 0.1 * n, f"README says about {claimed} tests; {n} now"
