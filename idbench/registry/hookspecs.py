@@ -194,5 +194,20 @@ def register_versions(register: Callable[[str, str], None]) -> None:
     A results folder's manifest records them beside the core's own, so the
     core never names a plugin's packages. The plugin's own distribution
     version is recorded without this hook.
+
+    Parameters
+    ----------
+    register
+        ``register(package, version)``, both strings.
+
+    Examples
+    --------
+    A plugin whose numbers depend on filterpy (as the built-in filters do):
+
+    >>> import importlib.metadata
+    >>> import idbench
+    >>> @idbench.hookimpl
+    ... def register_versions(register):
+    ...     register("filterpy", importlib.metadata.version("filterpy"))
     """
 

@@ -268,10 +268,10 @@ def _check_body(text: str, where: str) -> None:
 
 
 def _check_compare(text: str, where: str, tmp_path: Path) -> None:
-    from idbench.calibrate.discrepancy import CalibrationSettings
     from idbench.cli.parser import shorthand_settings
     from idbench.core.settings import build_settings, model_settings
     from idbench.estimate.posterior import PosteriorSettings
+    from idbench.plan.check import CalibrationSettings  # wherever it lives
     from idbench.plan.config import build_config, load_toml
     from idbench.registry.registry import cached_registry
 
