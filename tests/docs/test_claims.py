@@ -32,6 +32,8 @@ from docpages import ROOT, blocks, pages, prose
 ROOTS = ("idbench/", "plugins/", "studies/", "benchmarks/", "tests/", "examples/",
          "docs/", ".ci/")  # fmt: skip
 FILES = ("pyproject.toml", "mkdocs.yml", "README.md")
+YOURS = {"recording.toml", "idbench_tiny_rls.py", "body.toml"}
+"""Files a page asks the reader to write (not in the repository)."""
 GENERATED = {"docs/reference/cli.md", "docs/reference/api.md", "docs/index.md",
              "docs/reference/layout.md"}  # fmt: skip
 """Pages written at build time (docs/gen_cli.py, docs/gen_pages.py)."""
@@ -57,9 +59,25 @@ def _path_claims(page: Path) -> list[str]:
     for raw in found:
         token = raw.split()[0] if raw.split() else raw
         token = token.rstrip(".,;:)").split("#")[0]
-        if token.startswith(ROOTS) or token in FILES:
+        if token.startswith(ROOTS) or token in FILES or _MODULE.match(token):
             out.append(token)
     return out
+
+
+_MODULE = re.compile(r"^[\w/-]+\.(py|toml)$")
+"""A file named relative to a folder the page means (``fem/batched.py``)."""
+
+
+@cache
+def _repository_files() -> tuple[str, ...]:
+    skip = (".git", ".venv", "site", "__pycache__")
+    return tuple(
+        "/" + p.relative_to(ROOT).as_posix()
+        for p in ROOT.rglob("*")
+        if p.is_file()
+        and not set(p.relative_to(ROOT).parts) & set(skip)
+        and not p.relative_to(ROOT).parts[0].startswith(".venv")
+    )
 
 
 def _exists(claim: str) -> bool:
@@ -67,6 +85,10 @@ def _exists(claim: str) -> bool:
         return True
     if any(ch in claim for ch in "*?["):
         return any(ROOT.glob(claim))
+    if claim in YOURS:
+        return True
+    if not claim.startswith(ROOTS) and claim not in FILES:  # a file of some folder
+        return any(f.endswith("/" + claim) for f in _repository_files())
     return (ROOT / claim).exists()
 
 
