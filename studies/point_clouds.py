@@ -12,7 +12,7 @@ The table has, per (body, estimator, observation, seed): E / E_true (the
 first parameter), the shape error (mm per grid point) and the TRE at the
 body's hidden targets (mm), all at the last step, and the forward solves;
 :func:`against_markers` compares each observation with the markers of the
-same seed (the issue's "within 5%").
+same seed (the target: "within 5%").
 
 Run ``python studies/point_clouds.py [--quick] [--out DIR] [--bodies ...]``;
 ``--quick``: the liver only, small meshes, two knob values each, the RO-UKF,

@@ -396,9 +396,6 @@ def _sources() -> list[Path]:
     return out
 
 
-@pytest.mark.xfail(
-    strict=False, reason="source files still name issue numbers or DESIGN.md"
-)
 def test_sources_name_no_issue_number_or_design_md() -> None:
     found = [hit for path in _sources() for hit in _stale(path)]
     assert not found, "\n".join(found)
