@@ -1,4 +1,4 @@
-"""Step cost of the corrected RO-UKF over the uncorrected one (issue #28: <= 1.2x).
+"""Step cost of the corrected RO-UKF over the uncorrected one (target: <= 1.2x).
 
 On the scikit-fem beam at each ``--meshes`` size, on ``--scenario`` (K =
 ``--steps``, an observation every step, noise 1e-4): the approximation-error
@@ -27,11 +27,9 @@ from _timing import one_blas_thread, parser, ratio
 
 import idbench
 from idbench import ModelSpec, Observation, Prior
-from idbench.calibrate.discrepancy import (
-    CalibrationSettings,
-    CorrectedModel,
-    fit_discrepancy,
-)
+from idbench.calibrate.corrected import CorrectedModel
+from idbench.calibrate.design import CalibrationSettings
+from idbench.calibrate.fit import fit_discrepancy
 from idbench_filters import RoUkf
 
 E_TRUE = 5000.0

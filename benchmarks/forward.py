@@ -29,7 +29,7 @@ from _timing import best_of, model_path, node_counts, one_blas_thread, ratio
 
 from idbench_fem.bodies import box as meshes
 from idbench_fem.bodies.loads import traction_forces
-from idbench_fem.bodies.mesh import region_facets
+from idbench_fem.bodies.regions import region_facets
 from idbench_fem.models.beam import build
 from idbench_fem.models.beam_scenarios import SCENARIOS
 from idbench_fem.models.beam_settings import BeamSettings, EndTraction

@@ -1,11 +1,11 @@
-"""The cost of observing by point cloud (issue 27's targets).
+"""The cost of observing by point cloud (against its targets).
 
 1. One cloud prediction h(x) (each point's gated signed distance to the
-   deformed surface, :func:`idbench.observe.cloud.point_to_surface`) of
+   deformed surface, :func:`idbench.observe.surface.point_to_surface`) of
    ``--points`` points on the liver at about ``--nodes`` nodes, CPU time per
    sigma point (target <= 1 ms for 2,000 points on ~1,000 nodes): a fresh
    KD-tree query at every state (the cost before associations were reused)
-   against the reused :class:`~idbench.observe.cloud.Association`: a
+   against the reused :class:`~idbench.observe.surface.Association`: a
    frame's first evaluation, its others (states at E x 0.97 and x 1.03, as
    sigma points), and their mean over the RO-UKF's p + 1 evaluations a
    frame; best of ``--repeat`` means.
@@ -29,10 +29,11 @@ import time
 import numpy as np
 
 import idbench
-from idbench.observe import cloud as depth_camera
-from idbench.observe import kinds as observe
-from idbench.observe.cloud import Cloud, point_to_surface
+import idbench.observe.cloud
+from idbench.observe import kinds
+from idbench.observe.cloud import Cloud
 from idbench.observe.observed_model import ObservedModel
+from idbench.observe.surface import point_to_surface
 from idbench_filters.ro_ukf import RoUkf
 
 
@@ -52,7 +53,7 @@ def build(quick: bool, nodes: int, steps: int):  # type: ignore[no-untyped-def]
 def frames(model, cloud: Cloud, theta, states):  # type: ignore[no-untyped-def]
     clean = [cloud.sense(model, theta, k, s) for k, s in enumerate(states, 1)]
     data = cloud.measure(clean, np.random.default_rng(0), 1e-3)
-    return [observe.Frame(k, d) for k, d in enumerate(data, 1)]
+    return [kinds.Frame(k, d) for k, d in enumerate(data, 1)]
 
 
 SPREAD = (0.97, 1.03)
@@ -169,18 +170,18 @@ def main() -> None:
 
 def copied(fr):  # type: ignore[no-untyped-def]
     """The frames with new arrays (no association built yet)."""
-    return [observe.Frame(f.step, {k: v.copy() for k, v in f.data.items()}) for f in fr]
+    return [kinds.Frame(f.step, {k: v.copy() for k, v in f.data.items()}) for f in fr]
 
 
 @contextlib.contextmanager
 def fresh_queries():  # type: ignore[no-untyped-def]
     """Clouds query a fresh KD-tree at every state (the cost before reuse)."""
-    original = depth_camera.point_to_surface
-    depth_camera.point_to_surface = functools.partial(original, reuse=False)
+    original = idbench.observe.cloud.point_to_surface  # what Cloud.predict calls
+    idbench.observe.cloud.point_to_surface = functools.partial(original, reuse=False)
     try:
         yield
     finally:
-        depth_camera.point_to_surface = original
+        idbench.observe.cloud.point_to_surface = original
 
 
 if __name__ == "__main__":

@@ -75,7 +75,7 @@ def bound(model, theta, u):
     """Seconds of (assembly + factorization + solve, factorization + solve)
     of the tangent at ``u`` (best of 3); leaves the solver as it found it
     for no one: call between runs only."""
-    mod = model._modulus(theta, model.n_steps)
+    mod = model.element_moduli(theta, model.n_steps)
     rhs = np.ones(model.n_state)
     full, fs = np.inf, np.inf
     for _ in range(3):

@@ -41,6 +41,7 @@ from idbench.estimate.filter import Analysis, Filter, noise_matrix
 from idbench.estimate.lowrank import LowRankCovariance
 from idbench.estimate.transforms import TRANSFORMS, IdentityTransform, LogTransform
 from idbench.observe.occlusion import MaskedModel
+from idbench.observe.surface import closest_on_triangles
 from idbench.plan.config import CompareConfig, ConfigError
 from idbench.registry.registry import (
     Command,
@@ -98,6 +99,7 @@ __all__ = [
     "VolumeModel",
     "__version__",
     "build_registry",
+    "closest_on_triangles",
     "compare",
     "effective_path",
     "noise_matrix",

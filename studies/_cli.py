@@ -104,6 +104,23 @@ def over_seeds(
     return frame.groupby(by, sort=sort).agg(**agg).reset_index()
 
 
+DOCS_DATA = Path(__file__).resolve().parent.parent / "docs" / "results" / "data"
+"""Where a full run writes the numbers its results page shows."""
+
+
+def docs_data(name: str, table: pd.DataFrame) -> Path:
+    """Write ``table`` to ``docs/results/data/<name>.csv`` (full runs only).
+
+    The results page shows it through the study's ``markdown(table)``;
+    ``tests/docs/test_results.py`` fails while the page and the file differ
+    (``python tests/docs/test_results.py`` rewrites the page's table).
+    """
+    DOCS_DATA.mkdir(parents=True, exist_ok=True)
+    path = DOCS_DATA / f"{name}.csv"
+    table.to_csv(path, index=False)
+    return path
+
+
 def show(table: pd.DataFrame) -> None:
     """Print the study's table, all rows, no index."""
     print(table.to_string(index=False))

@@ -3,7 +3,8 @@
 The paper says Bayesian filters (RO-UKF, and the full UKF it reduces) reach the
 effective modulus fastest when there is little data. Here every estimator runs
 on the same noisy marker streams of one bending path and we measure its
-settling step (DESIGN.md section 5, :func:`idbench.score.metrics.settling_step`): the
+settling step (docs/design.md section 5,
+:func:`idbench.score.metrics.settling_step`): the
 first load step after which its estimate stays within 5 % of E_ref, the batch
 least-squares fit of the run's own data. Sparsity is varied one axis at a time
 from the default (2 markers, every 2nd step, sigma = 1e-4 m): fewer markers,

@@ -1,6 +1,6 @@
 """Reproduces Fig. 5: shape error against mesh resolution, direct vs assimilated.
 
-The shape error (DESIGN.md section 5) is the sum over a 20 x 4 x 4 grid inside
+The shape error (docs/design.md section 5) is the sum over a 20 x 4 x 4 grid inside
 the beam of the distances between the grid moved by the model and by the truth,
 at the last load step. "Direct" runs the model mesh with E_true and no data;
 "ro-ukf" is the filter's own (state-corrected) estimate of the beam at the end

@@ -1,6 +1,6 @@
 """Heterogeneous tissue: a stiff inclusion identified with p = 2, 4, 8 regions.
 
-Beyond the paper (issue 9, item 2). The truth beam has a box-shaped inclusion
+Beyond the paper. The truth beam has a box-shaped inclusion
 3x stiffer than the rest (a tumour): x in [0.08, 0.12] m, the central quarter
 of the section (y, z in [0.0075, 0.0225] m), resolved by the fine truth mesh.
 The model mesh (20x4x4, whose element faces fit the box) identifies p moduli:

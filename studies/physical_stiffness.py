@@ -5,7 +5,7 @@ E_true at 240 and 525 nodes in bending) and every estimator is confidently
 wrong about the tissue. Corrected (``correction = "approximation-error"``),
 the estimator's observation model carries the coarse mesh's discrepancy
 against a finer mesh of the same body, calibrated offline on paths of its
-own design (:mod:`idbench.calibrate.discrepancy`; never the comparison's truth data),
+own design (:mod:`idbench.calibrate.design`; never the comparison's truth data),
 and the estimate is the *physical* E. For each coarse mesh and load path:
 
 - ``uncorrected``: today's default;

@@ -30,7 +30,9 @@ it prints the table and writes it to ``<out>/realtime_frontier.csv`` (all
 columns) and ``<out>/realtime_frontier.md`` (the docs' table: rate, shape
 error in mm per point, E_final / E_true with ``--organ``, the budgets met),
 with the figure ``<out>/realtime_frontier.png`` (``<out>`` is ``DIR/NAME``
-with ``--organ``).
+with ``--organ``). A full ``--organ`` run also writes the table to
+``docs/results/data/organ_frontier_<organ>.csv``, the numbers of the organ
+frontier's results page.
 """
 
 from __future__ import annotations
@@ -207,4 +209,6 @@ if __name__ == "__main__":
         out, table, scenario = args.out, compute(args.quick, args.out), SCENARIO
     show(table)
     save(table, out)
+    if args.organ and not args.quick:  # the numbers of docs/results/organ-frontier.md
+        _cli.docs_data(f"organ_frontier_{args.organ}", table)
     plot(table, out / "realtime_frontier.png", scenario)

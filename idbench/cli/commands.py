@@ -152,7 +152,7 @@ def cmd_plugins(args: argparse.Namespace) -> int:
         if message not in reg.errors[plugin]:
             reg.errors[plugin] += f"; {message}"
     from idbench.core.version import __version__
-    from idbench.observe import kinds as observe
+    from idbench.observe import kinds
 
     # the core's own observation models first: no plugin registers them
     rows: list[dict[str, Any]] = [
@@ -162,7 +162,7 @@ def cmd_plugins(args: argparse.Namespace) -> int:
             "models": [],
             "estimators": [],
             "scenarios": [],
-            "observations": sorted(observe.BUILTIN),
+            "observations": sorted(kinds.BUILTIN),
             "error": "",
         }
     ]

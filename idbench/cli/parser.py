@@ -14,6 +14,7 @@ import logging
 from pathlib import Path
 from typing import Any, NoReturn
 
+from idbench.core.sanitize import printable
 from idbench.plan.config import ConfigError
 from idbench.registry.registry import cached_registry as registry
 
@@ -80,9 +81,22 @@ class _Parser(argparse.ArgumentParser):
         kwargs.setdefault("formatter_class", _HelpFormatter)
         super().__init__(*args, **kwargs)
 
+    def format_help(self) -> str:
+        """The help, plugins' names and texts among it, as text (no control codes)."""
+        return _text(super().format_help())
+
+    def format_usage(self) -> str:
+        """The usage line, as text."""
+        return _text(super().format_usage())
+
     def error(self, message: str) -> NoReturn:
         where = "" if self.prog == "idbench" else f"{self.prog}: "
         raise UsageError(f"{where}{message}")
+
+
+def _text(text: str) -> str:
+    """``text`` line by line as visible characters (:func:`printable`)."""
+    return "\n".join(printable(line) for line in text.split("\n"))
 
 
 def _config_default(name: str) -> str:

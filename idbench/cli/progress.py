@@ -1,8 +1,9 @@
 """Progress of a comparison on stderr, for a terminal or a log.
 
 Used by ``idbench compare``: :class:`CompareProgress` is the ``progress``
-callback of :func:`idbench.run.compare.compare` and listens to
-``idbench.truth.simulate``'s step records while truths are simulated.
+callback of :func:`idbench.run.compare.compare` and listens to the truth's
+log (``idbench.truth``: its step records and its cache's warnings) while
+truths are simulated.
 """
 
 from __future__ import annotations
@@ -24,7 +25,8 @@ class CompareProgress:
     On a terminal: a bar whose label names what is running. Elsewhere (a pipe,
     a log file): one line per truth step and per finished run, at most about
     50 run lines per comparison (every run that is not ok is always shown).
-    Truth steps arrive as log records of ``idbench.truth.simulate``.
+    Truth steps arrive as log records of ``idbench.truth.simulate``, taken
+    with its cache's from their parent ``idbench.truth``.
 
     With ``jobs > 1`` the bar is redrawn on each truth step, finished run
     and :meth:`tick` (about once a second while workers run), not by a thread
@@ -48,7 +50,7 @@ class CompareProgress:
         self.t0 = time.perf_counter()
         self.bar: Any = None
         self.handler = _TruthLog(self)
-        self.truth_log = logging.getLogger("idbench.truth.simulate")
+        self.truth_log = logging.getLogger("idbench.truth")
         self.saved = (self.truth_log.level, self.truth_log.propagate)
 
     def __enter__(self) -> CompareProgress:
@@ -146,7 +148,7 @@ class CompareProgress:
 
 
 class _TruthLog(logging.Handler):
-    """Forwards idbench.truth.simulate's step records to a :class:`CompareProgress`."""
+    """Forwards the truth's step records to a :class:`CompareProgress`."""
 
     def __init__(self, progress: CompareProgress) -> None:
         super().__init__(logging.INFO)

@@ -1,13 +1,12 @@
 r"""A virtual depth camera: the ``cloud`` observation model.
 
 Sensing (the truth, once per step): a pinhole camera of ``resolution``
-pixels casts one ray through each pixel centre onto the deformed surface
-(``model.surface(state)`` -> vertices (V, 3), triangles (T, 3)). Every
-(triangle, pixel in its projected bounding box) pair is intersected
-(Moeller-Trumbore, both faces) and a z-buffer keeps the nearest hit per
-pixel, so what another part of the surface hides is never seen (occlusion,
-not a normal test). The clean reading of a covered pixel is its hit depth t
-along its unit ray (the hit point is origin + t ray).
+pixels, posed by :meth:`Cloud.pose`, renders the deformed surface
+(``model.surface(state)``; :func:`idbench.observe.camera.render`: one ray
+through each pixel centre, a z-buffer keeps the nearest hit, so what another
+part of the surface hides is never seen). The clean reading of a covered
+pixel is its hit depth t along its unit ray (the hit point is origin + t
+ray).
 
 Measuring (per run, through its seeded generator; common random numbers):
 ``holes`` drops that fraction of the covered pixels, ``points`` of the rest
@@ -18,57 +17,29 @@ instrument in front of the organ). A frame therefore has exactly ``points``
 points, without correspondence to the mesh.
 
 Residual (the model side, any state): each point's signed distance to the
-model's deformed surface, point-to-plane: the distance to the plane of the
-triangle whose centroid is nearest to it, signed by its outward normal.
-The approximation: exact where that triangle holds the closest point (or its
-neighbours are coplanar), second order in the offset along the surface
-otherwise (curvature x offset^2 / 2); it is smooth in the state, which the
-filters' sigma-point and finite-difference derivatives want. Setting
-``candidates`` > 1 takes instead the exact closest point among that many
-nearest-centroid triangles. Outliers are gated: :math:`r_i` is clipped to
-:math:`\pm g`, :math:`g = \max(\mathrm{gate}\,\sigma, \mathrm{gate\_min})`;
-a clipped point has the same residual for every sigma point or ensemble
-member, so it does not move a filter's estimate. The observation is y = 0
-(m = ``points`` values) with noise std sigma.
-
-The nearest centroids (the data association) are exact at every state, and
-found cheaply (:class:`Association`): what is fixed per frame is a
-*reference*, the centroids :math:`c^0` of the first state the frame is
-evaluated at, with each point's nearest centroid :math:`j_i` and the
-distance :math:`b_i` to its second-nearest, from one KD-tree query. At any
-other state, with centroids :math:`c` and :math:`\delta = \max_t \lVert
-c_t - c^0_t \rVert`, every other centroid is at least :math:`b_i - \delta`
-from :math:`p_i` (triangle inequality), so :math:`\lVert p_i - c_{j_i}
-\rVert < b_i - \delta` certifies that :math:`j_i` is still the nearest; only
-the points it does not certify are queried, on a KD-tree of :math:`c`. The
-triangles, hence h(x), are those a fresh query would give, whichever state
-came first: deterministic and history-independent (the order changes the
-cost only; exact distance ties aside), and bitwise the residual of a fresh
-query (``point_to_surface(..., reuse=False)``).
+model's deformed surface, point-to-plane at the triangle of nearest
+centroid, or the exact closest point among ``candidates`` triangles
+(:mod:`idbench.observe.surface`, which also has the maths and the cached
+association of points to triangles). Outliers are gated: :math:`r_i` is
+clipped to :math:`\pm g`, :math:`g = \max(\mathrm{gate}\,\sigma,
+\mathrm{gate\_min})`; a clipped point has the same residual for every sigma
+point or ensemble member, so it does not move a filter's estimate. The
+observation is y = 0 (m = ``points`` values) with noise std sigma.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import threading
-from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
-from idbench.core.capabilities import member
 from idbench.core.interfaces import FloatArray, ForwardModel
-
-MAX_PAIRS = 20_000_000
-"""Triangle-pixel pairs a rendering may test (a resolution too fine refuses)."""
-
-CANDIDATES = 1
-"""Default triangles per point in :func:`point_to_surface` (1: point-to-plane)."""
+from idbench.observe.camera import render
+from idbench.observe.surface import CANDIDATES, point_to_surface, surface_of
 
 
 @dataclass(frozen=True)
@@ -261,326 +232,6 @@ class Cloud:
         return look + self.distance * diag * d / np.linalg.norm(d), look
 
 
-def surface_of(model: ForwardModel, state: FloatArray) -> tuple[FloatArray, Any]:
-    """``model.surface(state)`` checked: vertices (V, 3) and triangles (T, 3)."""
-    surface = member(model, "surface")
-    if surface is None:
-        raise ValueError(
-            f"observe cloud: model {type(model).__name__} has no surface(state)"
-        )
-    vertices, triangles = surface(state)
-    return np.asarray(vertices, dtype=float), np.asarray(triangles, dtype=np.int64)
-
-
-def camera_rays(
-    origin: FloatArray, look: FloatArray, resolution: tuple[int, int], fov: float
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Camera basis (right, up, forward), each (3,): forward towards ``look``."""
-    f = np.asarray(look, float) - np.asarray(origin, float)
-    f = f / np.linalg.norm(f)
-    up = np.array([0.0, 0.0, 1.0])
-    if abs(f @ up) > 0.99:
-        up = np.array([0.0, 1.0, 0.0])
-    r = np.cross(f, up)
-    r /= np.linalg.norm(r)
-    return r, np.cross(r, f), f
-
-
-def render(
-    vertices: FloatArray,
-    triangles: NDArray[np.int64],
-    origin: FloatArray,
-    look: FloatArray,
-    resolution: tuple[int, int],
-    fov: float,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Ray-cast every pixel onto the triangles, keep the nearest hit per pixel.
-
-    Returns
-    -------
-    tuple
-        Hit points (P, 3), their depth along the ray (P,) and the unit rays
-        (P, 3), of the P covered pixels in row-major pixel order.
-    """
-    W, H = resolution
-    r, u, f = camera_rays(origin, look, resolution, fov)
-    ty = math.tan(math.radians(fov) / 2)
-    tx = ty * W / H
-    rel = vertices - origin
-    z = rel @ f
-    tri = triangles[np.all(z[triangles] > 1e-12, axis=1)]  # in front of the camera
-    zz = z[tri]
-    col = ((rel[tri] @ r) / zz / tx + 1) * W / 2 - 0.5
-    row = (1 - (rel[tri] @ u) / zz / ty) * H / 2 - 0.5
-    c0 = np.clip(np.ceil(col.min(axis=1)), 0, W).astype(np.int64)
-    c1 = np.clip(np.floor(col.max(axis=1)), -1, W - 1).astype(np.int64)
-    r0 = np.clip(np.ceil(row.min(axis=1)), 0, H).astype(np.int64)
-    r1 = np.clip(np.floor(row.max(axis=1)), -1, H - 1).astype(np.int64)
-    nc = np.maximum(c1 - c0 + 1, 0)
-    nr = np.maximum(r1 - r0 + 1, 0)
-    counts = nc * nr
-    total = int(counts.sum())
-    if total > MAX_PAIRS:
-        raise ValueError(
-            f"observe cloud: {total:,} triangle-pixel pairs at resolution {W}x{H}; "
-            f"more than {MAX_PAIRS:,}: lower the resolution"
-        )
-    empty = np.empty((0, 3))
-    if total == 0:
-        return empty, np.empty(0), empty
-    t_idx = np.repeat(np.arange(len(tri)), counts)
-    local = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
-    pc = c0[t_idx] + local % nc[t_idx]
-    pr = r0[t_idx] + local // nc[t_idx]
-    sx = ((pc + 0.5) * 2 / W - 1) * tx
-    sy = (1 - (pr + 0.5) * 2 / H) * ty
-    d = f[None, :] + sx[:, None] * r[None, :] + sy[:, None] * u[None, :]
-    d /= np.linalg.norm(d, axis=1)[:, None]
-    v0 = vertices[tri[t_idx, 0]]
-    e1 = vertices[tri[t_idx, 1]] - v0
-    e2 = vertices[tri[t_idx, 2]] - v0
-    pvec = np.cross(d, e2)
-    det = np.einsum("ij,ij->i", e1, pvec)
-    ok = np.abs(det) > 1e-300
-    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-    tvec = origin[None, :] - v0
-    a = np.einsum("ij,ij->i", tvec, pvec) * inv
-    qvec = np.cross(tvec, e1)
-    b = np.einsum("ij,ij->i", d, qvec) * inv
-    t = np.einsum("ij,ij->i", e2, qvec) * inv
-    hit = ok & (a >= 0) & (b >= 0) & (a + b <= 1) & (t > 0)
-    pix = (pr * W + pc)[hit]
-    t, d = t[hit], d[hit]
-    order = np.lexsort((t, pix))
-    pix, t, d = pix[order], t[order], d[order]
-    first = np.ones(pix.size, dtype=bool)
-    first[1:] = pix[1:] != pix[:-1]
-    t, d = t[first], d[first]
-    return origin[None, :] + t[:, None] * d, t, d
-
-
-def closest_on_triangles(
-    p: FloatArray, a: FloatArray, b: FloatArray, c: FloatArray
-) -> FloatArray:
-    """Closest point (M, 3) to each p on triangle (a, b, c), all (M, 3).
-
-    Ericson's region tests (Real-Time Collision Detection, 5.1.5), vectorised.
-    """
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = _dot(ab, ap), _dot(ac, ap)
-    bp = p - b
-    d3, d4 = _dot(ab, bp), _dot(ac, bp)
-    cp = p - c
-    d5, d6 = _dot(ab, cp), _dot(ac, cp)
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = 1.0 / (va + vb + vc)
-        v = vb * denom
-        w = vc * denom
-        out = a + ab * v[:, None] + ac * w[:, None]  # inside the face
-        # edges, then vertices (later assignments win: vertices last)
-        t_ab = d1 / (d1 - d3)
-        m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-        out[m] = (a + ab * t_ab[:, None])[m]
-        t_ac = d2 / (d2 - d6)
-        m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-        out[m] = (a + ac * t_ac[:, None])[m]
-        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
-        out[m] = (b + (c - b) * t_bc[:, None])[m]
-    out[(d1 <= 0) & (d2 <= 0)] = a[(d1 <= 0) & (d2 <= 0)]
-    out[(d3 >= 0) & (d4 <= d3)] = b[(d3 >= 0) & (d4 <= d3)]
-    out[(d6 >= 0) & (d5 <= d6)] = c[(d6 >= 0) & (d5 <= d6)]
-    return out
-
-
-def point_to_surface(
-    points: FloatArray,
-    vertices: FloatArray,
-    triangles: NDArray[np.int64],
-    gate: float = np.inf,
-    candidates: int = CANDIDATES,
-    reuse: bool = True,
-) -> FloatArray:
-    """Signed distance (N,) of ``points`` to the surface, clipped to +- ``gate``.
-
-    ``candidates`` = 1 (default): point-to-plane, the signed distance to the
-    plane of the triangle whose centroid is nearest: smooth in the state,
-    exact where that triangle holds the closest point or its neighbours are
-    coplanar, second order in the tangential offset otherwise. The nearest
-    centroids come from :class:`Association` (``reuse``, default: a
-    :class:`scipy.spatial.cKDTree` query only where the frame's earlier
-    association cannot be certified; the same triangles as a fresh query)
-    or, ``reuse=False``, from a fresh query on the deformed centroids.
-    More: the exact closest point on that many nearest-centroid triangles,
-    signed by the closest one's normal (positive outside).
-    """
-    p0 = vertices[triangles[:, 0]]
-    p1 = vertices[triangles[:, 1]]
-    p2 = vertices[triangles[:, 2]]
-    k = min(int(candidates), len(triangles))
-    centroids = (p0 + p1 + p2) / 3
-    if k == 1:
-        if reuse:
-            j1 = association(points, triangles).nearest(centroids)
-        else:
-            _, j1 = _tree(centroids).query(points)
-        normal = np.cross(p1 - p0, p2 - p0)
-        normal /= np.linalg.norm(normal, axis=1)[:, None]
-        return np.clip(_dot(points - p0[j1], normal[j1]), -gate, gate)
-    _, j = _tree(centroids).query(points, k=k)
-    j = np.asarray(j).reshape(len(points), k)
-    flat = j.ravel()
-    rep = np.repeat(points, k, axis=0)
-    q = closest_on_triangles(rep, p0[flat], p1[flat], p2[flat])
-    dist = np.linalg.norm(rep - q, axis=1).reshape(-1, k)
-    best = np.argmin(dist, axis=1)
-    rows = np.arange(len(points))
-    tri = j[rows, best]
-    qb = q.reshape(-1, k, 3)[rows, best]
-    normal = np.cross(p1[tri] - p0[tri], p2[tri] - p0[tri])
-    sign = np.where(_dot(points - qb, normal) < 0, -1.0, 1.0)
-    return np.clip(sign * dist[rows, best], -gate, gate)
-
-
-def _tree(centroids: FloatArray) -> cKDTree:
-    return cKDTree(centroids, balanced_tree=False, compact_nodes=False)
-
-
-class Association:
-    r"""The nearest-centroid triangle of each of a frame's points, at any state.
-
-    Built at the first state the frame is evaluated at (the reference,
-    centroids :math:`c^0`): one KD-tree query gives each point's
-    :attr:`KEPT` nearest centroids and the distance :math:`b_i` to the next
-    one. At another state (centroids :math:`c`), with
-    :math:`\delta = \max_t \lVert c_t - c^0_t \rVert` the largest centroid
-    move, every centroid not kept is at least :math:`b_i - \delta` from
-    point :math:`p_i`; so where the nearest kept one is nearer than that (by
-    a rounding margin) it is the nearest of all, certified, with no query.
-    The other points are queried on a KD-tree of :math:`c`, exactly as
-    without reuse. The triangles are therefore those of a fresh query at
-    every state (history-independent: which state came first changes the
-    cost, not the result; exact ties aside); a state where most points are
-    not certified becomes the new reference.
-
-    Parameters
-    ----------
-    points
-        The frame's points (N, 3).
-    triangles
-        The surface's triangles (T, 3).
-    """
-
-    MARGIN = 1e-9
-    """Relative rounding margin of the certificate."""
-    KEPT = 1
-    """Nearest centroids kept per point at the reference (candidates)."""
-    REFERENCE_AGAIN = 0.5
-    """Fraction of uncertified points past which a state becomes the reference."""
-
-    def __init__(self, points: FloatArray, triangles: NDArray[np.int64]) -> None:
-        self.points = np.array(points, dtype=float)
-        self.triangles = np.array(triangles, dtype=np.int64)
-        self._reference: tuple[FloatArray, NDArray[np.int64], FloatArray] | None = None
-        """(centroids, nearest, second-nearest distance), replaced as one."""
-        self.queries = 0
-        """KD-tree queries made (for tests and benchmarks)."""
-
-    def matches(self, points: FloatArray, triangles: NDArray[np.int64]) -> bool:
-        """Whether this association is of these points and triangles."""
-        return (
-            np.array_equal(points, self.points)
-            and np.array_equal(triangles, self.triangles)
-        )  # fmt: skip
-
-    def nearest(self, centroids: FloatArray) -> NDArray[np.int64]:
-        """The index (N,) of each point's nearest centroid among ``centroids``."""
-        ref = self._reference
-        if ref is None or len(self.triangles) <= self.KEPT:
-            return self._refer(centroids)
-        reference, kept, bound = ref
-        move = centroids - reference
-        delta = math.sqrt(float(np.max(_dot(move, move))))
-        rows = np.arange(len(self.points))
-        gap = self.points[:, None, :] - centroids[kept]
-        d2 = np.einsum("ijk,ijk->ij", gap, gap)
-        best = np.argmin(d2, axis=1)
-        d = np.sqrt(d2[rows, best])
-        bad = ~(bound - delta - d > self.MARGIN * (bound + delta))
-        out = kept[rows, best]
-        n_bad = int(np.count_nonzero(bad))
-        if n_bad == 0:
-            return out
-        if n_bad > self.REFERENCE_AGAIN * len(self.points):
-            return self._refer(centroids)
-        _, out[bad] = _tree(centroids).query(self.points[bad])
-        self.queries += 1
-        return out
-
-    def _refer(self, centroids: FloatArray) -> NDArray[np.int64]:
-        """Make ``centroids`` the reference: the KEPT + 1 nearest of each point."""
-        k = min(self.KEPT + 1, len(centroids))
-        dist, j = _tree(centroids).query(self.points, k=k)
-        self.queries += 1
-        dist = np.asarray(dist).reshape(len(self.points), k)
-        j = np.asarray(j).reshape(len(self.points), k).astype(np.int64)
-        if k > self.KEPT:
-            self._reference = (np.array(centroids), j[:, :-1], dist[:, -1])
-        return j[:, 0].copy()
-
-
-_ASSOCIATIONS: OrderedDict[int, Association] = OrderedDict()
-_LOCK = threading.Lock()
-ASSOCIATIONS_KEPT = 64
-"""Frames whose association is kept (least recently used dropped first)."""
-
-
-def association(points: FloatArray, triangles: NDArray[np.int64]) -> Association:
-    """The :class:`Association` of ``points`` on ``triangles`` (kept per frame).
-
-    Kept by the identity of the ``points`` array and checked against its
-    content and the triangles, so a changed or reused array gets a new one.
-    """
-    key = id(points)
-    with _LOCK:
-        found = _ASSOCIATIONS.get(key)
-        if found is not None and found.matches(points, triangles):
-            _ASSOCIATIONS.move_to_end(key)
-            return found
-        made = Association(points, triangles)
-        _ASSOCIATIONS[key] = made
-        _ASSOCIATIONS.move_to_end(key)
-        while len(_ASSOCIATIONS) > ASSOCIATIONS_KEPT:
-            _ASSOCIATIONS.popitem(last=False)
-        return made
-
-
-HELDOUT_CANDIDATES = 8
-"""Nearest-centroid triangles searched for a held-out point's closest point."""
-
-
-def heldout_points_mm(model: ForwardModel, state: FloatArray, points: Any) -> float:
-    """Mean distance (mm) of held-out points to ``model``'s deformed surface.
-
-    ``points`` (N, 3), positions in model coordinates (m), without
-    correspondence; NaN rows (a frame with fewer points) are left out. The
-    distance is to the closest point on the :data:`HELDOUT_CANDIDATES`
-    triangles of nearest centroid (:func:`point_to_surface`, not gated):
-    what the model's surface at ``state`` misses of a surface nobody gave
-    the estimator. NaN if no point is finite or the model has no surface.
-    """
-    pts = np.asarray(points, dtype=float).reshape(-1, 3)
-    seen = np.isfinite(pts).all(axis=1)
-    if not seen.any() or member(model, "surface") is None:
-        return float("nan")
-    vertices, triangles = surface_of(model, state)
-    d = point_to_surface(pts[seen], vertices, triangles, candidates=HELDOUT_CANDIDATES)
-    return float(1000.0 * np.abs(d).mean())
-
-
 def clean_points(
     cloud: Cloud, clean: Mapping[str, FloatArray], rng: np.random.Generator
 ) -> FloatArray:
@@ -593,10 +244,6 @@ def clean_points(
     n = min(cloud.points, depth.size)
     pick = rng.choice(depth.size, size=n, replace=False)
     return np.asarray(origin)[None, :] + depth[pick][:, None] * rays[pick]
-
-
-def _dot(a: FloatArray, b: FloatArray) -> FloatArray:
-    return np.einsum("ij,ij->i", a, b)
 
 
 def _num(x: Any) -> bool:

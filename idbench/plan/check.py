@@ -19,9 +19,10 @@ import json
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol
 
-from idbench.calibrate.discrepancy import CalibrationSettings
+from idbench.calibrate.design import CalibrationSettings
 from idbench.core.capabilities import (
     bounds_of,
     estimate_solves_of,
@@ -41,7 +42,7 @@ from idbench.core.settings import (
     true_values,
 )
 from idbench.estimate.posterior import PosteriorSettings, check_budget
-from idbench.observe import kinds as observe
+from idbench.observe import kinds
 from idbench.plan.config import CompareConfig
 from idbench.plan.runspec import Items, RunSpec, Setup, expand
 from idbench.plan.validity import check_prior, check_truth_mesh
@@ -161,7 +162,7 @@ def plan(config: CompareConfig, session: PlanSession) -> Plan:
         true=(
             true_values(probe.parameters, config.true, config.model)
             if rec is None
-            else recording.true_values(rec, probe.parameters.names)
+            else recording.true_values(rec, probe.parameters)
         ),
         prior=(float(config.prior[0]), float(config.prior[1])),  # type: ignore[index]
         reference=config.reference,  # type: ignore[arg-type]
@@ -181,7 +182,7 @@ def plan(config: CompareConfig, session: PlanSession) -> Plan:
     if rec is not None:
         bounds = bounds_of(models[config.meshes[0]])
         recording.check_body(rec, bounds, loads)
-        obs = observe.build(rec.observe, rec.observe_settings, reg)
+        obs = kinds.build(rec.observe, rec.observe_settings, reg)
         recording.check_frames(rec, obs)
     if config.observe != ("markers",) or config.observe_settings:
         built = list(models.values())
@@ -216,21 +217,57 @@ def configure(config: CompareConfig) -> tuple[CompareConfig, recording.Recording
 
     The recording sets the model, the scenario (its load), the steps, the
     observation model and its settings, the markers and their noise, and the
-    true values it knows (others NaN); the model options are the recording's
-    updated with ``config``'s. The truth mesh is :data:`TRUTH_MESH`.
+    true values it knows (others NaN); the model options are the recording's,
+    to which ``config`` may add others (execution settings such as a solver).
+    The truth mesh is :data:`TRUTH_MESH`.
+
+    Raises
+    ------
+    RecordingError
+        A setting the recording fixes given again with another value (another
+        model, body, load, steps, observation, markers, points or noise): one
+        line naming both values.
     """
     assert config.data, "a config with data"
     rec = recording.read(config.data)
-    if config.model is not None and config.model != rec.model:
-        raise recording.RecordingError(
-            f"recording {str(rec.path)!r} is of model {rec.model!r}, not "
-            f"--model {config.model!r}"
-        )
-    settings = {**rec.model_settings, **config.model_settings.get(rec.model, {})}
+    where = f"recording {str(rec.path)!r}"
+    defaults = CompareConfig()
+    fixed = {
+        "model": (config.model, None, rec.model),
+        "scenarios": (config.scenarios, None, (rec.scenario,)),
+        "steps": (config.steps, defaults.steps, rec.steps),
+        "observe": (config.observe, defaults.observe, (rec.observe,)),
+        "obs_points": (config.obs_points, defaults.obs_points, (rec.markers,)),
+        "noise": (config.noise, defaults.noise, (rec.noise,)),
+    }
+    for name, (given, default, recorded) in fixed.items():
+        if given != default and given != recorded:
+            raise recording.RecordingError(
+                f"{where} fixes {name} = {_shown(recorded)}; got {_shown(given)} "
+                "(leave it out: a recording's data cannot change)"
+            )
+    given_settings = config.model_settings.get(rec.model, {})
+    for key, value in given_settings.items():
+        if key in rec.model_settings and not _same(value, rec.model_settings[key]):
+            raise recording.RecordingError(
+                f"{where} is of {key} = {rec.model_settings[key]!r}; got {key} = "
+                f"{value!r} (a recording is for the model options it was made with)"
+            )
+    for block, table in config.observe_settings.items():
+        for key, value in table.items():
+            recorded = rec.observe_settings.get(block, {}).get(key, value)
+            if recorded != value:
+                raise recording.RecordingError(
+                    f"{where} fixes [observe.{block}] {key} = {recorded!r}; got "
+                    f"{value!r}"
+                )
     out = dataclasses.replace(
         config,
         model=rec.model,
-        model_settings={**config.model_settings, rec.model: settings},
+        model_settings={
+            **config.model_settings,
+            rec.model: {**given_settings, **rec.model_settings},
+        },
         scenarios=(rec.scenario,),
         steps=rec.steps,
         truth_mesh=TRUTH_MESH,
@@ -242,6 +279,23 @@ def configure(config: CompareConfig) -> tuple[CompareConfig, recording.Recording
         true={},
     )
     return out, rec
+
+
+def _shown(value: Any) -> str:
+    """A fixed setting as the command line writes it (a list comma-separated)."""
+    if isinstance(value, tuple):
+        return ",".join(str(v) for v in value)
+    return repr(value)
+
+
+def _same(given: Any, recorded: Any) -> bool:
+    """Whether a model option equals the recording's (a path: the same file)."""
+    if given == recorded:
+        return True
+    if isinstance(given, str) and isinstance(recorded, str):
+        a, b = Path(given), Path(recorded)
+        return a.is_file() and b.is_file() and a.resolve() == b.resolve()
+    return False
 
 
 def _check_observed(spec: RunSpec, model: ForwardModel, session: PlanSession) -> None:
@@ -258,14 +312,14 @@ def _check_observed(spec: RunSpec, model: ForwardModel, session: PlanSession) ->
     needs = needs_observed_of(model)
     if not needs:
         return
-    used = {m for _, b in observe.leaves(session.observation_model(spec))
+    used = {m for _, b in kinds.leaves(session.observation_model(spec))
             for m in b.requires}  # fmt: skip
     if used & set(needs):
         return
     would = []
-    for kind in sorted(observe.kinds(session.registry)):
+    for kind in sorted(kinds.kinds(session.registry)):
         try:
-            block = observe.build(kind, {}, session.registry)
+            block = kinds.build(kind, {}, session.registry)
         except (ConfigError, TypeError, ValueError):  # a kind with required settings
             continue
         if set(block.requires) & set(needs):
@@ -363,8 +417,8 @@ def resolve(
         Naming the bad value and what is allowed.
     """
     tables = config.observe_settings
-    known = observe.kinds(registry)
-    used = {b for name in config.observe for b in observe.block_names(name)}
+    known = kinds.kinds(registry)
+    used = {b for name in config.observe for b in kinds.block_names(name)}
     for table in tables:
         if table not in used and table not in known:
             raise ConfigError(
@@ -373,7 +427,7 @@ def resolve(
             )
     out: dict[str, Items] = {}
     for name in config.observe:
-        obs = observe.build(name, tables, registry)
+        obs = kinds.build(name, tables, registry)
         for member in obs.requires:
             for model in models:
                 if not requirement_met(model, member):
@@ -381,7 +435,7 @@ def resolve(
                         f"observe {name!r} needs the model's {member}(); model "
                         f"{config.model!r} ({type(model).__name__}) has none"
                     )
-        out[name] = observe.settings_items(name, tables, registry)
+        out[name] = kinds.settings_items(name, tables, registry)
     return out
 
 

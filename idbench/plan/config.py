@@ -93,7 +93,7 @@ class CompareConfig:
         simulated truth; it sets the scenario, steps, observation model,
         markers and noise, and there is no truth mesh.
     calibration
-        :class:`~idbench.calibrate.discrepancy.CalibrationSettings` fields of the
+        :class:`~idbench.calibrate.design.CalibrationSettings` fields of the
         offline calibration that the runs of an estimator with ``correction =
         "approximation-error"`` use, e.g. ``{"mesh": "40x5x5", "scenarios":
         ["bend-y", "mixed-30"]}``; the mesh defaults to the truth mesh spec,

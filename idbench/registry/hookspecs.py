@@ -31,6 +31,28 @@ def register_models(register: Callable[..., None]) -> None:
     replacing ``defaults`` for those settings) and ``proposed_scenarios()``
     (Scenarios that exist for those settings only; see
     :func:`idbench.core.settings.proposed_scenarios`).
+
+    Parameters
+    ----------
+    register
+        ``register(name, factory, *, settings=None, defaults=None)``.
+
+    Examples
+    --------
+    A model whose settings are one stiffness, with its defaults
+    (``make_chain(spec)`` returns the :class:`idbench.ForwardModel`; the
+    tutorial "A model plugin" writes one):
+
+    >>> from dataclasses import dataclass
+    >>> import idbench
+    >>> @dataclass(frozen=True)
+    ... class ChainSettings:
+    ...     k: float = 50.0
+    >>> @idbench.hookimpl
+    ... def register_models(register):
+    ...     register("spring-chain", make_chain, settings=ChainSettings,
+    ...              defaults=idbench.ModelDefaults(truth_mesh="200",
+    ...                                             meshes=("5", "20")))
     """
 
 
@@ -40,7 +62,35 @@ def register_estimators(register: Callable[[str, type], None]) -> None:
 
     Call ``register(name, cls)`` once per estimator, where ``cls`` is a
     dataclass whose fields are the estimator's settings (all with defaults) and
-    whose instances implement :class:`idbench.Estimator`.
+    whose instances implement :class:`idbench.Estimator`. Building on
+    :class:`idbench.Filter` gives the run and step checks, the cost, the
+    transforms and occluded observations for free: the class then writes only
+    ``begin`` and ``assimilate`` (checked when the class is defined). A class
+    whose settings are no dataclass fields (one of its classes not decorated
+    with ``@dataclass``), or an abstract base (``abstract=True``), disables
+    its plugin when it registers.
+
+    Parameters
+    ----------
+    register
+        ``register(name, cls)``.
+
+    Examples
+    --------
+    An estimator that keeps its prior (the tutorial "An estimator plugin"
+    writes a recursive least squares):
+
+    >>> from dataclasses import dataclass
+    >>> import idbench
+    >>> @dataclass
+    ... class PriorOnly(idbench.Filter):
+    ...     def begin(self, model, prior):
+    ...         self.xi, self.P = self.prior_xi(prior)
+    ...     def assimilate(self, k, observation):
+    ...         return idbench.Analysis(self.xi, self.P)
+    >>> @idbench.hookimpl
+    ... def register_estimators(register):
+    ...     register("prior-only", PriorOnly)
     """
 
 
@@ -49,7 +99,23 @@ def register_scenarios(register: Callable[[Any], None]) -> None:
     """Register load paths.
 
     Call ``register(scenario)`` once per :class:`idbench.Scenario`; its
-    ``name`` is the registry key.
+    ``name`` is the registry key. Its ``load`` is a JSON-able dict that only
+    the model interprets; its ``transfer`` names the registered scenario on
+    which the transfer error is scored (checked when a comparison is planned).
+
+    Parameters
+    ----------
+    register
+        ``register(scenario)``.
+
+    Examples
+    --------
+    >>> import idbench
+    >>> @idbench.hookimpl
+    ... def register_scenarios(register):
+    ...     register(idbench.Scenario("pull", {"force": 1.0}, transfer="pull-hard",
+    ...                               description="end force 1 N"))
+    ...     register(idbench.Scenario("pull-hard", {"force": 3.0}, transfer="pull"))
     """
 
 
@@ -60,7 +126,29 @@ def register_commands(register: Callable[[str, Any], None]) -> None:
     Call ``register(name, idbench.Command(help, configure, run))`` once per
     command: ``configure(parser)`` adds its arguments, ``run(args)`` executes
     it and returns the exit status. Tools that only make sense for one model
-    (the beam's ``calibrate``) live in its plugin this way.
+    (the beam's ``calibrate``) live in its plugin this way. A command or
+    option that clashes with idbench's own is disabled and reported in
+    ``idbench plugins``.
+
+    Parameters
+    ----------
+    register
+        ``register(name, command)``, ``command`` an :class:`idbench.Command`.
+
+    Examples
+    --------
+    ``idbench hello --name X`` (raise :class:`idbench.ConfigError` for bad
+    input: one line, exit status 2):
+
+    >>> import idbench
+    >>> def configure(parser):
+    ...     parser.add_argument("--name", default="world")
+    >>> def run(args):
+    ...     print(f"hello, {args.name}")
+    ...     return 0
+    >>> @idbench.hookimpl
+    ... def register_commands(register):
+    ...     register("hello", idbench.Command("say hello", configure, run))
     """
 
 
@@ -75,4 +163,54 @@ def register_observations(register: Callable[[str, type], None]) -> None:
     (``requires``, ``sense``, ``measure``, ``values``, ``noise_std``,
     ``predict``, ``identity``), checked when it registers. The core's own,
     ``markers``, ``cloud`` and ``force``, cannot be replaced.
+
+    Parameters
+    ----------
+    register
+        ``register(name, cls)``.
+
+    Examples
+    --------
+    A sketch: a strain gauge whose settings are its noise (N); the methods
+    are those of :class:`idbench.ObservationModel`, as the
+    core's ``force`` implements them:
+
+    >>> from dataclasses import dataclass
+    >>> import idbench
+    >>> @dataclass(frozen=True)
+    ... class Gauge:
+    ...     noise: float = 0.01
+    ...     # requires, sense, measure, values, noise_std, predict, identity
+    >>> @idbench.hookimpl
+    ... def register_observations(register):
+    ...     register("gauge", Gauge)
     """
+
+
+@hookspec
+def register_versions(register: Callable[[str, str], None]) -> None:
+    """Report the versions a plugin's results depend on.
+
+    Call ``register(package, version)`` once per package whose version can
+    change the numbers the plugin's models or estimators produce (the plugin's
+    libraries: a finite-element library, a sparse solver, a filter library).
+    A results folder's manifest records them beside the core's own, so the
+    core never names a plugin's packages. The plugin's own distribution
+    version is recorded without this hook.
+
+    Parameters
+    ----------
+    register
+        ``register(package, version)``, both strings.
+
+    Examples
+    --------
+    A plugin whose numbers depend on filterpy (as the built-in filters do):
+
+    >>> import importlib.metadata
+    >>> import idbench
+    >>> @idbench.hookimpl
+    ... def register_versions(register):
+    ...     register("filterpy", importlib.metadata.version("filterpy"))
+    """
+

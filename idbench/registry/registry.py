@@ -158,6 +158,9 @@ class Registry:
         Plugin name -> version of the distribution that provides it (``""``
         if unknown), for every plugin whose hooks ran (see
         :func:`plugin_version`); a results folder records those its runs used.
+    packages
+        Plugin name -> {package: version} that the plugin reported through
+        ``register_versions``: the libraries its results depend on.
     """
 
     models: dict[str, Entry] = field(default_factory=dict)
@@ -167,6 +170,7 @@ class Registry:
     observations: dict[str, Entry] = field(default_factory=dict)
     errors: dict[str, str] = field(default_factory=dict)
     versions: dict[str, str] = field(default_factory=dict)
+    packages: dict[str, dict[str, str]] = field(default_factory=dict)
 
     def default_model(self) -> str:
         """The model a comparison uses when none is named.
@@ -337,6 +341,18 @@ def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
 
         return register
 
+    def versions_cb(plugin: str) -> Callable[[str, str], None]:
+        def register(package: str, version: str) -> None:
+            for what, value in (("package", package), ("version", version)):
+                if not isinstance(value, str) or not value.isprintable():
+                    raise PluginError(
+                        f"plugin {plugin!r}: register_versions {what} {value!r} "
+                        "is not a printable string"
+                    )
+            reg.packages.setdefault(plugin, {})[package] = version
+
+        return register
+
     def scenario_cb(plugin: str) -> Callable[[Any], None]:
         def register(scenario: Any) -> None:
             if not isinstance(scenario, Scenario):
@@ -351,6 +367,7 @@ def build_registry(pm: pluggy.PluginManager | None = None) -> Registry:
         (pm.hook.register_estimators, estimator_cb),
         (pm.hook.register_commands, command_cb),
         (pm.hook.register_observations, observation_cb),
+        (pm.hook.register_versions, versions_cb),
     ]
     for hook, make_cb in hooks:
         for impl in hook.get_hookimpls():

@@ -22,17 +22,17 @@ import numpy as np
 import pandas as pd
 
 from idbench.core.sanitize import printable
-from idbench.report.intervals import format_interval, method
-from idbench.report.paired import paired_html
-from idbench.report.summary import (
+from idbench.report.columns import (
     format_cell,
     headers,
     interval_columns,
     legend,
-    parameter_names_of_summary,
     seeds_note,
     status_for_people,
 )
+from idbench.report.intervals import format_interval, method
+from idbench.report.paired import paired_html
+from idbench.report.summary import parameter_names_of_summary
 
 CAPTIONS = {
     "stiffness_vs_resolution": "Identified parameters against model resolution"
@@ -347,7 +347,7 @@ def _manifest(manifest: dict[str, Any]) -> str:
     if not manifest:
         return "<p>(no manifest.json)</p>"
     rows: list[tuple[str, str]] = []
-    for key in ("python", "platform", "cpu_count", "solver"):
+    for key in ("python", "platform", "cpu_count"):
         if key in manifest:
             rows.append((key, str(manifest[key])))
     for name, version in (manifest.get("versions") or {}).items():

@@ -18,17 +18,16 @@ from typing import Any
 import pandas as pd
 
 from idbench.core.sanitize import markdown_cell, printable
+from idbench.report.columns import format_cell, headers
 from idbench.report.intervals import excludes_zero, format_interval, interval
 from idbench.report.summary import (
     ROW_KEYS,
     SEED_COLUMNS,
-    format_cell,
-    headers,
     parameter_names,
     sweep_axes,
-    text_blocks,
     with_metrics,
 )
+from idbench.report.text import text_blocks
 
 BY = {"estimator": ("settings",), "mesh": ("model_nodes",)}
 """What a comparison varies, and the columns that go with it (never paired on)."""

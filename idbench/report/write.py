@@ -1,6 +1,8 @@
 """The report of a comparison: frontier table, figures, report.md and report.html.
 
-The summary itself lives in :mod:`idbench.report.summary` (re-exported here).
+The summary itself lives in :mod:`idbench.report.summary`, its columns in
+:mod:`idbench.report.columns` and its text in :mod:`idbench.report.text`
+(re-exported here).
 """
 
 from __future__ import annotations
@@ -12,18 +14,10 @@ import numpy as np
 import pandas as pd
 
 from idbench.core.sanitize import markdown_cell
+from idbench.report.columns import headers, legend, seeds_note
 from idbench.report.paired import Paired, paired_markdown
-from idbench.report.summary import (
-    FORMATS,
-    _markdown,
-    headers,
-    legend,
-    parameter_names,
-    seeds_note,
-    summarise,
-    summary_text,
-    sweep_axes,
-)
+from idbench.report.summary import parameter_names, summarise, sweep_axes
+from idbench.report.text import FORMATS, markdown_table, summary_text
 from idbench.store import lock
 
 __all__ = [
@@ -296,7 +290,7 @@ def _write_report(
         "Means over the ok runs of each row; n: runs (one a seed). Shape errors"
         " in mm per grid point.",
         "",
-        _markdown(summary, headers(summary)),
+        markdown_table(summary, headers(summary)),
         "",
         *(markdown_cell(x) + "\n" for x in [legend(summary)] if not summary.empty),
         *(markdown_cell(x) + "\n" for x in seeds_note(summary)),
@@ -313,7 +307,7 @@ def _write_report(
             " strictly better in one;"
             " `best_<rate>hz`: lowest shape error within that budget.",
             "",
-            _markdown(frontier_display(table)),
+            markdown_table(frontier_display(table)),
             "",
         ]
     lines += [f"![{p.stem}]({p.name})" for p in written if p.suffix == ".png"]

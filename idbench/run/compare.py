@@ -14,7 +14,7 @@ import os
 import platform
 import sys
 import tempfile
-from collections.abc import Callable, Generator
+from collections.abc import Callable, Generator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +22,7 @@ import pandas as pd
 
 from idbench.core.capabilities import tick_of
 from idbench.core.interfaces import ModelFailure
-from idbench.observe import kinds as observe
+from idbench.observe import kinds
 from idbench.plan.check import Plan, plan
 from idbench.plan.config import CompareConfig, ConfigError
 from idbench.plan.runspec import RunSpec
@@ -51,7 +51,7 @@ def runs_of(config: CompareConfig, registry: Registry | None = None) -> list[Run
 def sense(spec: RunSpec, session: Session) -> None:
     """Compute the run's noise-free readings now (a failure is a ConfigError)."""
     obs = session.observation_model(spec)
-    for name, block in observe.leaves(obs):
+    for name, block in kinds.leaves(obs):
         try:
             session.sensed(spec, block)
         except (ValueError, ArithmeticError) as exc:
@@ -72,32 +72,30 @@ def _identity(config: CompareConfig, the_plan: Plan) -> dict[str, Any]:
         tables = settings.setdefault("model_settings", {})
         tables[config.model] = dict(setup.model_settings)  # without execution
         settings["true"] = dict(setup.true)
+        if setup.data:  # what the recording holds, not only where it lies
+            settings["data_sha256"] = setup.data[1]
     return settings
 
 
-def manifest(config: CompareConfig) -> dict[str, Any]:
-    """Versions, solver backend and thread settings, for the results folder."""
+def manifest(plugins: Mapping[str, str], reg: Registry) -> dict[str, Any]:
+    """Versions and machine settings, for the results folder.
+
+    The core's own packages, then the packages each plugin of ``plugins`` (the
+    plugins the runs use) reported through ``register_versions``; the plugins'
+    own versions are in ``plugins``.
+    """
     versions: dict[str, str | None] = {}
-    for dist in (
-        "idbench",
-        "numpy",
-        "scipy",
-        "scikit-fem",
-        "filterpy",
-        "pandas",
-        "pypardiso",
-        "pluggy",
-        "distributed",
-    ):
+    for dist in ("idbench", "numpy", "scipy", "pandas", "pluggy", "distributed"):
         try:
             versions[dist] = importlib.metadata.version(dist)
         except importlib.metadata.PackageNotFoundError:
             versions[dist] = None
+    for plugin in plugins:
+        versions.update(reg.packages.get(plugin, {}))
     return {
         "versions": versions,
         "python": sys.version.split()[0],
         "platform": platform.platform(),
-        "solver": os.environ.get("IDBENCH_SOLVER", "auto"),
         "threads": {k: os.environ.get(k) for k in THREAD_ENV},
         "cpu_count": os.cpu_count(),
     }
@@ -182,7 +180,7 @@ def _compare(
         out,
         _identity(config, the_plan),
         {
-            **manifest(config),
+            **manifest(the_plan.plugins, session.registry),
             "execution": execution,
             "plugins": the_plan.plugins,
             "inputs": the_plan.inputs,

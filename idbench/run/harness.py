@@ -37,13 +37,12 @@ from idbench.core.interfaces import (
     Skipped,
 )
 from idbench.core.settings import estimator_arguments, public_settings
-from idbench.observe import cloud as depth_camera
-from idbench.observe import occlusion
+from idbench.observe import occlusion, surface
 from idbench.observe.observed_model import model_state
 from idbench.plan.config import ConfigError
 from idbench.plan.runspec import RunSpec
 from idbench.plan.validity import run_warning
-from idbench.run import rows as scoring
+from idbench.run import rows
 from idbench.run.session import Session
 from idbench.score import targets
 from idbench.truth.simulate import Truth
@@ -227,7 +226,7 @@ def execute(
     tuple
         The run's row (dict) and its trace rows (one dict per step).
     """
-    row: dict[str, Any] = scoring.base_row(spec)
+    row: dict[str, Any] = rows.base_row(spec)
     traces: list[dict[str, Any]] = []
     t_start = time.perf_counter()
     try:
@@ -315,7 +314,7 @@ def _run_on(
     nodes = n_nodes_of(master)
     row["model_nodes"] = np.nan if nodes is None else nodes
     row["truth_nodes"] = session.truth(spec).nodes
-    row.update(scoring.empty_parameter_columns(spec))
+    row.update(rows.empty_parameter_columns(spec))
 
     cls = session.registry.estimator(spec.estimator)
     with _blame(who, "its constructor"):
@@ -356,7 +355,7 @@ def _run_on(
         _check_returned(session, master, model, who, None)
         if session.known_reference(spec) is None:
             session.remember_reference(spec, means[-1])
-    row.update(scoring.final_columns(spec, session, means, stds, traces, est))
+    row.update(rows.final_columns(spec, session, means, stds, traces, est))
     if spec.setup.data:
         row["heldout_final_mm"] = traces[-1]["heldout_mm"]
         if "heldout_points_mm" in traces[-1]:
@@ -427,7 +426,7 @@ def _estimate(
             shadow = metrics_model.step(mean, k, shadow)
             state = shadow
         innovation = innovation_of(est, estimator)
-        trace = scoring.step_row(
+        trace = rows.step_row(
             spec, k, obs, est, mean, std, metrics_model.grid(state), truth, direct,
             innovation,
         )  # fmt: skip
@@ -442,7 +441,7 @@ def _estimate(
                 metrics_model, state, truth.observations[k - 1]
             )
             if truth.held_points is not None:  # and its held-out points
-                trace["heldout_points_mm"] = depth_camera.heldout_points_mm(
+                trace["heldout_points_mm"] = surface.heldout_points_mm(
                     metrics_model, state, truth.held_points[k - 1]
                 )
         trace.update(

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from idbench.observe import kinds as observe
+from idbench.observe import kinds
 from idbench.observe.cloud import Cloud, clean_points
 from idbench.plan.config import CompareConfig, ConfigError
 from idbench.registry.registry import Registry, build_registry
@@ -76,7 +76,7 @@ def record(
     held: dict[str, Any] = {"markers": truth.observations}
     if truth.targets is not None:
         held["targets"] = truth.targets
-    clouds = [b for _, b in observe.leaves(session.observation_model(spec))]
+    clouds = [b for _, b in kinds.leaves(session.observation_model(spec))]
     clouds = [b for b in clouds if isinstance(b, Cloud)]
     if clouds:  # a second, noise-free draw of the first cloud's camera
         held["points"] = held_out_points(session, spec, clouds[0], seed)

@@ -14,12 +14,10 @@ from typing import Any
 
 import numpy as np
 
-from idbench.calibrate.discrepancy import (
-    CalibrationSettings,
-    CorrectedModel,
-    Discrepancy,
-    fit_discrepancy,
-)
+from idbench.calibrate.corrected import CorrectedModel
+from idbench.calibrate.design import CalibrationSettings
+from idbench.calibrate.discrepancy import Discrepancy
+from idbench.calibrate.fit import fit_discrepancy
 from idbench.core.interfaces import (
     ConfigError,
     FloatArray,
@@ -35,7 +33,7 @@ from idbench.core.settings import (
     proposed_scenarios,
 )
 from idbench.estimate.posterior import Posterior, PosteriorSettings, reference_posterior
-from idbench.observe import kinds as observe
+from idbench.observe import kinds
 from idbench.observe.observed_model import ObservedModel
 from idbench.plan.runspec import RunSpec
 from idbench.registry.registry import Registry, build_registry
@@ -61,7 +59,7 @@ class Session:
         self._direct: dict[str, FloatArray] = {}
         self._posteriors: dict[str, Posterior | None] = {}
         self._sensed: dict[str, list[dict[str, FloatArray]]] = {}
-        self._frames: dict[str, list[observe.Frame]] = {}
+        self._frames: dict[str, list[kinds.Frame]] = {}
         self._own: dict[Any, dict[str, Scenario]] = {}
         self._discrepancies: dict[str, Discrepancy] = {}
 
@@ -153,7 +151,7 @@ class Session:
 
         Computed on first use (fine paths of its own design, never the
         truth's data) and cached on disk
-        (:func:`idbench.calibrate.discrepancy.fit_discrepancy`).
+        (:func:`idbench.calibrate.fit.fit_discrepancy`).
 
         Raises
         ------
@@ -292,9 +290,9 @@ class Session:
 
     def observation_model(self, spec: RunSpec) -> Any:
         """The run's :class:`~idbench.core.observation_model.ObservationModel`."""
-        return observe.from_items(spec.observe, spec.observe_settings, self.registry)
+        return kinds.from_items(spec.observe, spec.observe_settings, self.registry)
 
-    def frames(self, spec: RunSpec) -> list[observe.Frame]:
+    def frames(self, spec: RunSpec) -> list[kinds.Frame]:
         """The run's frame of every step 1..K (simulated from the truth).
 
         Read from the recording instead where the run has one
@@ -312,7 +310,7 @@ class Session:
         if key not in self._frames:
             obs = self.observation_model(spec)
             named = []
-            for name, block in observe.leaves(obs):
+            for name, block in kinds.leaves(obs):
                 clean = self.sensed(spec, block)
                 ident = block.identity()
                 noise_key = spec.noise_key() + ([ident] if ident else [])
@@ -326,8 +324,8 @@ class Session:
                 if len(named) == 1:
                     data_k = dict(named[0][1][k - 1])
                 else:
-                    data_k = observe.Combined.merge([(n, d[k - 1]) for n, d in named])
-                frames.append(observe.Frame(k, data_k))
+                    data_k = kinds.Combined.merge([(n, d[k - 1]) for n, d in named])
+                frames.append(kinds.Frame(k, data_k))
             self._frames[key] = frames
         return self._frames[key]
 
@@ -338,7 +336,7 @@ class Session:
         again from the disk cache where this session adopted the truth
         without them).
         """
-        if isinstance(block, observe.Markers):
+        if isinstance(block, kinds.Markers):
             truth = self.truth(spec)
             return [{"markers": row} for row in truth.observations]
         key = self._sensed_key(spec, block)
@@ -414,8 +412,8 @@ class Session:
                 keys.add(("direct", spec.direct_key(scenario)))
                 keys.add(("truth", spec.truth_product_key(scenario)))
         if spec.observed_otherwise():
-            for _, block in observe.leaves(self.observation_model(spec)):
-                if not isinstance(block, observe.Markers):
+            for _, block in kinds.leaves(self.observation_model(spec)):
+                if not isinstance(block, kinds.Markers):
                     keys.add(("sensed", self._sensed_key(spec, block)))
         return keys
 

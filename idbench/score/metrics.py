@@ -1,7 +1,7 @@
-"""The metrics of DESIGN.md section 5, defined once and used everywhere.
+"""The metrics of docs/design.md section 5, defined once and used everywhere.
 
-Point estimates: shape error, settling step, observations used. Uncertainty
-(issue "Beyond point estimates"): interval coverage, NEES, CRPS of a Gaussian,
+Point estimates: shape error, settling step, observations used. Uncertainty:
+interval coverage, NEES, CRPS of a Gaussian,
 Wasserstein-1 to a gridded posterior, NIS of an innovation.
 """
 

@@ -101,14 +101,37 @@ def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
         raise
 
 
+_HINTS = {
+    errno.ENOSPC: " (the disk is full: free space, or write elsewhere)",
+    errno.EDQUOT: " (the disk quota is exceeded: free space, or write elsewhere)",
+    errno.EACCES: " (no permission to write there: write elsewhere)",
+    errno.EPERM: " (no permission to write there: write elsewhere)",
+    errno.EROFS: " (a read-only file system: write elsewhere)",
+}
+"""What to do about the write errors a user can fix, by errno."""
+
+
 def _naming(exc: OSError, path: Path) -> OSError:
     """``exc`` naming ``path`` (the file being written), not its temporary."""
     if exc.errno is None:  # e.g. pyarrow's: its text, then the path
         return OSError(f"{' '.join(str(exc).split())} writing {str(path)!r}")
     text = exc.strerror or os.strerror(exc.errno)
-    if exc.errno == errno.ENOSPC:
-        text += " (the disk is full)"
+    text += _HINTS.get(exc.errno, "")
     return type(exc)(exc.errno, f"{text} writing", str(path))
+
+
+def describe(exc: OSError) -> str:
+    """An ``OSError`` as one phrase: the file, then the cause (``[Errno N]`` left out).
+
+    Example: ``'/out/manifest.json': No space left on device (the disk is
+    full: ...)``.
+    """
+    if exc.errno is None or exc.strerror is None:
+        return " ".join(str(exc).split())
+    cause = exc.strerror
+    if exc.errno in _HINTS and _HINTS[exc.errno] not in cause:
+        cause += _HINTS[exc.errno]
+    return f"{exc.filename!r}: {cause}" if exc.filename else cause
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:

@@ -44,7 +44,7 @@ body's ``[targets]``, and ``held_out/points`` (K, N, 3), a cloud per frame
 without correspondence (positions, m; NaN rows where a frame has fewer),
 scored per step as ``heldout_points_mm``, the mean distance of the points to
 the model's deformed surface
-(:func:`idbench.observe.cloud.heldout_points_mm`).
+(:func:`idbench.observe.surface.heldout_points_mm`).
 
 :func:`read` checks a recording and says what is wrong in one line naming the
 frame (:class:`RecordingError`); :func:`check_body` checks it against the
@@ -57,6 +57,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import math
+import os
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -65,19 +66,19 @@ from typing import Any
 
 import numpy as np
 
-from idbench.core.interfaces import ConfigError, FloatArray
-from idbench.observe.kinds import Frame
+from idbench.core.interfaces import FloatArray, ParameterSpec
+from idbench.observe.cloud import Cloud
+from idbench.observe.kinds import BUILTIN, COMBINE, Frame
+from idbench.store import untrusted
 from idbench.store.files import atomic_write
+from idbench.store.untrusted import HELD_OUT, RecordingError
 
 FORMAT = 1
 MANIFEST = "recording.toml"
 ARRAYS = "frames.npz"
 UNITS = ("m",)
-HELD_OUT = ("markers", "targets", "points")
 
-
-class RecordingError(ConfigError):
-    """A recording that cannot be used, in one line naming the frame."""
+__all__ = ["HELD_OUT", "Recording", "RecordingError", "read", "write"]
 
 
 @dataclass(frozen=True)
@@ -147,7 +148,12 @@ def write(
             arrays[f"frame.{f.step:05d}/{name}"] = np.asarray(value, dtype=float)
     for name, value in (held_out or {}).items():
         arrays[f"held_out/{name}"] = np.asarray(value, dtype=float)
-    text = _toml({"format": FORMAT, "units": "m", **manifest})
+    values = {"format": FORMAT, "units": "m", **manifest}
+    values["model_settings"] = {
+        k: _relative(v, root) for k, v in values.get("model_settings", {}).items()
+    }
+    untrusted.manifest(values, f"recording {str(root)!r}")  # what is written reads
+    text = _toml(values)
 
     def save(tmp: Path) -> None:
         with open(tmp, "wb") as fh:
@@ -156,7 +162,7 @@ def write(
     atomic_write(root / ARRAYS, save)
 
     def manifest_file(tmp: Path) -> None:
-        tmp.write_text(text)
+        tmp.write_text(text, encoding="utf-8")
 
     atomic_write(root / MANIFEST, manifest_file)
     return root
@@ -188,31 +194,29 @@ def read(path: str | Path) -> Recording:
 def _read(root: Path, key: str) -> Recording:
     where = f"recording {str(root)!r}"
     try:
-        raw = tomllib.loads((root / MANIFEST).read_text())
+        raw = tomllib.loads((root / MANIFEST).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise RecordingError(f"{where}: {MANIFEST} cannot be read: {exc}") from None
-    if raw.get("format") != FORMAT:
+    untrusted.manifest(raw, where)
+    if raw["format"] != FORMAT:
         raise RecordingError(
-            f"{where}: format = {raw.get('format')!r}; this idbench reads format "
-            f"{FORMAT}"
+            f"{where}: format = {raw['format']!r}; this idbench reads format {FORMAT}"
         )
-    units = raw.get("units")
+    units = raw["units"]
     if units not in UNITS:
         raise RecordingError(
             f"{where}: units = {units!r} cannot be right; every length must be in "
             'metres: units = "m" (convert the arrays first)'
         )
-    for name in ("model", "scenario", "observe", "steps", "markers", "noise"):
-        if name not in raw:
-            raise RecordingError(f"{where}: {MANIFEST} needs {name} = ...")
     steps = raw["steps"]
-    if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
-        raise RecordingError(f"{where}: steps = {steps!r}: need a whole number >= 1")
-    try:
-        with np.load(root / ARRAYS, allow_pickle=False) as npz:
-            arrays = {k: np.asarray(npz[k], dtype=float) for k in npz.files}
-    except (OSError, ValueError) as exc:
-        raise RecordingError(f"{where}: {ARRAYS} cannot be read: {exc}") from None
+    blocks = str(raw["observe"]).split(COMBINE)
+    plugin = any(b not in BUILTIN for b in blocks)
+    tables = raw.get("observe_settings", {}).values()
+    points = [t["points"] for t in tables if isinstance(t.get("points"), int)]
+    if "cloud" in blocks or plugin:
+        points.append(Cloud.points)
+    limit = untrusted.budget(steps, raw["markers"], max(points, default=0))
+    arrays = untrusted.arrays(root / ARRAYS, where, steps, limit, plugin)
     time, load = _timeline(where, arrays, steps)
     frames = []
     for i in range(steps):
@@ -244,7 +248,9 @@ def _read(root: Path, key: str) -> Recording:
     return Recording(
         path=root,
         model=str(raw["model"]),
-        model_settings=dict(raw.get("model_settings", {})),
+        model_settings={
+            k: _resolved(v, root) for k, v in raw.get("model_settings", {}).items()
+        },
         scenario=str(raw["scenario"]),
         observe=str(raw["observe"]),
         observe_settings={
@@ -311,9 +317,28 @@ def _check_frame(
                     f"{where}: frame {k}: the cloud {name} has {bad} of {len(value)} "
                     "points with NaN or infinite coordinates (drop them)"
                 )
-        elif leaf == "markers" and value.size != 3 * markers:
+        elif leaf == "sigma" and not (
+            value.shape in ((), (1,)) and np.isfinite(value).all() and value.min() > 0
+        ):
             raise RecordingError(
-                f"{where}: frame {k}: {name} has {value.size} values; markers = "
+                f"{where}: frame {k}: {name} = {value.tolist()!r}: need one finite "
+                "number > 0, the noise std along the rays (m)"
+            )
+        elif leaf == "origin" and not (
+            value.shape == (3,) and np.isfinite(value).all()
+        ):
+            raise RecordingError(
+                f"{where}: frame {k}: {name} of shape {value.shape}: need the "
+                "camera centre, 3 finite coordinates (m)"
+            )
+        elif leaf == "force" and not (value.ndim == 1 and np.isfinite(value).all()):
+            raise RecordingError(
+                f"{where}: frame {k}: {name} = {np.array2string(value, threshold=6)}"
+                ": need a vector of finite forces (N), one per channel"
+            )
+        elif leaf == "markers" and (value.ndim != 1 or value.size != 3 * markers):
+            raise RecordingError(
+                f"{where}: frame {k}: {name} of shape {value.shape}; markers = "
                 f"{markers} needs {3 * markers} (x, y, z of each)"
             )
         elif leaf == "markers":
@@ -428,6 +453,28 @@ def _plausible(where: str, k: int, name: str, value: FloatArray, size: float) ->
         )
 
 
+def _relative(value: Any, root: Path) -> Any:
+    """A model option naming a file, as a path relative to the recording folder."""
+    if isinstance(value, str) and os.sep in value and Path(value).is_file():
+        return os.path.relpath(Path(value).resolve(), root.resolve())
+    return value
+
+
+def _resolved(value: Any, root: Path) -> Any:
+    """A model option of the manifest, a relative path resolved against ``root``.
+
+    A string with a path separator is a path, and a relative one is relative
+    to the recording's folder, never to the working directory: a recording is
+    read wherever it lies. A path that names no file there is passed on as
+    one, in that folder (the model then says that it finds no such file).
+    """
+    if not isinstance(value, str) or Path(value).is_absolute():
+        return value
+    if "/" in value or os.sep in value or (root / value).is_file():
+        return str((root / value).resolve())
+    return value
+
+
 def _toml(values: Mapping[str, Any]) -> str:
     """The manifest as TOML (scalars, lists of scalars, tables of them)."""
     lines: list[str] = []
@@ -449,24 +496,46 @@ def _toml(values: Mapping[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+_ESCAPES = {
+    **{chr(i): f"\\u{i:04X}" for i in (*range(0x20), 0x7F)},
+    '"': '\\"',
+    "\\": "\\\\",
+}
+"""What a TOML basic string escapes (the rest of Unicode is written as it is)."""
+
+
 def _value(v: Any) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, int | float):
         return repr(float(v)) if isinstance(v, float) else str(v)
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, str):  # a TOML basic string: control characters escaped
+        return '"' + "".join(_ESCAPES.get(c, c) for c in v) + '"'
     if isinstance(v, list | tuple):
         return "[" + ", ".join(_value(x) for x in v) + "]"
     raise ValueError(f"cannot write {v!r} to a recording manifest")
 
 
-def true_values(rec: Recording, names: Sequence[str]) -> tuple[tuple[str, float], ...]:
-    """The true value of each parameter the recording knows, NaN for the others."""
+def true_values(rec: Recording, spec: ParameterSpec) -> tuple[tuple[str, float], ...]:
+    """The true value of each parameter the recording knows, NaN for the others.
+
+    Raises
+    ------
+    RecordingError
+        A true value of no parameter of the model, or outside its bounds.
+    """
+    names = spec.names
     unknown = sorted(set(rec.true) - set(names))
     if unknown:
         raise RecordingError(
             f"recording {str(rec.path)!r}: [true] {unknown[0]!r} is not a parameter "
             f"of the model; its parameters: {', '.join(names)}"
         )
+    for name, low, high in zip(names, spec.lower, spec.upper, strict=True):
+        value = rec.true.get(name)
+        if value is not None and not low <= value <= high:
+            raise RecordingError(
+                f"recording {str(rec.path)!r}: [true] {name} = {value:g} is outside "
+                f"the model's bounds [{low:g}, {high:g}]"
+            )
     return tuple((n, float(rec.true.get(n, math.nan))) for n in names)

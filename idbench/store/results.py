@@ -29,6 +29,7 @@ from idbench.store import lock
 from idbench.store.files import (
     atomic_write_bytes,
     atomic_write_parquet,
+    describe,
     remove_stale_temporaries,
 )
 
@@ -96,19 +97,29 @@ class ResultStore:
         self.root = Path(root)
         self.parts = self.root / "parts"
         self.quarantine = self.root / "quarantine"
+        self._open = False
+        self._unused = False
         lock_folder(self.root, wait=wait)
         self._open = True
         try:
             self._open_locked(settings, manifest)
         except BaseException:
+            self._unused = True
             self.close()
             raise
 
     def close(self) -> None:
-        """Release the directory's lock (idempotent)."""
-        if getattr(self, "_open", False):
+        """Release the directory's lock (idempotent).
+
+        A folder this store created and left unused (a failed start, or
+        :meth:`discard_if_unused`) is removed with its lock file.
+        """
+        if self._open:
             self._open = False
-            lock.release(self.root)
+            if self._unused:
+                lock.abandon(self.root)
+            else:
+                lock.release(self.root)
 
     def __del__(self) -> None:
         with contextlib.suppress(Exception):  # a store dropped unclosed
@@ -135,11 +146,13 @@ class ResultStore:
             try:
                 atomic_write_bytes(mpath, text)
             except OSError as exc:
-                raise ResultsError(f"cannot write to {self.root}: {exc}") from None
+                where = f"cannot write to {self.root}"
+                raise ResultsError(f"{where}: {describe(exc)}") from None
         try:
             self.parts.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise ResultsError(f"cannot write to {self.root}: {exc}") from None
+            where = f"cannot write to {self.root}"
+            raise ResultsError(f"{where}: {describe(exc)}") from None
         removed = remove_stale_temporaries(self.root)
         removed += remove_stale_temporaries(self.parts)
         if removed:
@@ -150,6 +163,7 @@ class ResultStore:
         if not any(self.parts.iterdir()) and not self.quarantine.exists():
             self.parts.rmdir()
             (self.root / "manifest.json").unlink(missing_ok=True)
+            self._unused = True
 
     def finished(self) -> set[str]:
         """Run ids whose both parts are on disk and readable.
@@ -267,7 +281,7 @@ def lock_folder(root: str | Path, *, wait: bool = False) -> None:
     try:
         lock.acquire(path, wait=wait, hint=BUSY_HINT)
     except OSError as exc:
-        raise ResultsError(f"cannot write to {path}: {exc}") from None
+        raise ResultsError(f"cannot write to {path}: {describe(exc)}") from None
 
 
 def _concat(frames: list[pd.DataFrame]) -> pd.DataFrame:

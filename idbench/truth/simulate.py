@@ -1,39 +1,29 @@
 """The fine-mesh truth: simulate a load path once, cache it on disk.
 
-The cache holds plain arrays (``.npz``, never pickle), keyed by a hash of the
+The states are cached (:mod:`idbench.truth.cache`), keyed by a hash of the
 model's own description, the true parameters and the idbench version. Probe
 settings (markers, grid) do not change the states, so they are left out of the
-key: the states are cached and probed again on load. Writes are atomic (a
-temporary file renamed into place) and an unreadable entry is recomputed.
+key: the states are cached and probed again on load.
 """
 
 from __future__ import annotations
 
 import logging
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-import platformdirs
 
 from idbench.core.capabilities import member, n_nodes_of, probes_of
 from idbench.core.interfaces import FloatArray, ForwardModel, ModelFailure
-from idbench.store.files import atomic_write, digest, stable_hash
+from idbench.store.files import stable_hash
+from idbench.truth.cache import cache_dir, read_states, write_states
 
 log = logging.getLogger(__name__)
 
-CACHE_ENV = "IDBENCH_CACHE_DIR"
 PROBE_KEYS = ("probes", "markers", "grid", "marker_points", "grid_points")
-
-
-def cache_dir() -> Path:
-    """The truth cache folder: ``$IDBENCH_CACHE_DIR`` or the user cache dir."""
-    env = os.environ.get(CACHE_ENV)
-    return Path(env) if env else Path(platformdirs.user_cache_dir("idbench"))
 
 
 @dataclass(frozen=True)
@@ -154,7 +144,7 @@ def simulate_truth(
     key = truth_key(model, theta)
     path = cache_dir() / f"truth-{key}.npz"
     shape = (model.n_steps, model.reset().size)
-    states = _load(path, key, shape) if cache else None
+    states = read_states(path, key, shape) if cache else None
     if states is None:
         log.info("simulating truth %s", key)
         desc = model.describe()
@@ -173,7 +163,7 @@ def simulate_truth(
         states = simulate_path(model, theta, on_step=on_step)
         _check_finite(states, "states")
         if cache:
-            _save(path, key, states)
+            write_states(path, key, states)
     truth = probe(model, states)
     for what in ("observations", "grid"):
         _check_finite(getattr(truth, what), f"{what} (probed from its states)")
@@ -193,73 +183,3 @@ def _check_finite(values: FloatArray, what: str) -> None:
             f"{len(values)} steps)",
             step=k,
         )
-
-
-def read_entry(
-    path: Path, key: str, check: Callable[[dict[str, Any]], None], what: str
-) -> dict[str, Any] | None:
-    """The arrays of the cache entry at ``path``, or None if missing or untrusted.
-
-    The entry must hold ``key``; ``check(arrays)`` raises ``ValueError`` for
-    content not to be trusted (shape, digest). An unusable entry is logged
-    (``what``: ``"truth"``, ``"discrepancy"``) and None returned: recomputed.
-    """
-    if not path.exists():
-        return None
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            if str(data["key"]) != key:
-                raise ValueError("key mismatch")
-            arrays = {name: np.array(data[name]) for name in data.files}
-        check(arrays)
-        return arrays
-    except Exception as exc:  # truncated, foreign or altered file: recompute
-        log.warning("%s cache entry %s unusable (%s); recomputing", what, path, exc)
-        return None
-
-
-def write_entry(path: Path, key: str, arrays: dict[str, Any], what: str) -> None:
-    """Store ``arrays`` with ``key`` atomically (``.npz``, no pickle), or warn."""
-
-    def write(tmp: Path) -> None:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, key=np.array(key), **arrays)
-
-    try:
-        atomic_write(path, write)
-    except OSError as exc:
-        log.warning(
-            "%s cache %s is not writable (%s); going on without caching",
-            what,
-            path.parent,
-            exc,
-        )
-
-
-def _load(path: Path, key: str, shape: tuple[int, int]) -> FloatArray | None:
-    """The cached states at ``path``, or None if missing or not to be trusted.
-
-    An entry is trusted only if its key, its shape and the SHA-256 digest of its
-    content (stored with it) all match: a truncated, foreign or altered file is
-    recomputed.
-    """
-
-    def check(arrays: dict[str, Any]) -> None:
-        states = arrays["states"]
-        if states.shape != shape:
-            raise ValueError(f"states of shape {states.shape}, expected {shape}")
-        stored = str(arrays["digest"]) if "digest" in arrays else ""
-        if not stored:
-            raise ValueError("written by an older idbench (no content digest)")
-        if stored != digest(np.asarray(states, dtype=float)):
-            raise ValueError("content digest mismatch (altered or damaged)")
-        if not np.all(np.isfinite(states)):
-            raise ValueError("non-finite states")
-
-    arrays = read_entry(path, key, check, "truth")
-    return None if arrays is None else np.array(arrays["states"], dtype=float)
-
-
-def _save(path: Path, key: str, states: FloatArray) -> None:
-    """Store ``states`` with its key and digest; warn (not fail) if impossible."""
-    write_entry(path, key, {"states": states, "digest": digest(states)}, "truth")

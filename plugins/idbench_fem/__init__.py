@@ -1,7 +1,7 @@
 """Built-in model plugin: the St Venant-Kirchhoff beam and general solid bodies.
 
 Folders: ``tools`` -> ``models`` -> ``bodies`` -> ``fem`` (each imports only
-those after it); the names of ``__all__`` are imported at first use.
+those after it); the public names of ``__all__`` are re-exported here flat.
 """
 
 from __future__ import annotations
@@ -10,8 +10,65 @@ from collections.abc import Callable
 from typing import Any
 
 import idbench
-from idbench_fem.exports import HOME, load
+from idbench_fem.bodies.catalog import SHIPPED, body_path, get_body, get_mesh
+from idbench_fem.bodies.description import Body, load_body, parse_body
+from idbench_fem.bodies.geometry import make_meshes
+from idbench_fem.bodies.loads import nodal_forces
+from idbench_fem.bodies.mesh import SolidMesh, read_mesh
+from idbench_fem.bodies.regions import Region
+from idbench_fem.fem.batched import BatchedSteps
+from idbench_fem.fem.law_assembly import LawAssembler
+from idbench_fem.fem.materials import LAWS, NeoHookean, Svk, make_material
+from idbench_fem.fem.newton import NewtonSolve
+from idbench_fem.fem.solver import BACKENDS, SolverError, make_solver
+from idbench_fem.fem.svk_assembly import Assembler
+from idbench_fem.models.beam import beam_body
+from idbench_fem.models.beam import make_model as make_beam
 from idbench_fem.models.beam_scenarios import SCENARIOS
+from idbench_fem.models.beam_settings import BeamSettings, EndTraction, end_traction
+from idbench_fem.models.solid import SolidModel
+from idbench_fem.models.solid import make_model as make_solid
+from idbench_fem.models.solid_settings import SolidSettings, all_scenarios
+from idbench_fem.tools.calibrate import Calibration, CalibrationSettings, calibrate
+from idbench_fem.tools.commands import CALIBRATE
+
+__all__ = [
+    "BACKENDS",
+    "BEAM_DEFAULTS",
+    "LAWS",
+    "SCENARIOS",
+    "SHIPPED",
+    "SOLID_DEFAULTS",
+    "Assembler",
+    "BatchedSteps",
+    "BeamSettings",
+    "Body",
+    "Calibration",
+    "CalibrationSettings",
+    "EndTraction",
+    "LawAssembler",
+    "NeoHookean",
+    "NewtonSolve",
+    "Region",
+    "SolidMesh",
+    "SolidModel",
+    "SolidSettings",
+    "SolverError",
+    "Svk",
+    "beam_body",
+    "body_path",
+    "calibrate",
+    "end_traction",
+    "get_body",
+    "get_mesh",
+    "load_body",
+    "make_material",
+    "make_meshes",
+    "make_solver",
+    "nodal_forces",
+    "parse_body",
+    "read_mesh",
+]
 
 
 @idbench.hookimpl
@@ -19,8 +76,6 @@ def register_scenarios(register: Callable[[Any], None]) -> None:
     """Register the beam's load paths (bend-y, bend-z, stretch-x, mixed-30/60)."""
     for scenario in SCENARIOS:
         register(scenario)
-    from idbench_fem.models.solid_settings import all_scenarios
-
     for scenario in all_scenarios({s.name for s in SCENARIOS}):
         register(scenario)
 
@@ -28,21 +83,26 @@ def register_scenarios(register: Callable[[Any], None]) -> None:
 @idbench.hookimpl
 def register_models(register: Callable[..., None]) -> None:
     """Register the cantilever as ``"svk-beam"`` and body TOMLs as ``"solid"``."""
-    from idbench_fem.models.beam import make_model
-    from idbench_fem.models.beam_settings import BeamSettings
-    from idbench_fem.models.solid import make_model as make_solid
-    from idbench_fem.models.solid_settings import SolidSettings
-
-    register("svk-beam", make_model, settings=BeamSettings, defaults=BEAM_DEFAULTS)
+    register("svk-beam", make_beam, settings=BeamSettings, defaults=BEAM_DEFAULTS)
     register("solid", make_solid, settings=SolidSettings, defaults=SOLID_DEFAULTS)
 
 
 @idbench.hookimpl
 def register_commands(register: Callable[[str, Any], None]) -> None:
     """Register ``idbench calibrate`` (the beam's effective-E map)."""
-    from idbench_fem.tools.commands import CALIBRATE
-
     register("calibrate", CALIBRATE)
+
+
+@idbench.hookimpl
+def register_versions(register: Callable[[str, str], None]) -> None:
+    """Report the libraries the solutions depend on: scikit-fem and the solvers."""
+    import importlib.metadata
+
+    for package in ("scikit-fem", "pypardiso", "numba"):
+        try:
+            register(package, importlib.metadata.version(package))
+        except importlib.metadata.PackageNotFoundError:
+            continue
 
 
 BEAM_DEFAULTS = idbench.ModelDefaults(
@@ -57,7 +117,7 @@ BEAM_DEFAULTS = idbench.ModelDefaults(
     },
     primary=True,
 )
-"""The study's comparison (DESIGN.md section 7): what ``idbench compare`` runs."""
+"""The study's comparison (docs/design.md section 1): what ``idbench compare`` runs."""
 
 
 SOLID_DEFAULTS = idbench.ModelDefaults(
@@ -69,13 +129,3 @@ SOLID_DEFAULTS = idbench.ModelDefaults(
     shorthands={"body": ("body", "body TOML path or shipped name (liver, kidney)")},
 )
 """The shipped liver (settings' default body): meshes by node count, grasp-lift."""
-
-
-
-
-__all__ = ["BEAM_DEFAULTS", "SCENARIOS", "SOLID_DEFAULTS", *sorted(HOME)]
-
-
-def __getattr__(name: str) -> Any:
-    """A name of ``__all__``, imported from its module at first use (PEP 562)."""
-    return load(name)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.metadata
 from collections.abc import Callable
 
 import idbench
@@ -22,6 +23,7 @@ __all__ = [
     "Rls",
     "Ukf",
     "register_estimators",
+    "register_versions",
 ]
 
 
@@ -35,3 +37,10 @@ def register_estimators(register: Callable[[str, type], None]) -> None:
     register("rls", Rls)
     register("lms", Lms)
     register("batch-ls", BatchLs)
+
+
+@idbench.hookimpl
+def register_versions(register: Callable[[str, str], None]) -> None:
+    """Report filterpy's version (the full UKF's sigma points come from it)."""
+    register("filterpy", importlib.metadata.version("filterpy"))
+

@@ -49,7 +49,7 @@ from idbench import (
     Observation,
     Prior,
 )
-from idbench_filters._common import FloatArray, advance, check_choice, check_positive
+from idbench_filters.common import FloatArray, advance, check_choice, check_positive
 
 REFITS = ("end", "each")
 METHODS = ("trf", "dogbox")

@@ -1,7 +1,7 @@
 r"""Stochastic ensemble Kalman filter (perturbed observations).
 
 Evensen (1994), Burgers, van Leeuwen & Evensen (1998), on the joint state
-x = [u; xi] (see :mod:`idbench_filters._ensemble` for the ensemble, the
+x = [u; xi] (see :mod:`idbench_filters.ensemble` for the ensemble, the
 forecast and the inflation). With the forecast members x_i (rows of X,
 N of them), their predicted observations h_i = observe(u_i), anomalies
 A = X - xbar and Y = HX - hbar, and R = r I:
@@ -24,15 +24,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from idbench import noise_matrix
-from idbench_filters._common import FloatArray
-from idbench_filters._ensemble import EnsembleFilter
+from idbench_filters.common import FloatArray
+from idbench_filters.ensemble import EnsembleFilter
 
 
 @dataclass
 class Enkf(EnsembleFilter):
     """Stochastic EnKF with perturbed, centred observations on [state; xi].
 
-    Its settings are the ensemble base's (:class:`~._ensemble.EnsembleFilter`);
+    Its settings are the ensemble base's (:class:`~.ensemble.EnsembleFilter`);
     ``seed`` also draws the observation perturbations of every analysis.
     """
 

@@ -2,7 +2,7 @@ r"""Ensemble transform Kalman filter (deterministic square root).
 
 Bishop, Etherton & Majumdar (2001), in the symmetric form of Hunt, Kostelich
 & Szunyogh (2007), on the joint state x = [u; xi] (see
-:mod:`idbench_filters._ensemble` for the ensemble, the forecast and the
+:mod:`idbench_filters.ensemble` for the ensemble, the forecast and the
 inflation). With forecast anomalies A = X - xbar (N, n), Y = HX - hbar
 (N, m), the innovation dy = y - hbar and R = r I, in ensemble space:
 
@@ -26,15 +26,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from idbench_filters._common import FloatArray
-from idbench_filters._ensemble import EnsembleFilter
+from idbench_filters.common import FloatArray
+from idbench_filters.ensemble import EnsembleFilter
 
 
 @dataclass
 class Etkf(EnsembleFilter):
     """Deterministic square-root ensemble filter (ETKF) on [state; xi].
 
-    Settings: :class:`~._ensemble.EnsembleFilter`'s; ``seed`` seeds the initial
+    Settings: :class:`~.ensemble.EnsembleFilter`'s; ``seed`` seeds the initial
     draw only (the analysis is deterministic).
     """
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from idbench import Analysis, Filter, ForwardModel, Observation, Prior
-from idbench_filters._common import advance_linearised, check_positive
+from idbench_filters.common import advance_linearised, check_positive
 
 
 @dataclass

@@ -57,7 +57,7 @@ from idbench import (
     Prior,
     noise_matrix,
 )
-from idbench_filters._common import (
+from idbench_filters.common import (
     FloatArray,
     advance_many,
     check_choice,

@@ -42,7 +42,7 @@ from idbench import (
     Skipped,
     noise_matrix,
 )
-from idbench_filters._common import FloatArray, advance, advance_many, check_positive
+from idbench_filters.common import FloatArray, advance, advance_many, check_positive
 
 EIG_FLOOR = 1e-14  # relative eigenvalue floor of the sampled square root
 
@@ -171,10 +171,11 @@ class Ukf(Filter):
             kappa=self.kappa,
             sqrt_method=clipped_sqrt,
         )
+        self._dim_z = len(model.observe(u0))
         ukf = _BatchedUkf(
             fx_many=self._fx_many,
             dim_x=n,
-            dim_z=len(model.observe(u0)),
+            dim_z=self._dim_z,
             dt=1.0,
             hx=self._hx,
             fx=self._fx,
@@ -221,7 +222,7 @@ class Ukf(Filter):
             sigma = self.extra_cov(ukf.x[: self._nu])
             if sigma is not None:  # corrected model: R + Sigma at the forecast mean
                 R = self.noise_cov(observation, ukf.x[: self._nu])
-            elif np.ndim(R) or z.size != ukf._dim_z:  # per value, or occluded
+            elif np.ndim(R) or z.size != self._dim_z:  # per value, or occluded
                 R = noise_matrix(R, z.size)  # (filterpy expands a float to dim_z)
             ukf.update(z, R=R, UT=weighted_transform)
             ukf.P = 0.5 * (ukf.P + ukf.P.T)

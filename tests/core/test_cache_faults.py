@@ -1,4 +1,4 @@
-"""Caches never poison themselves (issue #24, item 4).
+"""Caches never poison themselves.
 
 A generated mesh enters the mesh cache only whole and valid, a damaged one is
 generated again; a full disk (``ENOSPC``, simulated) while writing a mesh, a
@@ -17,7 +17,8 @@ import pytest
 
 import idbench
 from idbench.cli.commands import main
-from idbench.truth import simulate as truth
+from idbench.truth import simulate
+from idbench.truth.cache import cache_dir
 
 gmsh = pytest.importorskip("gmsh")
 
@@ -112,14 +113,14 @@ def test_a_full_disk_for_the_truth_cache_names_the_file(beam, monkeypatch, caplo
 
     monkeypatch.setattr(np, "savez", half_then_full)
     with caplog.at_level(logging.WARNING):
-        got = truth.simulate_truth(beam, np.array([5000.0]))
+        got = simulate.simulate_truth(beam, np.array([5000.0]))
     assert got.states.shape == (3, beam.reset().size)  # the sweep goes on
     (record,) = [r for r in caplog.records if "truth cache" in r.getMessage()]
     text = record.getMessage()
-    key = truth.truth_key(beam, np.array([5000.0]))
-    assert str(truth.cache_dir() / f"truth-{key}.npz") in text
+    key = simulate.truth_key(beam, np.array([5000.0]))
+    assert str(cache_dir() / f"truth-{key}.npz") in text
     assert "disk is full" in text and "\n" not in text
-    assert _leftovers(truth.cache_dir()) == []
+    assert _leftovers(cache_dir()) == []
 
 
 def test_a_full_disk_for_a_result_part_is_one_line_naming_it(tmp_path, monkeypatch,

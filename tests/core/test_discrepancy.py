@@ -1,4 +1,4 @@
-"""The approximation-error calibration and the corrected estimators (issue 28)."""
+"""The approximation-error calibration and the corrected estimators."""
 
 from __future__ import annotations
 
@@ -8,19 +8,24 @@ from typing import Any
 import numpy as np
 import pytest
 
-from idbench import ConfigError, ModelFailure, ModelSpec, Observation, Prior
-from idbench.calibrate.discrepancy import (
-    CalibrationSettings,
-    CorrectedModel,
-    Discrepancy,
-    cache_dir,
-    fit_discrepancy,
-    scaling_holds,
+from idbench import (
+    ConfigError,
+    DiscrepancyModel,
+    ModelFailure,
+    ModelSpec,
+    Observation,
+    Prior,
 )
+from idbench.calibrate.corrected import CorrectedModel
+from idbench.calibrate.design import CalibrationSettings, scaling_holds
+from idbench.calibrate.discrepancy import Discrepancy
+from idbench.calibrate.fit import fit_discrepancy
+from idbench.core.capabilities import present
 from idbench.plan.config import CompareConfig
 from idbench.registry.registry import build_registry
 from idbench.registry.testing import check_model
 from idbench.run.compare import compare
+from idbench.truth.cache import cache_dir
 
 REG = build_registry()
 BEAM = REG.model("svk-beam")
@@ -85,6 +90,24 @@ def test_the_correction_moves_the_coarse_observation_towards_the_fine_one():
 
 def test_the_corrected_model_passes_the_model_checks():
     check_model(CorrectedModel(BEAM(_spec()), _calibration()), np.array([3000.0]))
+
+
+def test_the_corrected_model_has_the_coarse_models_optional_members_only():
+    coarse = BEAM(_spec())
+    wrapped = CorrectedModel(coarse, _calibration())
+    own = {"observation_cov", "grid_cov", "targets_cov", "extrapolated"}
+    assert isinstance(wrapped, DiscrepancyModel)  # own: the DiscrepancyModel's
+    assert present(wrapped).keys() == present(coarse).keys() | own
+    assert present(wrapped)["surface"] == coarse.surface  # the coarse model's own
+    assert present(wrapped)["sensitivity"] != coarse.sensitivity  # corrected
+    assert not hasattr(wrapped, "settings")  # no proxy: the rest is wrapped.coarse's
+
+    class Bare:  # the protocol and no optional member
+        parameters, n_steps = coarse.parameters, coarse.n_steps
+        reset, step, observe = coarse.reset, coarse.step, coarse.observe
+        grid, cost, describe = coarse.grid, coarse.cost, coarse.describe
+
+    assert present(CorrectedModel(Bare(), _calibration())).keys() == own
 
 
 def _zero(disc: Discrepancy) -> Discrepancy:

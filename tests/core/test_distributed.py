@@ -31,7 +31,7 @@ LOOSE = {"E_ref": 1e-8, "nees_ref": 1e-3, "E_relerr_ref": 1e-4}
 """Columns compared more loosely. E_ref: the reference fit of a data set can
 come out 1.2e-9 apart between a serial sweep and a fresh worker (seed 1 of
 ``tiny()``; a fresh Session in this process gives the worker's value), within
-the Newton tolerance that DESIGN.md allows. NEES against the reference squares
+the Newton tolerance that docs/design.md allows. NEES against the reference squares
 (E_final - E_ref) / std, a difference of two nearly equal values; so is
 E_relerr_ref = E_final / E_ref - 1 (about 1e-4 here: E_ref's 1e-8 is 1e-4 of it)."""
 

@@ -1,4 +1,4 @@
-"""Faults of issue #16: misbehaving plugins, dead workers, bad folders, bad files.
+"""Faults: misbehaving plugins, dead workers, bad folders, bad files.
 
 Plugins that must reach worker processes are *installed* for real: a module
 and a ``*.dist-info`` folder (with its ``entry_points.txt``) in a temporary
@@ -59,8 +59,10 @@ BAD_ESTIMATORS = '''
 
         def update(self, k, observation):
             if k == self.at:
-                if self.marker:
-                    Path(self.marker).write_text(str(os.getpid()))
+                if self.marker:  # written whole, then renamed: never read empty
+                    part = Path(self.marker + ".part")
+                    part.write_text(str(os.getpid()))
+                    os.replace(part, self.marker)
                 self.misbehave()
             return self.answer()
 
@@ -469,7 +471,8 @@ def test_truth_cache_rejects_altered_or_misshapen_entries(
     tmp_path, monkeypatch, caplog
 ):
     from idbench import ModelSpec, build_registry
-    from idbench.truth.simulate import cache_dir, simulate_truth
+    from idbench.truth.cache import cache_dir
+    from idbench.truth.simulate import simulate_truth
 
     monkeypatch.setenv("IDBENCH_CACHE_DIR", str(tmp_path / "cache"))
     reg = build_registry()

@@ -1,4 +1,4 @@
-"""One writer per output folder (issue #24, item 3).
+"""One writer per output folder .
 
 A second process that opens a folder another one writes is refused, naming
 the holder, or waits for it (``--wait``); the lock goes with its holder,

@@ -25,6 +25,7 @@ TESTS = ROOT / "tests"
 
 PROBES_ALLOWED = {
     ("store/lock.py", 'hasattr(os, "register_at_fork")'): "a stdlib feature test",
+    ("store/lock.py", 'getattr(os, "O_NOFOLLOW", 0)'): "a stdlib feature test",
     ("run/harness.py", 'hasattr(signal, "setitimer")'): "a stdlib feature test",
     ("run/executors/worker.py", 'getattr(_LOCAL, "session", None)'): "thread-local",
     ("run/executors/worker.py", 'getattr(_LOCAL, "spares", None)'): "thread-local",
@@ -42,18 +43,10 @@ PROBES_ALLOWED = {
 """(file under idbench/, the call's text) -> why it may look a member up by name."""
 
 PENDING = {
-    ("calibrate/discrepancy.py", "getattr(model, LOAD_SCALING, None)"),
-    ("calibrate/discrepancy.py", "def __getattr__"),
-    ("calibrate/discrepancy.py", "from idbench.truth.simulate import _load"),
-    ("calibrate/discrepancy.py", "from idbench.truth.simulate import _save"),
-    ("report/write.py", "from idbench.report.summary import _markdown"),
+    ("calibrate/design.py", "getattr(model, LOAD_SCALING, None)"),
 }
-"""In modules being changed on other branches (calibrate/ split, truth/ and
-report/summary.py not to be touched here): delete each entry once fixed.
-
-``load_scaling`` is declared (:data:`idbench.core.capabilities.OPTIONAL`); the
-corrected model becomes a :class:`~idbench.core.view.ModelView`; the truth
-cache's ``_load``/``_save`` and the summary's ``_markdown`` become public."""
+"""In calibrate/, being changed on another branch: delete each entry once fixed
+(``load_scaling`` is declared: ``capabilities.member(model, "load_scaling")``)."""
 
 
 def modules(folder: Path) -> Iterator[tuple[str, ast.Module, str]]:

@@ -1,4 +1,4 @@
-"""The metrics of DESIGN.md section 5: shape error, settling step, observations."""
+"""The metrics of docs/design.md section 5: shape error, settling step, observations."""
 
 from __future__ import annotations
 

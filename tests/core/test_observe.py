@@ -1,4 +1,4 @@
-"""Observation models (issue 27): the depth camera, its residual, force, combinations.
+"""Observation models: the depth camera, its residual, force, combinations.
 
 Small meshes (a 9x2x2 beam, a truth of 14x3x3) and few steps; the truth cache
 is per-session (conftest).
@@ -17,9 +17,10 @@ from support.toymodels import SensitiveLinearToy
 import idbench
 from idbench.cli.commands import main
 from idbench.core.interfaces import Observation
-from idbench.observe import cloud as depth_camera
-from idbench.observe import kinds as observe
-from idbench.observe.cloud import Cloud, point_to_surface, render
+from idbench.observe import kinds, surface
+from idbench.observe.camera import render
+from idbench.observe.cloud import Cloud
+from idbench.observe.surface import point_to_surface
 from idbench.plan.config import CompareConfig, ConfigError
 from idbench.run.compare import compare, runs_of
 from idbench.run.session import Session
@@ -154,7 +155,7 @@ def test_cloud_residual_is_zero_on_the_truth_and_grows_with_a_wrong_E():
     k = model.n_steps
     clean = cloud.sense(model, np.array([5000.0]), k, true[-1])
     data = cloud.measure([clean], np.random.default_rng(0), 0.0)[0]
-    frame = observe.Frame(k, data)
+    frame = kinds.Frame(k, data)
     r_true = cloud.predict(model, frame, np.array([5000.0]), k, true[-1])
     r_soft = cloud.predict(model, frame, np.array([3500.0]), k, soft[-1])
     assert np.abs(r_true).max() < 1e-12
@@ -198,15 +199,15 @@ def test_a_reused_association_gives_a_fresh_querys_residual_in_any_order(order):
         fresh = point_to_surface(points, V, T, gate=0.01, reuse=False)
         np.testing.assert_array_equal(reused, fresh)
     # the far states (E x 0.6, x 1.8) re-query: still the fresh query's triangles
-    assert depth_camera.association(points, T).queries >= 2
+    assert surface.association(points, T).queries >= 2
 
 
 def test_nearby_states_of_a_frame_build_no_kd_tree(monkeypatch):
     model, pts, _ = beam_frame()
     built = []
-    real = depth_camera.cKDTree
+    real = surface.cKDTree
     monkeypatch.setattr(
-        depth_camera, "cKDTree", lambda *a, **kw: built.append(1) or real(*a, **kw)
+        surface, "cKDTree", lambda *a, **kw: built.append(1) or real(*a, **kw)
     )
     for E in (5000.0, 4999.99, 5000.01, 5000.0):  # as finite differences do
         V, T = model.surface(path(model, E)[-1])
@@ -500,8 +501,8 @@ def test_an_observed_model_has_no_sensitivity_and_the_models_other_members():
 
     model = SensitiveLinearToy(p=1, n_steps=3)
     model.n_nodes = 7
-    frames = [observe.Frame(k, {"markers": np.zeros(3)}) for k in (1, 2, 3)]
-    seen = ObservedModel(model, observe.Markers(), frames)
+    frames = [kinds.Frame(k, {"markers": np.zeros(3)}) for k in (1, 2, 3)]
+    seen = ObservedModel(model, kinds.Markers(), frames)
     assert cap.sensitivity_of(model) is not None and cap.sensitivity_of(seen) is None
     assert not hasattr(seen, "sensitivity") and cap.n_nodes_of(seen) == 7
     assert cap.step_many_of(seen) is not None  # its own: the model's r steps

@@ -349,6 +349,7 @@ def test_hookspec_names() -> None:
         "register_scenarios",
         "register_commands",
         "register_observations",
+        "register_versions",
     }
 
 
@@ -365,7 +366,7 @@ def test_the_docs_document_every_hookspec() -> None:
 def test_import_idbench_loads_no_plugin() -> None:
     code = (
         "import sys, idbench, idbench.registry.registry, idbench.cli.commands\n"
-        "plugins = ('idbench_fem', 'idbench_filters', 'idbench_skfem')\n"
+        "plugins = ('idbench_fem', 'idbench_filters')\n"
         "bad = [m for m in plugins if m in sys.modules]\n"
         "assert not bad, bad\n"
     )
@@ -512,57 +513,18 @@ def test_third_party_plugin_via_entry_point(tmp_path: Path) -> None:
     assert "myplug" not in rows_after
 
 
-# --- the FE plugin's old name -------------------------------------------------
-
-
-def test_idbench_skfem_is_a_deprecated_alias_not_a_second_plugin() -> None:
-    code = textwrap.dedent(
-        """
-        import warnings
-        import idbench, idbench_fem
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            import idbench_skfem
-            from idbench_skfem import BEAM_DEFAULTS, SCENARIOS, SolidModel
-            from idbench_skfem.model import SvkBeam
-            from idbench_skfem import mesh
-        said = [str(w.message) for w in caught if w.category is DeprecationWarning]
-        assert any("import idbench_fem instead" in m for m in said), said
-        from idbench_fem.bodies import box
-        from idbench_fem.models.beam import SvkBeam as beam
-        assert SolidModel is idbench_fem.SolidModel and SvkBeam is beam
-        assert BEAM_DEFAULTS is idbench_fem.BEAM_DEFAULTS and mesh is box
-        assert SCENARIOS is idbench_fem.SCENARIOS
-        assert not hasattr(idbench_skfem, "register_models")
-        assert all(getattr(idbench_fem, n) is not None for n in idbench_fem.__all__)
-        reg = idbench.build_registry()
-        assert sorted(reg.models) == ["solid", "svk-beam"], reg.models
-        assert {e.plugin for e in reg.models.values()} == {"fem"}
-        pm = idbench.registry.registry.get_plugin_manager()
-        names = {pm.get_name(p) for p in pm.get_plugins()}
-        assert names == {"fem", "filters"}, names
-        assert idbench_skfem not in pm.get_plugins()
-        """
-    )
-    proc = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120
-    )
-    assert proc.returncode == 0, proc.stderr
-
-
 def test_the_registry_cache_lives_in_plugins_and_the_cli_uses_it() -> None:
     """One registry a process until reset; the command line reads that one."""
-    from idbench.cli import commands as cli
-    from idbench.cli import parser as cli_parser
-    from idbench.registry import registry as plugins
+    from idbench.cli import commands, parser
+    from idbench.registry import registry
 
-    plugins.reset_registry_cache()
-    first = plugins.cached_registry()
-    assert plugins.cached_registry() is first
-    assert cli_parser.registry is plugins.cached_registry
-    assert cli.registry is plugins.cached_registry
-    plugins.reset_registry_cache()
-    again = plugins.cached_registry()
+    registry.reset_registry_cache()
+    first = registry.cached_registry()
+    assert registry.cached_registry() is first
+    assert parser.registry is registry.cached_registry
+    assert commands.registry is registry.cached_registry
+    registry.reset_registry_cache()
+    again = registry.cached_registry()
     assert again is not first and set(again.models) == set(first.models)
 
 

@@ -16,7 +16,7 @@ from support.helpers import registry_with
 
 import idbench
 from idbench.cli.commands import main
-from idbench.observe.cloud import heldout_points_mm
+from idbench.observe.surface import heldout_points_mm
 from idbench.plan.config import CompareConfig
 from idbench.report.write import write_report
 from idbench.run.compare import compare
@@ -213,7 +213,7 @@ BAD = [
     ("markers", None, lambda t: t.replace('"bend-y"', '"twist"'),
      "load 'twist' is not one the body has"),
     ("markers", None, lambda t: t.replace("markers = 2", "markers = 3"),
-     "frame 1: markers has 6 values; markers = 3 needs 9"),
+     "frame 1: markers of shape (6,); markers = 3 needs 9"),
     ("cloud", None, lambda t: t.replace('observe = "cloud"', 'observe = "force"'),
      "frame 1: observe 'force' cannot read it (KeyError"),
     ("markers", partial_nan_marker, None,

@@ -1,4 +1,4 @@
-"""How sure the comparison is (#29): intervals over seeds, paired differences."""
+"""How sure the comparison is: intervals over seeds, paired differences."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ from support.helpers import compare_into
 from idbench.cli.commands import main
 from idbench.report.intervals import excludes_zero, interval, method, seeds_needed
 from idbench.report.paired import paired_differences, paired_text
-from idbench.report.summary import summarise, summary_text
+from idbench.report.summary import summarise
+from idbench.report.text import summary_text
 
 SAMPLES = [
     [3251.2, 3257.9, 3262.4],

@@ -1,4 +1,4 @@
-"""Shared outputs are safe to open (#24 item 5): hostile names and messages.
+"""Shared outputs are safe to open: hostile names and messages.
 
 An estimator registered under a name full of markup, a table pipe, a newline
 and terminal control sequences (an OSC 8 hyperlink, a screen clear), and one

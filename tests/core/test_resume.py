@@ -1,4 +1,4 @@
-"""Resume checks content, not names (issue 24, item 2).
+"""Resume checks content, not names.
 
 A rerun of ``compare --out DIR`` skips finished runs only if they were made
 from the same files (mesh, body), by the same idbench and plugin versions,

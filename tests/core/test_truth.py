@@ -8,7 +8,7 @@ import pytest
 
 import idbench
 from idbench.cli.commands import main
-from idbench.truth import simulate as truth
+from idbench.truth import cache, simulate
 
 
 @pytest.fixture()
@@ -21,26 +21,26 @@ def beam(tmp_path, monkeypatch):
 
 def test_truth_is_cached_and_reused(beam):
     theta = np.array([5000.0])
-    first = truth.simulate_truth(beam, theta)
+    first = simulate.simulate_truth(beam, theta)
     solves = beam.cost().forward_solves
-    again = truth.simulate_truth(beam, theta)
+    again = simulate.simulate_truth(beam, theta)
     assert beam.cost().forward_solves == solves  # loaded, not simulated
     np.testing.assert_array_equal(first.states, again.states)
     np.testing.assert_array_equal(first.grid, again.grid)
     assert first.observations.shape == (3, 6)
     # another modulus is another entry
-    other = truth.simulate_truth(beam, np.array([4000.0]))
+    other = simulate.simulate_truth(beam, np.array([4000.0]))
     assert beam.cost().forward_solves == solves + 3
     assert np.abs(other.states[-1]).max() > np.abs(first.states[-1]).max()
-    assert len(list(truth.cache_dir().glob("truth-*.npz"))) == 2
+    assert len(list(cache.cache_dir().glob("truth-*.npz"))) == 2
 
 
 def test_truncated_cache_entry_is_recomputed(beam):
     theta = np.array([5000.0])
-    first = truth.simulate_truth(beam, theta)
-    (entry,) = truth.cache_dir().glob("truth-*.npz")
+    first = simulate.simulate_truth(beam, theta)
+    (entry,) = cache.cache_dir().glob("truth-*.npz")
     entry.write_bytes(entry.read_bytes()[:100])
-    again = truth.simulate_truth(beam, theta)
+    again = simulate.simulate_truth(beam, theta)
     np.testing.assert_array_equal(first.states, again.states)
     with np.load(entry, allow_pickle=False) as data:  # rewritten whole
         assert data["states"].shape == first.states.shape
@@ -58,15 +58,15 @@ class _Payload:
 
 def test_a_pickled_cache_entry_is_never_unpickled(beam, tmp_path):
     theta = np.array([5000.0])
-    first = truth.simulate_truth(beam, theta)
-    (entry,) = truth.cache_dir().glob("truth-*.npz")
+    first = simulate.simulate_truth(beam, theta)
+    (entry,) = cache.cache_dir().glob("truth-*.npz")
     with np.load(entry, allow_pickle=False) as data:
         key = data["key"]
     marker = tmp_path / "pwned"
     evil = np.array([_Payload(str(marker))], dtype=object)
     with open(entry, "wb") as fh:
         np.savez(fh, key=key, states=evil)  # object array: stored as a pickle
-    again = truth.simulate_truth(beam, theta)
+    again = simulate.simulate_truth(beam, theta)
     assert not marker.exists()
     np.testing.assert_array_equal(first.states, again.states)
 
@@ -90,12 +90,12 @@ def test_no_pickle_or_eval_in_the_code():
 
 def test_key_ignores_probes_but_not_physics(beam):
     desc = beam.describe()
-    key = truth.truth_key(beam, np.array([5000.0]))
-    assert key != truth.truth_key(beam, np.array([5001.0]))
+    key = simulate.truth_key(beam, np.array([5000.0]))
+    assert key != simulate.truth_key(beam, np.array([5001.0]))
     beam.describe = lambda: {**desc, "markers": 99}
-    assert truth.truth_key(beam, np.array([5000.0])) == key
+    assert simulate.truth_key(beam, np.array([5000.0])) == key
     beam.describe = lambda: {**desc, "nu": 0.3}
-    assert truth.truth_key(beam, np.array([5000.0])) != key
+    assert simulate.truth_key(beam, np.array([5000.0])) != key
 
 
 def test_simulate_cli_writes_xdmf_time_series(tmp_path, capsys):

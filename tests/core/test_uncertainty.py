@@ -227,7 +227,8 @@ def test_bad_uncertainty_settings_exit_2_with_one_line(
 
 
 def test_summary_shows_coverage_as_a_fraction_over_seeds_and_mean_nees(scored):
-    from idbench.report.summary import summarise, summary_text
+    from idbench.report.summary import summarise
+    from idbench.report.text import summary_text
 
     runs, _ = scored
     summary = summarise(runs).set_index(["mesh", "estimator"])
@@ -242,7 +243,7 @@ def test_summary_shows_coverage_as_a_fraction_over_seeds_and_mean_nees(scored):
 def test_results_of_an_older_version_without_posterior_settings_resume(tmp_path):
     from idbench.store.results import ResultsError, ResultStore
 
-    old = {"seeds": 3, "noise": [1e-4]}  # a manifest written before #15
+    old = {"seeds": 3, "noise": [1e-4]}  # a manifest of an older idbench
     ResultStore(tmp_path, old, {})
     ResultStore(tmp_path, {**old, "posterior": False, "posterior_settings": {}}, {})
     with pytest.raises(ResultsError, match="other settings"):

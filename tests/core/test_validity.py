@@ -1,4 +1,4 @@
-"""Issue 24, item 6: a run whose result cannot mean anything is never ``ok``.
+"""A run whose result cannot mean anything is never ``ok``.
 
 What the input decides is refused up front, in one line; what only the run
 shows is flagged in the row's ``warning`` column and listed in the summary.

@@ -51,7 +51,7 @@ def test_sigma_points_converge_where_the_first_newton_step_raises_r(
     for accelerate in (False, True):
         monkeypatch.setattr(batched, "ACCELERATE_FROM_DOFS", 0 if accelerate else 10**9)
         model = SolidModel(body, mesh, "push", mesh, 1, 1, SolidSettings())
-        assert batched._accelerates(model, 2) is accelerate
+        assert batched.accelerates(model, 2) is accelerate
         out[accelerate] = model.step_many(thetas, 1, np.zeros((4, model.n_state)))
         for theta, u in zip(thetas, out[accelerate], strict=True):
             assert np.linalg.norm(model.residual(theta, 1, u)) <= max(

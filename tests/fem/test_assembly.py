@@ -58,7 +58,7 @@ def test_matches_scikit_fem_forms(nu):
         m.mesh_data.tets,
         free,
         m.displacement_field(u),
-        theta[m._regions],
+        theta[m.element_regions],
         nu,
     )
     np.testing.assert_allclose(r, r_ref, rtol=0, atol=1e-13 * np.abs(r_ref).max())

@@ -13,7 +13,7 @@ from idbench.registry.testing import WithoutStepMany, check_batch_model
 from idbench_fem.bodies import box
 from idbench_fem.models.beam_scenarios import SCENARIOS
 from idbench_filters import RoUkf, Ukf
-from idbench_filters._common import advance_many
+from idbench_filters.common import advance_many
 
 E_TRUE = 5000.0
 
@@ -178,7 +178,7 @@ def test_a_run_does_not_depend_on_the_runs_before_it():
 def test_line_residuals_equal_assembled_ones():
     # p = 1: residuals of the predictions from the cubic along the line equal
     # the assembled residuals to round-off, and det F > 0 is judged alike
-    from idbench_fem.fem.batched import _line_residuals, _residuals
+    from idbench_fem.fem.predictions import line_residuals, residuals
 
     model = _beam("8x2x2")
     k = 4
@@ -188,34 +188,36 @@ def test_line_residuals_equal_assembled_ones():
     t = np.concatenate([[0.0], E_TRUE * rng.uniform(-0.3, 0.3, 20)])
     thetas = E_TRUE + t
     f_ext = model.external_force(k)
-    ok, norms, res = _line_residuals(model, u_a, s, t, thetas, f_ext)
+    asm, unit = model.assembler, model.unit_moduli
+    ok, norms, res = line_residuals(asm, unit, u_a, s, t, thetas, f_ext)
     preds = u_a + t[:, None] * s
-    mods = np.stack([model._modulus(np.array([th]), k) for th in thetas])
-    ok_ref, norms_ref, res_ref = _residuals(model, preds, mods, f_ext)
+    mods = np.stack([model.element_moduli(np.array([th]), k) for th in thetas])
+    ok_ref, norms_ref, res_ref = residuals(asm, preds, mods, f_ext)
     np.testing.assert_array_equal(ok, ok_ref)
     scale = np.linalg.norm(f_ext)  # the Newton tolerance is 1e-8 of it
     assert np.abs(res - res_ref).max() <= 1e-10 * scale
     np.testing.assert_allclose(norms, norms_ref, rtol=0, atol=1e-10 * scale)
     # a prediction that inverts an element is caught from the cubic det F too
     far = np.array([0.0, 50.0 * E_TRUE])
-    ok_far, _, _ = _line_residuals(model, u_a, s * 40, far, E_TRUE + far, f_ext)
-    mods_far = np.stack([model._modulus(np.array([E_TRUE]), k)] * 2)
-    ok_far_ref, _, _ = _residuals(model, u_a + far[:, None] * s * 40, mods_far, f_ext)
+    ok_far, _, _ = line_residuals(asm, unit, u_a, s * 40, far, E_TRUE + far, f_ext)
+    mods_far = np.stack([model.element_moduli(np.array([E_TRUE]), k)] * 2)
+    ok_far_ref, _, _ = residuals(asm, u_a + far[:, None] * s * 40, mods_far, f_ext)
     np.testing.assert_array_equal(ok_far, ok_far_ref)
     assert not ok_far[-1]
 
 
 def test_line_residuals_when_every_prediction_is_the_anchor():
-    from idbench_fem.fem.batched import _line_residuals, _residuals
+    from idbench_fem.fem.predictions import line_residuals, residuals
 
     model = _beam("8x2x2")
     u_a = _path(model, [E_TRUE], 2)[-1]
     f_ext = model.external_force(2)
     s = np.full(model.n_state, 1e9)  # any scale: t = 0 never uses it
     t = np.zeros(12)
-    ok, norms, res = _line_residuals(model, u_a, s, t, E_TRUE + t, f_ext)
-    mods = np.stack([model._modulus(np.array([E_TRUE]), 2)] * 12)
-    ok_ref, _, res_ref = _residuals(model, np.tile(u_a, (12, 1)), mods, f_ext)
+    asm, unit = model.assembler, model.unit_moduli
+    ok, norms, res = line_residuals(asm, unit, u_a, s, t, E_TRUE + t, f_ext)
+    mods = np.stack([model.element_moduli(np.array([E_TRUE]), 2)] * 12)
+    ok_ref, _, res_ref = residuals(asm, np.tile(u_a, (12, 1)), mods, f_ext)
     np.testing.assert_array_equal(ok, ok_ref)
     np.testing.assert_allclose(res, res_ref, rtol=0, atol=1e-14)
     assert np.all(norms <= model.rtol * np.linalg.norm(f_ext))  # converged
@@ -223,25 +225,25 @@ def test_line_residuals_when_every_prediction_is_the_anchor():
 
 @pytest.mark.parametrize("beta", [0.0, 1.0, 2.0, 0.5])
 def test_prediction_steps_agree_to_first_order(beta):
-    from idbench_fem.fem.batched import _prediction_steps
+    from idbench_fem.fem.predictions import prediction_steps
 
     theta_a = np.array([5000.0, 3000.0])
     h = np.array([[1e-4, -2e-4]]) * theta_a
-    t = _prediction_steps(theta_a, theta_a + h, beta)
+    t = prediction_steps(theta_a, theta_a + h, beta)
     np.testing.assert_allclose(t, h, rtol=5e-4)
 
 
 def test_prediction_in_inverse_theta_is_exact_for_a_linear_model():
     """u = c / theta: S = -u_a / theta_a, and u_a + S t equals u(theta) for any
     theta, however far (the linear-in-theta prediction does not)."""
-    from idbench_fem.fem.batched import _prediction_steps
+    from idbench_fem.fem.predictions import prediction_steps
 
     c, theta_a = np.array([2.0, -1.0, 0.5]), np.array([5000.0])
     u_a = c / theta_a
     S = (-u_a / theta_a)[:, None]
     thetas = np.array([[1000.0], [5000.0], [40000.0]])
     exact = c / thetas
-    pred = u_a + _prediction_steps(theta_a, thetas, 2.0) @ S.T
+    pred = u_a + prediction_steps(theta_a, thetas, 2.0) @ S.T
     np.testing.assert_allclose(pred, exact, rtol=1e-12)
-    linear = u_a + _prediction_steps(theta_a, thetas, 0.0) @ S.T
+    linear = u_a + prediction_steps(theta_a, thetas, 0.0) @ S.T
     assert np.abs(linear - exact).max() > 0.5 * np.abs(exact).max()

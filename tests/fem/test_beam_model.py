@@ -242,15 +242,15 @@ def test_inclusion_with_background_slabs():
     assert m.parameters.names == tuple(f"E_region{r}" for r in range(4))
     c = m.mesh_data.points[m.mesh_data.tets].mean(axis=1)
     inside = np.all((c >= cuboid[0::2]) & (c <= cuboid[1::2]), axis=1)
-    assert np.all(m._regions[inside] == 3)
+    assert np.all(m.element_regions[inside] == 3)
     assert inside.sum() == 4 * 2 * 2 * 6  # the box is 4x2x2 hexes of this mesh
     slab = np.minimum((c[:, 0] / 0.2 * 3).astype(int), 2)
-    np.testing.assert_array_equal(m._regions[~inside], slab[~inside])
+    np.testing.assert_array_equal(m.element_regions[~inside], slab[~inside])
     one = beam_model(
         box.parse("20x4x4"), BEND_Y, n_steps=1, parameters="E_regions",
         options={"inclusion": cuboid},
     )  # fmt: skip
-    np.testing.assert_array_equal(one._regions, inside.astype(int))
+    np.testing.assert_array_equal(one.element_regions, inside.astype(int))
     with pytest.raises(ValueError, match=r"slab \(0, 2\).*contains no tetrahedron"):
         beam_model(
             box.parse("4x1x1"), BEND_Y, n_steps=1, parameters="E_regions",

@@ -65,9 +65,9 @@ def test_preset_equals_the_oracle(mesh, scenario):
     np.testing.assert_allclose(tip, expected[-1][centre[0]], atol=1e-12)
 
 
-def test_registered_beam_is_the_solid_model_and_svkbeam_is_deprecated():
+def test_registered_beam_is_the_solid_model_built_by_build():
     import idbench
-    from idbench_fem.models.beam import SvkBeam
+    from idbench_fem.models.beam import build
     from idbench_fem.models.solid import SolidModel
 
     registry = idbench.build_registry()
@@ -75,15 +75,14 @@ def test_registered_beam_is_the_solid_model_and_svkbeam_is_deprecated():
     model = registry.model("svk-beam")(spec)
     assert type(model) is SolidModel
     assert model.describe()["body"] == "svk-beam"
-    with pytest.warns(DeprecationWarning, match="SvkBeam is deprecated"):
-        old = SvkBeam(box.parse("6x2x2"), SCENARIOS[0], n_steps=2)
-    assert type(old) is SolidModel and old.describe() == model.describe()
+    built = build(box.parse("6x2x2"), SCENARIOS[0], n_steps=2)
+    assert type(built) is SolidModel and built.describe() == model.describe()
 
 
 def test_beam_body_options_in_a_toml_body(tmp_path):
     """What the beam needs is a body option any TOML body can use."""
     from idbench_fem.bodies.description import parse_body
-    from idbench_fem.bodies.mesh import region_cells
+    from idbench_fem.bodies.regions import region_cells
 
     raw = {
         "mesh": {"truth": "x.vtu"},

@@ -9,6 +9,7 @@ import meshio
 import numpy as np
 import pytest
 
+from idbench import closest_on_triangles
 from idbench_fem.bodies import description as bodies
 from idbench_fem.bodies import resolve
 from idbench_fem.bodies.loads import (
@@ -18,13 +19,9 @@ from idbench_fem.bodies.loads import (
     pressure_forces,
     traction_forces,
 )
-from idbench_fem.bodies.mesh import (
-    Region,
-    closest_on_triangles,
-    from_arrays,
-    inside,
-    read_mesh,
-)
+from idbench_fem.bodies.mesh import from_arrays, read_mesh
+from idbench_fem.bodies.regions import Region
+from idbench_fem.bodies.surface import inside
 
 L, W, H = 0.2, 0.03, 0.04
 
@@ -200,7 +197,12 @@ def test_closest_point_on_triangle_against_brute_force():
     rng = np.random.default_rng(0)
     tri = rng.normal(size=(5, 3, 3))
     pts = rng.normal(size=(40, 3)) * 2
-    q, bary = closest_on_triangles(pts, tri)
+    rep = np.repeat(pts, len(tri), axis=0)
+    q, bary = closest_on_triangles(rep, *(np.tile(tri[:, i], (len(pts), 1))
+                                          for i in range(3)))  # fmt: skip
+    np.testing.assert_allclose(q, np.einsum("mk,mki->mi", bary, np.tile(
+        tri, (len(pts), 1, 1))), atol=1e-12)  # fmt: skip
+    q, bary = q.reshape(len(pts), len(tri), 3), bary.reshape(len(pts), len(tri), 3)
     assert np.all(bary >= -1e-12)
     np.testing.assert_allclose(bary.sum(-1), 1)
     s = np.linspace(0, 1, 201)

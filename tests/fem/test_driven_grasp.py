@@ -126,10 +126,10 @@ def test_the_reaction_as_loads_gives_back_the_prescribed_displacement(box, law):
 def _energy(model, theta, u):
     """Strain energy of the state: sum of V_e E_e W_1(F_e)."""
     asm = model._state_asm()
-    kin = asm.kinematics(u, model._modulus(theta, None))
+    kin = asm.kinematics(u, model.element_moduli(theta, None))
     law = make_material(model.law_name, 1.0, model.nu)
     w = law.energy(np.asarray(kin.F))
-    return float(np.sum(asm.volumes * model._modulus(theta, None) * w))
+    return float(np.sum(asm.volumes * model.element_moduli(theta, None) * w))
 
 
 def test_the_reaction_is_the_derivative_of_the_strain_energy(box):
@@ -184,7 +184,7 @@ def test_batched_steps_and_path_reuse_meet_the_tolerance(box):
 
 def test_a_helper_process_sets_the_step_prescribed_displacement(box):
     """helper_solve (what a helper of option processes runs) on a fresh model."""
-    from idbench_fem.fem.batched import PendingPairs, helper_solve
+    from idbench_fem.fem.pairs import PendingPairs, helper_solve
 
     thetas = np.array([[3000.0], [8000.0]])
     here = _model(box)

@@ -10,7 +10,7 @@ import pytest
 from support.beams import beam_model
 
 from idbench_fem.bodies import box as meshes
-from idbench_fem.bodies.mesh import region_nodes
+from idbench_fem.bodies.regions import region_nodes
 from idbench_fem.fem import kernels
 from idbench_fem.fem.svk_assembly import Assembler
 from idbench_fem.models.beam_scenarios import SCENARIOS

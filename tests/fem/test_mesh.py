@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from idbench_fem.bodies import box
-from idbench_fem.bodies.mesh import region_facets, region_nodes
+from idbench_fem.bodies.regions import region_facets, region_nodes
 from idbench_fem.fem.interpolation import (
     grid_points,
     interpolation_matrix,

@@ -222,7 +222,8 @@ def test_nodal_forces_refuse_a_volume_name_but_not_a_surface_name():
 
     from idbench_fem.bodies.description import Manipulation
     from idbench_fem.bodies.loads import nodal_forces
-    from idbench_fem.bodies.mesh import Region, from_arrays
+    from idbench_fem.bodies.mesh import from_arrays
+    from idbench_fem.bodies.regions import Region
 
     m = MeshTet.init_tensor(np.linspace(0, L, 4), np.linspace(0, W, 2),
                             np.linspace(0, W, 2))  # fmt: skip

@@ -11,7 +11,7 @@ import idbench
 from idbench import Observation, Prior
 from idbench.registry.testing import check_batch_model, check_model_settings
 from idbench_fem.bodies.catalog import body_path
-from idbench_fem.fem import batched
+from idbench_fem.fem import predictions
 from idbench_fem.models.solid import make_model
 from idbench_fem.models.solid_settings import SolidSettings
 from idbench_filters import RoUkf
@@ -56,7 +56,7 @@ def test_predictions_scale_the_regions_moduli(tmp_path, monkeypatch):
     the tolerance)."""
     model = _organ(_one_modulus_kidney(tmp_path), "grasp-pole", kernel="general")
     assert model.parameters.names == ("E",)
-    assert set(np.round(model._unit_modulus, 9)) == {1.0, 4.0}
+    assert set(np.round(model.unit_moduli, 9)) == {1.0, 4.0}
     u1 = model.step(np.array([6000.0]), 1, model.reset())
     thetas = 6000.0 * (1.0 + 2e-5 * np.linspace(-1.0, 1.0, 11))[:, None]
     states = np.tile(u1, (len(thetas), 1))
@@ -72,7 +72,7 @@ def test_predictions_scale_the_regions_moduli(tmp_path, monkeypatch):
     assert settled(model) >= 8
     uniform = _organ(_one_modulus_kidney(tmp_path), "grasp-pole", kernel="general")
     monkeypatch.setattr(
-        type(uniform), "_unit_modulus", np.ones(uniform._asm.n_elements)
+        type(uniform), "unit_moduli", np.ones(uniform.assembler.n_elements)
     )  # what a model that ignored the tumour's factor would use
     assert settled(uniform) <= 2
 
@@ -84,11 +84,11 @@ def test_cubic_residuals_only_where_the_force_is_cubic(monkeypatch, law, cubic):
     model = _organ("liver", "grasp-lift", law=law)
     assert model.force_is_cubic is cubic
     calls = []
-    real = batched._line_residuals
+    real = predictions.line_residuals
     monkeypatch.setattr(
-        batched, "_line_residuals", lambda *a: calls.append(1) or real(*a)
+        predictions, "line_residuals", lambda *a: calls.append(1) or real(*a)
     )
-    r = 2 * batched.POLYNOMIAL_ABOVE
+    r = 2 * predictions.POLYNOMIAL_ABOVE
     thetas = 4000.0 * (1.0 + 1e-3 * np.linspace(-1.0, 1.0, r))
     states = np.tile(model.reset(), (len(thetas), 1))
     out = model.step_many(thetas[:, None], 1, states)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import idbench
-from idbench_fem.fem import batched
+from idbench_fem.fem import chords
 from idbench_fem.models.solid import make_model
 
 pytest.importorskip("gmsh")  # the organs' meshes are generated on first use
@@ -71,11 +71,11 @@ def test_a_step_not_continuing_the_last_one_is_plain_newton():
 
 
 def test_useful_chords_counts_the_chords_before_a_discarded_one():
-    assert batched._useful_chords(["c", "x", "F", "c"]) == 1
-    assert batched._useful_chords(["x", "F"]) == 0
-    assert batched._useful_chords(["c", "c"]) is None  # converged by chords
-    assert batched._useful_chords(["c", "F", "x"]) is None  # refactored first
-    assert batched._useful_chords([]) is None
+    assert chords.useful_chords(["c", "x", "F", "c"]) == 1
+    assert chords.useful_chords(["x", "F"]) == 0
+    assert chords.useful_chords(["c", "c"]) is None  # converged by chords
+    assert chords.useful_chords(["c", "F", "x"]) is None  # refactored first
+    assert chords.useful_chords([]) is None
 
 
 def test_a_path_step_skips_the_chord_that_stalled_on_the_step_before(monkeypatch):
@@ -92,7 +92,7 @@ def test_a_path_step_skips_the_chord_that_stalled_on_the_step_before(monkeypatch
         return wasted, u
 
     learned, u_learned = discarded(_liver(8))
-    monkeypatch.setattr(batched, "_useful_chords", lambda record: None)
+    monkeypatch.setattr(chords, "useful_chords", lambda record: None)
     blind, u_blind = discarded(_liver(8))
     assert blind >= 4  # the stall happens at (nearly) every step without the rule
     assert learned <= 1  # with it, at most the first time

@@ -9,7 +9,7 @@ import pytest
 
 import idbench
 from idbench_fem.bodies.catalog import body_path
-from idbench_fem.fem import batched
+from idbench_fem.fem import batched, chords
 from idbench_fem.models.solid import make_model
 
 pytest.importorskip("gmsh")  # the organs' meshes are generated on first use
@@ -67,10 +67,10 @@ def _path(model, thetas, k_last=None):
 
 def test_sigma_points_equal_fresh_newton_with_fewer_factorizations(body, monkeypatch):
     model = _model(body, steps=8)
-    assert batched._accelerates(model, 4)
+    assert batched.accelerates(model, 4)
     path = _path(model, SIGMA)
     with monkeypatch.context() as m:  # the same calls with plain chords
-        m.setattr(batched, "_accelerates", lambda model, p: False)
+        m.setattr(batched, "accelerates", lambda model, p: False)
         chords = _model(body, steps=8)
         _path(chords, SIGMA)
     for k in (1, 4, 8):
@@ -103,11 +103,11 @@ def test_the_beam_keeps_the_plain_chords(monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("accelerated chords on the beam")
 
-    monkeypatch.setattr(batched, "_accelerated_chords", refuse)
+    monkeypatch.setattr(chords, "accelerated_chords", refuse)
     reg = idbench.build_registry()
     spec = idbench.ModelSpec(mesh="6x2x2", scenario=reg.scenario("bend-y"), n_steps=3)
     beam = reg.model("svk-beam")(spec)
-    assert not batched._accelerates(beam, 4)
+    assert not batched.accelerates(beam, 4)
     theta = np.array([[4000.0], [2500.0], [6000.0]])
     X = np.zeros((3, beam.n_state))
     for k in (1, 2, 3):
@@ -117,7 +117,7 @@ def test_the_beam_keeps_the_plain_chords(monkeypatch):
 
 def test_the_gate_keeps_plain_chords_for_p1_and_small_meshes(body, monkeypatch):
     model = _model(body)
-    assert batched._accelerates(model, 4)  # the fixture's threshold 0
-    assert not batched._accelerates(model, 1)
-    monkeypatch.setattr(batched, "ACCELERATE_FROM_DOFS", model._asm.n_free + 1)
-    assert not batched._accelerates(model, 4)
+    assert batched.accelerates(model, 4)  # the fixture's threshold 0
+    assert not batched.accelerates(model, 1)
+    monkeypatch.setattr(batched, "ACCELERATE_FROM_DOFS", model.assembler.n_free + 1)
+    assert not batched.accelerates(model, 4)

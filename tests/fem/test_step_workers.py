@@ -17,7 +17,7 @@ from support.beams import beam_model
 
 from idbench import ModelFailure, Observation, Prior
 from idbench_fem.bodies import box
-from idbench_fem.fem import batched
+from idbench_fem.fem import pairs, predictions
 from idbench_fem.fem.step_workers import Helper, HelperLost
 from idbench_fem.models.beam_scenarios import SCENARIOS
 from idbench_fem.models.beam_settings import BeamSettings
@@ -114,9 +114,9 @@ _PAUSES = np.random.default_rng(20261130)
 
 
 def _delayed_solve(model, k, rows):
-    """batched.helper_solve after a random pause of 0-40 ms."""
+    """pairs.helper_solve after a random pause of 0-40 ms."""
     time.sleep(0.04 * _PAUSES.random())
-    return batched.helper_solve(model, k, rows)
+    return pairs.helper_solve(model, k, rows)
 
 
 def test_results_do_not_depend_on_timing():
@@ -249,13 +249,13 @@ def test_helpers_of_models_in_two_threads_do_not_stop_each_other(caplog):
 @pytest.mark.parametrize(("p", "beta"), [(1, 0.0), (4, 2.0)])
 def test_predictions_take_the_form_of_the_parameters(monkeypatch, p, beta):
     seen = []
-    real = batched._prediction_steps
+    real = predictions.prediction_steps
 
     def spy(theta_a, thetas, b):
         seen.append(b)
         return real(theta_a, thetas, b)
 
-    monkeypatch.setattr(batched, "_prediction_steps", spy)
+    monkeypatch.setattr(predictions, "prediction_steps", spy)
     if p == 1:
         model = beam_model(box.parse("8x2x2"), SCENARIOS[0], n_steps=4)
         thetas = np.array([[4000.0], [5000.0], [6000.0]])
@@ -270,12 +270,12 @@ def test_a_helper_counts_pairs_settled_at_their_prediction():
     thetas = _thetas(7)[:2]
     start = np.tile(model.reset(), (2, 1))
     done = model.step_many(thetas, 1, start)
-    rows = batched.PendingPairs(thetas, done, start)  # predictions already converged
-    states, work = batched.helper_solve(_beam(), 1, rows)
+    rows = pairs.PendingPairs(thetas, done, start)  # predictions already converged
+    states, work = pairs.helper_solve(_beam(), 1, rows)
     np.testing.assert_array_equal(states, done)
     assert work[3] == 2 and work[1] == 0
     before = model.batch_stats.converged_at_prediction
-    batched._add_work(model, work)
+    pairs.add_work(model, work)
     assert model.batch_stats.converged_at_prediction == before + 2
 
 
@@ -310,25 +310,25 @@ def _model_recipe() -> SolidModel:
 
 
 def test_helper_reports_model_failures_and_errors():
-    helper = Helper(_model_recipe, batched.helper_solve)
+    helper = Helper(_model_recipe, pairs.helper_solve)
     try:
         model = _beam()
         n = model.n_state
-        rows = batched.PendingPairs(
+        rows = pairs.PendingPairs(
             np.full((1, 4), -1.0), np.zeros((1, n)), np.zeros((1, n))
         )
         helper.submit(2, rows)
         with pytest.raises(ModelFailure, match="not positive") as info:
             helper.collect()
         assert info.value.step == 2
-        good = batched.PendingPairs(
+        good = pairs.PendingPairs(
             np.full((1, 4), 5000.0), np.zeros((1, n)), np.zeros((1, n))
         )
         helper.submit(1, good)
         states, work = helper.collect()
         _assert_converged(model, good.thetas, 1, states)
         assert work[1] >= 1  # it factored
-        bad = batched.PendingPairs(
+        bad = pairs.PendingPairs(
             np.full((1, 4), 5000.0), np.zeros((1, 3)), np.zeros((1, 3))
         )
         helper.submit(1, bad)  # wrong shapes: an error, not a model failure

@@ -8,7 +8,7 @@ def test_inclusion_found_stiffer_at_p2_and_ro_ukf_costs_p_plus_1(study, tmp_path
     measured = table[table["estimator"] != "ukf (2n+1)"].set_index(["p", "estimator"])
     assert measured["runs"].sum() == 6
     # p = 4 on the quick mesh is barely identifiable: with seed 0's noise draws
-    # (common random numbers since #15) batch LS drives one region to its lower
+    # (common random numbers) batch LS drives one region to its lower
     # bound and the run is marked diverged; every other run is ok
     assert measured["ok"].drop((4, "batch-ls")).sum() == 5
     # stretching with an inclusion + background model: the stiff region is found

@@ -5,7 +5,7 @@ the filters' prior times the Gaussian likelihood of the whole observation
 stream, each evaluation one simulation of the load path through the
 :class:`~idbench.ForwardModel` protocol (``reset``, ``step``, ``observe``).
 
-Prior and noise are the filters' (DESIGN.md section 7): with the ``"log"``
+Prior and noise are the filters' (docs/design.md, section 4): with the ``"log"``
 transform xi = ln theta ~ N(mu, Sigma) with mu_j = ln m_j and
 Sigma_jj = ln(1 + s_j^2 / m_j^2) (the log-normal of mean m and std s), with
 ``"identity"`` theta ~ N(m, diag(s^2)) (:mod:`idbench.estimate.transforms`);

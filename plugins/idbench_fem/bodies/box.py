@@ -23,14 +23,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench_fem.bodies.mesh import (
-    Region,
-    SolidMesh,
-    read_mesh,
-    region_facets,
-    region_nodes,
-)
+from idbench_fem.bodies.mesh import SolidMesh, read_mesh
 from idbench_fem.bodies.mesh import from_arrays as solid_mesh
+from idbench_fem.bodies.regions import Region, region_facets, region_nodes
 
 LENGTH = 0.2
 """Default beam length along x (m)."""

@@ -93,7 +93,6 @@ happen when a region is resolved on a mesh (:mod:`idbench_fem.bodies.resolve`;
 
 from __future__ import annotations
 
-import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -102,10 +101,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench_fem.bodies.mesh import (
-    SELECTORS,
-    Region,
-)
+from idbench_fem.bodies.reader import TableReader, table
+from idbench_fem.bodies.regions import SELECTORS, Region
 from idbench_fem.fem.materials import LAWS, lame, make_material
 
 FloatArray = NDArray[np.float64]
@@ -261,98 +258,18 @@ class Body:
             for i, r in enumerate(self.parameter_regions)
         )
 
+    @property
+    def parameter_values(self) -> tuple[float, ...]:
+        """The true value (Pa) of each parameter: its region's ``E_regions``, else E."""
+        if not self.parameter_regions:
+            return (self.material.E,)
+        given = dict(self.material.E_regions)
+        return tuple(
+            given.get(r.name or "", self.material.E) for r in self.parameter_regions
+        )
+
 
 # -- parsing ---------------------------------------------------------------------
-
-
-class _TableReader:
-    """Error messages prefixed by the file and the table being read."""
-
-    def __init__(self, source: str, where: str) -> None:
-        self.source, self.where = source, where
-
-    def error(self, text: str) -> ValueError:
-        return ValueError(f"{self.source}: {self.where} {text}")
-
-    def number(self, key: str, value: Any, positive: bool = False) -> float:
-        ok = isinstance(value, int | float) and not isinstance(value, bool)
-        if not ok or not math.isfinite(value) or (positive and value <= 0):
-            need = "a number > 0" if positive else "a finite number"
-            raise self.error(f"{key} = {value!r}: need {need}")
-        return float(value)
-
-    def vector(self, key: str, value: Any) -> Vec:
-        if not isinstance(value, list | tuple) or len(value) != 3:
-            raise self.error(f"{key} = {value!r}: need three numbers [x, y, z]")
-        x, y, z = (self.number(key, v) for v in value)
-        return (x, y, z)
-
-    def keys(self, table: dict[str, Any], allowed: tuple[str, ...]) -> None:
-        extra = sorted(set(table) - set(allowed))
-        if extra:
-            raise self.error(
-                f"has unknown key {extra[0]!r}; allowed: {', '.join(allowed)}"
-            )
-
-    def region(self, key: str, value: Any) -> Region:
-        if isinstance(value, str):
-            if not value:
-                raise self.error(f"{key} = '': need a region name")
-            return Region(name=value)
-        if (
-            not isinstance(value, dict)
-            or len(value) != 1
-            or (next(iter(value)) not in SELECTORS)
-        ):
-            raise self.error(
-                f"{key} = {value!r}: need a region name or a table with exactly "
-                f"one of {', '.join(SELECTORS)}"
-            )
-        ((kind, spec),) = value.items()
-        return self._selector(f"{key}.{kind}", kind, spec)
-
-    def _selector(self, key: str, kind: str, spec: Any) -> Region:
-        if kind == "name":
-            return self.region(key, spec)
-        if kind == "slab":
-            ok = isinstance(spec, dict) and set(spec) == {"index", "count"}
-            index, count = (spec.get("index"), spec.get("count")) if ok else (0, 0)
-            if not ok or not all(
-                isinstance(v, int) and not isinstance(v, bool) for v in (index, count)
-            ) or not 0 <= index < count:
-                raise self.error(
-                    f"{key} = {spec!r}: need a table with whole numbers index and "
-                    "count, 0 <= index < count"
-                )
-            return Region(slab=(index, count))
-        fields = {
-            "box": ("lower", "upper"),
-            "sphere": ("centre", "radius"),
-            "half_space": ("point", "normal"),
-            "patch": ("point", "radius"),
-        }[kind]
-        if not isinstance(spec, dict) or set(spec) != set(fields):
-            raise self.error(
-                f"{key} = {spec!r}: need a table with {' and '.join(fields)}"
-            )
-        a = self.vector(f"{key}.{fields[0]}", spec[fields[0]])
-        if fields[1] == "radius":
-            return Region(
-                **{kind: (a, self.number(f"{key}.radius", spec["radius"], True))}
-            )
-        b = self.vector(f"{key}.{fields[1]}", spec[fields[1]])
-        if kind == "box" and not all(lo < hi for lo, hi in zip(a, b, strict=True)):
-            raise self.error(f"{key} = {spec!r}: need lower < upper in x, y and z")
-        if kind == "half_space" and not any(b):
-            raise self.error(f"{key}.normal = {list(b)}: need a non-zero normal")
-        return Region(**{kind: (a, b)})
-
-
-def _table(raw: dict[str, Any], key: str, source: str) -> dict[str, Any]:
-    value = raw.get(key, {})
-    if not isinstance(value, dict):
-        raise ValueError(f"{source}: [{key}] must be a table, got {value!r}")
-    return value
 
 
 def parse_body(
@@ -386,10 +303,10 @@ def parse_body(
         "probe",
         "targets",
     )
-    _TableReader(source, "body").keys(raw, top)
+    TableReader(source, "body").keys(raw, top)
 
-    mt = _table(raw, "mesh", source)
-    c = _TableReader(source, "[mesh]")
+    mt = table(raw, "mesh", source)
+    c = TableReader(source, "[mesh]")
     c.keys(mt, ("truth", "models", "generate"))
     if not isinstance(mt.get("truth"), str):
         raise c.error(f"truth = {mt.get('truth')!r}: need the truth mesh file's path")
@@ -406,8 +323,8 @@ def parse_body(
         tuple(gen.get("sizes", ())),
     )
 
-    mat = _table(raw, "material", source)
-    c = _TableReader(source, "[material]")
+    mat = table(raw, "material", source)
+    c = TableReader(source, "[material]")
     c.keys(mat, ("law", "E", "nu", "density", "E_regions"))
     law = mat.get("law", "svk")
     if law not in LAWS:
@@ -434,8 +351,8 @@ def parse_body(
             f"{source}: no [fixed] region: the body could move rigidly; name a "
             f"region or give one of {', '.join(SELECTORS[1:])}"
         )
-    fx = _table(raw, "fixed", source)
-    fixed = _TableReader(source, "[fixed]").region("fixed", fx)
+    fx = table(raw, "fixed", source)
+    fixed = TableReader(source, "[fixed]").region("fixed", fx)
 
     manip = raw.get("manipulation", [])
     if not isinstance(manip, list) or not manip:
@@ -456,8 +373,8 @@ def parse_body(
             f"{source}: [material] density = 0 but a manipulation is gravity"
         )
 
-    mk = _table(raw, "markers", source)
-    c = _TableReader(source, "[markers]")
+    mk = table(raw, "markers", source)
+    c = TableReader(source, "[markers]")
     c.keys(mk, ("points", "region", "snap_distance", "placement"))
     if ("points" in mk) == ("region" in mk):
         raise c.error("needs exactly one of points = [[x, y, z], ...] or region = ...")
@@ -468,13 +385,13 @@ def parse_body(
         tuple(c.vector(f"points[{i}]", p) for i, p in enumerate(pts)),
         c.region("region", mk["region"]) if "region" in mk else None,
         c.number("snap_distance", mk.get("snap_distance", 0.005), positive=True),
-        _choice(c, "placement", mk.get("placement", "surface"), PLACEMENTS),
+        c.choice("placement", mk.get("placement", "surface"), PLACEMENTS),
     )
     if "points" in mk and not markers.points:
         raise c.error("points = []: need at least one marker")
 
-    se = _table(raw, "shape_error", source)
-    c = _TableReader(source, "[shape_error]")
+    se = table(raw, "shape_error", source)
+    c = TableReader(source, "[shape_error]")
     c.keys(se, ("grid", "nodes", "margin", "locate"))
     grid = se.get("grid", [10, 8, 6])
     if (
@@ -493,11 +410,11 @@ def parse_body(
         raise c.error(f"margin = {margin:g}: need >= 0 (m)")
     shape_error = ShapeError(
         (grid[0], grid[1], grid[2]), nodes, margin,
-        _choice(c, "locate", se.get("locate", "nearest"), LOCATES),
+        c.choice("locate", se.get("locate", "nearest"), LOCATES),
     )  # fmt: skip
 
-    pa = _table(raw, "parameters", source)
-    c = _TableReader(source, "[parameters]")
+    pa = table(raw, "parameters", source)
+    c = TableReader(source, "[parameters]")
     c.keys(pa, ("regions", "bounds"))
     regions = pa.get("regions", [])
     if not isinstance(regions, list) or len(regions) == 1:
@@ -527,15 +444,15 @@ def parse_body(
         parameter_regions,
         bounds,
         _probes(raw.get("probe", []), source),
-        _targets(_table(raw, "targets", source), source),
+        _targets(table(raw, "targets", source), source),
     )
 
 
-def _targets(table: dict[str, Any], source: str) -> tuple[tuple[str, Vec], ...]:
+def _targets(raw: dict[str, Any], source: str) -> tuple[tuple[str, Vec], ...]:
     """``[targets]``: name = [x, y, z], or name = [[x, y, z], ...]."""
-    c = _TableReader(source, "[targets]")
+    c = TableReader(source, "[targets]")
     out: list[tuple[str, Vec]] = []
-    for name, value in table.items():
+    for name, value in raw.items():
         many = isinstance(value, list) and bool(value) and isinstance(value[0], list)
         if not many:
             out.append((name, c.vector(name, value)))
@@ -545,19 +462,13 @@ def _targets(table: dict[str, Any], source: str) -> tuple[tuple[str, Vec], ...]:
     return tuple(out)
 
 
-def _choice(c: _TableReader, key: str, value: Any, allowed: tuple[str, ...]) -> str:
-    if value not in allowed:
-        raise c.error(f"{key} = {value!r}: allowed are {', '.join(allowed)}")
-    return str(value)
-
-
 def _probes(raw: Any, source: str) -> tuple[tuple[str, Vec], ...]:
     """``[[probe]]`` tables: ``name`` and ``point`` (a point in the body)."""
     if not isinstance(raw, list):
         raise ValueError(f"{source}: [[probe]] must be a list of tables")
     out = []
     for i, p in enumerate(raw):
-        c = _TableReader(source, f"[[probe]] {i}")
+        c = TableReader(source, f"[[probe]] {i}")
         if not isinstance(p, dict):
             raise c.error("must be a table with name and point")
         c.keys(p, ("name", "point"))
@@ -572,7 +483,7 @@ def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
     if not isinstance(raw, dict):
         raise ValueError(f"{source}: [[manipulation]] {i} must be a table")
     name = raw.get("name")
-    c = _TableReader(
+    c = TableReader(
         source, f"[[manipulation]] {name!r}" if name else f"[[manipulation]] {i}"
     )
     if not isinstance(name, str) or not name:

@@ -14,7 +14,7 @@ Each manipulation is a dead load proportional to the load fraction t in [0, 1]
 - grasp: a total force F spread uniformly over the patch area,
   :math:`f_a = t\, \mathbf{F} (A_f / 3) / A_{patch}`, i.e. a uniform
   traction F / A_patch on the boundary facets around the surface point
-  nearest to ``point`` (:func:`~idbench_fem.bodies.mesh.patch_facets`).
+  nearest to ``point`` (:func:`~idbench_fem.bodies.regions.patch_facets`).
 
 A displacement-controlled grasp (``displacement`` instead of ``force``) has
 no external force: it prescribes the displacement of its patch's nodes
@@ -35,7 +35,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench_fem.bodies.mesh import SolidMesh, region_facets
+from idbench_fem.bodies.mesh import SolidMesh
+from idbench_fem.bodies.regions import region_facets
 
 if TYPE_CHECKING:
     from idbench_fem.bodies.description import Manipulation

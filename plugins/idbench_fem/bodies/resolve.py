@@ -15,15 +15,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench_fem.bodies.mesh import (
-    Region,
-    SolidMesh,
-    inside,
-    project_to_surface,
-    read_mesh,
-    region_cells,
-    region_nodes,
-)
+from idbench_fem.bodies.mesh import SolidMesh, read_mesh
+from idbench_fem.bodies.regions import Region, region_cells, region_nodes
+from idbench_fem.bodies.surface import inside, project_to_surface
 
 if TYPE_CHECKING:
     from idbench_fem.bodies.description import Body

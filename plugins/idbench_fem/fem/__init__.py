@@ -1,5 +1,6 @@
 """The finite-element engine (imports no other folder of the plugin).
 
-Kernels, assembly per law, materials, Newton, linear solvers, batched steps,
-step-worker processes, interpolation.
+Kernels, assembly per law, materials, Newton, linear solvers, chord iterations,
+path steps, batched steps (predictions, pending pairs, step-worker processes),
+interpolation.
 """

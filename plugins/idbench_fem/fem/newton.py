@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench import ModelFailure, ParameterSpec
+from idbench import Cost, ModelFailure, ParameterSpec
 from idbench_fem.fem.solver import SolverError, make_solver
 
 FloatArray = NDArray[np.float64]
@@ -87,7 +87,7 @@ def freeze(obj: Any, keep: tuple[str, ...] = ()) -> None:
 
 
 class NewtonSolve:
-    """Mixin: :meth:`_newton` and :meth:`_factor` for a model with an assembler.
+    """Mixin: :meth:`_newton` and :meth:`factor` for a model with an assembler.
 
     The model provides ``_asm`` (the assembler), ``backend`` (the linear
     solver's name), ``rtol``, ``atol``, ``max_iterations``, ``_cost``
@@ -96,6 +96,10 @@ class NewtonSolve:
     :data:`CHORD_RATIO`; 0 refactors every iteration: plain Newton); the
     mixin keeps ``last_residuals`` (the residual norms of the last load
     solved) and ``factorizations`` (a count).
+
+    What other code uses of the model is public: :attr:`assembler`,
+    :meth:`factor`, :meth:`solve` (a back-substitution with the factorization
+    held), :meth:`count` and :meth:`cost` (the work counters).
     """
 
     _asm: Any
@@ -112,6 +116,30 @@ class NewtonSolve:
     """Whether the last load solved ended with a Newton (not chord) update:
     then the solver holds K at the iterate before the solution, close enough
     for one step of iterative refinement (the models' sensitivities)."""
+
+    @property
+    def assembler(self) -> Any:
+        """The assembler: ``kinematics(u, modulus)``, ``forces``, ``tangent_data``."""
+        return self._asm
+
+    def cost(self) -> Cost:
+        """Cumulative forward solves, Newton iterations and linear solves."""
+        return Cost(*self._cost)
+
+    def count(
+        self, forward_solves: int = 0, newton_its: int = 0, linear_solves: int = 0
+    ) -> None:
+        """Add work to the counters of :meth:`cost`."""
+        self._cost[0] += forward_solves
+        self._cost[1] += newton_its
+        self._cost[2] += linear_solves
+
+    def solve(self, rhs: FloatArray) -> FloatArray:
+        """K^-1 ``rhs`` with the factorization held (uncounted: see :meth:`count`).
+
+        ``rhs`` (n,) or (n, m); the tangent was factored by :meth:`factor`.
+        """
+        return np.asarray(self._solver.solve(rhs))
 
     @functools.cached_property
     def _pattern(self) -> Any:
@@ -186,7 +214,7 @@ class NewtonSolve:
         kin = self._asm.kinematics(u, modulus)
         exact = key != self._factored_key
         if exact:
-            self._factor(kin, modulus, k)
+            self.factor(kin, modulus, k)
             self._factored_key = key
         p = g.shape[1]
         du = -self._solver.solve(g)
@@ -214,7 +242,7 @@ class NewtonSolve:
             )
         return th
 
-    def _factor(self, kin: Any, modulus: FloatArray, k: int) -> None:
+    def factor(self, kin: Any, modulus: FloatArray, k: int) -> None:
         """Factor the tangent at ``kin``; a failure is a ModelFailure at step k."""
         self.factorizations += 1
         data = self._asm.tangent_data(kin, modulus, self._pattern)
@@ -260,7 +288,7 @@ class NewtonSolve:
                 )
             fresh = it == 0 or norm > self.chord_ratio * res[-2]
             if fresh:
-                self._factor(kin, modulus, k)
+                self.factor(kin, modulus, k)
             du = self._solver.solve(-r)
             self._cost[2] += 1
             try:

@@ -1,6 +1,7 @@
 """Helper processes that solve some of a batched step's pairs (option ``processes``).
 
-With ``processes = n > 1`` a model's :func:`~idbench_fem.fem.batched.step_many`
+With ``processes = n > 1`` a model's
+:meth:`~idbench_fem.fem.batched.BatchedSteps.step_many`
 splits the pairs it must iterate between ``n - 1`` helper processes and
 itself, in contiguous shares fixed by their order (so results do not depend
 on timing; see :mod:`idbench_fem.fem.batched` for which pairs and when). Each
@@ -17,8 +18,10 @@ kernel of :mod:`idbench_fem.fem.kernels`, which releases the GIL); processes do 
 share a GIL, and a pair (one factorization and a few chord iterations, ~4 ms at
 525 nodes) is long against a round trip through a pipe (~0.1 ms).
 
-A helper is ``python -m idbench_fem.fem.step_workers`` on one end of a socket pair
-(not a multiprocessing child: spawning one re-imports the caller's main
+A helper is a Python process running :func:`serve` on one end of a socket
+pair (``python -c`` importing this module: not ``-m``, which would run a
+second copy of it beside the one the package imports; and not a
+multiprocessing child: spawning one re-imports the caller's main
 script, which a user's script without an ``if __name__ == "__main__"`` guard
 cannot survive). It starts on first use (about a second to import and build
 the model; the call waits for it, so the shares never depend on timing),
@@ -67,6 +70,10 @@ THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"
 """Set to 1 in a helper's environment unless set already: a helper is one core."""
 
 
+HELPER_MAIN = f"import sys; from {__name__} import serve; serve(int(sys.argv[1]))"
+"""What a helper process runs (``python -c``), given its socket's descriptor."""
+
+
 class HelperLost(RuntimeError):
     """A helper process died or answered nonsense; its pairs run in the parent."""
 
@@ -92,7 +99,7 @@ class Helper:
             env.setdefault(name, "1")
         try:
             self._process = subprocess.Popen(
-                [sys.executable, "-m", __name__, str(theirs.fileno())],
+                [sys.executable, "-c", HELPER_MAIN, str(theirs.fileno())],
                 pass_fds=(theirs.fileno(),), env=env, stdin=subprocess.DEVNULL,
                 start_new_session=True,  # Ctrl-C goes to the parent only
             )  # fmt: skip
@@ -351,6 +358,10 @@ def _watch(parent: int) -> None:
     os._exit(0)
 
 
-if __name__ == "__main__":
+def serve(fd: int) -> None:
+    """A helper process's main: answer calls on the socket ``fd`` (see the module).
+
+    Ends the process when its parent is gone.
+    """
     threading.Thread(target=_watch, args=(os.getppid(),), daemon=True).start()
-    _serve(Channel(socket.socket(fileno=int(sys.argv[1]))))
+    _serve(Channel(socket.socket(fileno=fd)))

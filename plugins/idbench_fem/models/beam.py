@@ -12,7 +12,6 @@ x plus an inclusion box as the parameter regions. Its settings are
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
@@ -30,7 +29,8 @@ from idbench_fem.bodies.description import (
     MeshFiles,
     ShapeError,
 )
-from idbench_fem.bodies.mesh import Region, SolidMesh
+from idbench_fem.bodies.mesh import SolidMesh
+from idbench_fem.bodies.regions import Region
 from idbench_fem.fem.interpolation import marker_points
 from idbench_fem.models.beam_settings import DEFAULT_E, BeamSettings, EndTraction
 from idbench_fem.models.solid import SolidModel
@@ -167,30 +167,3 @@ def make_model(spec: ModelSpec) -> SolidModel:
     return build(
         box.parse(spec.mesh), spec.scenario, spec.n_steps, spec.markers, settings
     )
-
-
-def SvkBeam(
-    beam: SolidMesh,
-    scenario: Scenario | EndTraction,
-    n_steps: int = 20,
-    nu: float = 0.45,
-    markers: int = 2,
-    grid: tuple[int, int, int] = (20, 4, 4),
-    parameters: str = "E",
-    options: dict[str, Any] | None = None,
-) -> SolidModel:
-    """Deprecated: the beam as a :class:`SolidModel` (use :func:`build`).
-
-    The arguments of the former class: ``options`` are
-    :class:`BeamSettings` fields and ``chord_ratio``.
-    """
-    warnings.warn(
-        "SvkBeam is deprecated: the beam is a SolidModel "
-        "(idbench_fem.models.beam.build or make_model)",
-        DeprecationWarning,
-        stacklevel=2,
-    )
-    opts = dict(options or {})
-    chord_ratio = opts.pop("chord_ratio", None)
-    settings = BeamSettings(nu=nu, parameters=parameters, grid=grid, **opts)
-    return build(beam, scenario, n_steps, markers, settings, chord_ratio)

@@ -1,4 +1,4 @@
-"""The built-in load paths of the cantilever beam (DESIGN.md section 7)."""
+"""The built-in load paths of the cantilever beam (docs/design.md section 1)."""
 
 from __future__ import annotations
 

@@ -14,7 +14,7 @@ from idbench_fem.models.solid_settings import check_solver_settings
 
 PARAMETER_KINDS = ("E", "E_regions")
 DEFAULT_E = 5000.0
-"""Default true Young's modulus (Pa) of the beam (DESIGN.md section 7)."""
+"""Default true Young's modulus (Pa) of the beam (docs/design.md section 1)."""
 
 
 @dataclass(frozen=True)

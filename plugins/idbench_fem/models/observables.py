@@ -6,7 +6,7 @@ giving them the optional members of idbench's observation models:
 ``reaction(theta, k, state)`` (:class:`idbench.ReactionModel`, for
 ``force``). It needs the model's ``mesh()``, ``displacement_field(state)``,
 ``_asm`` (an assembler with ``kinematics``, ``element_forces`` and
-``full_to_free``) and ``_modulus(theta, k)``.
+``full_to_free``) and ``element_moduli(theta, k)``.
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ class Observables:
         Model force unit, N.
         """
         asm = self._state_asm()
-        modulus = self._modulus(np.asarray(theta, float), None)  # type: ignore[attr-defined]
+        modulus = self.element_moduli(np.asarray(theta, float), None)  # type: ignore[attr-defined]
         kin = asm.kinematics(np.asarray(state, dtype=float), modulus)
         fe = np.asarray(asm.element_forces(kin)).reshape(-1, 4, 3)
         _, tets = self.mesh()  # type: ignore[attr-defined]

@@ -42,20 +42,14 @@ others predicted from its sensitivity and corrected by chord steps on its
 scaled factorization (both laws are linear in the moduli), optionally shared
 with helper processes (setting ``processes``).
 
-Markers are the body's, snapped to the reference mesh's surface (the
-comparison's truth) and then projected onto each model mesh's surface;
-shape-error points are placed in the reference mesh and located in each
-model mesh (points a coarse mesh misses take its nearest tet's clipped
-barycentric weights). A body may instead place markers in the volume
-(``placement = "volume"``: used as given, interpolated in the tet containing
-them) and locate shape-error points exactly (``locate = "contained"``), as the
-beam does; its ``[[probe]]`` points give the traces' probes.
+Markers, shape-error points, probes and targets are placed on the reference
+mesh (the comparison's truth) and located in each model mesh by
+:mod:`idbench_fem.models.points`.
 """
 
 from __future__ import annotations
 
 import functools
-import hashlib
 import logging
 from collections.abc import Mapping
 from dataclasses import replace
@@ -63,33 +57,24 @@ from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
-import scipy.sparse as sp
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
-from idbench import ConfigError, Cost, ModelSpec, ParameterSpec, Scenario
+from idbench import ConfigError, ModelSpec, ParameterSpec, Scenario
 from idbench_fem.bodies import resolve
 from idbench_fem.bodies.catalog import body_path, get_body, get_mesh, mesh_file
-from idbench_fem.bodies.description import Body, Markers, ShapeError
+from idbench_fem.bodies.description import Body
 from idbench_fem.bodies.loads import nodal_forces, traction_weights
-from idbench_fem.bodies.mesh import (
-    SolidMesh,
-    extent,
-    project_to_surface,
-    region_facets,
-)
+from idbench_fem.bodies.mesh import SolidMesh, extent
+from idbench_fem.bodies.regions import region_facets
 from idbench_fem.fem.batched import BatchedSteps
-from idbench_fem.fem.interpolation import (
-    barycentric,
-    interpolation_matrix,
-    weights_matrix,
-)
 from idbench_fem.fem.law_assembly import LawAssembler
 from idbench_fem.fem.newton import ASSEMBLY_BUFFERS, CHORD_RATIO, freeze
 from idbench_fem.fem.prescribed import PrescribedAssembler
 from idbench_fem.fem.solver import resolve_backend
 from idbench_fem.fem.svk_assembly import Assembler
+from idbench_fem.models.digests import body_digest, mesh_digest
 from idbench_fem.models.observables import Observables
+from idbench_fem.models.points import place_points
 from idbench_fem.models.solid_settings import DEFAULT_BODY, SolidSettings
 
 log = logging.getLogger(__name__)
@@ -189,13 +174,11 @@ class SolidModel(Observables, BatchedSteps):
             self._init_driven(body, mesh, float(s.load_scale))
 
         # parameters: E per region; c_e = true modulus / its region's true value
-        self._regions = resolve.element_regions(body, mesh)
+        self.element_regions = resolve.element_regions(body, mesh)
         moduli = resolve.element_moduli(body, mesh)
         names = body.parameter_names
-        true = np.array([
-            _region_value(body, r) for r in range(len(names))
-        ])  # fmt: skip
-        self._factors = moduli / true[self._regions]
+        true = np.array(body.parameter_values)
+        self._factors = moduli / true[self.element_regions]
         lo, hi = body.parameter_bounds or (_BOUNDS[0] * E, _BOUNDS[1] * E)
         self.parameters = ParameterSpec(
             names, tuple(lo for _ in names), tuple(hi for _ in names),
@@ -229,37 +212,14 @@ class SolidModel(Observables, BatchedSteps):
             # the load the grasp's first step puts on the unknowns
             self.atol = float(s.atol or self.rtol) * self._driven_force_scale()
 
-        f2f = self._state_asm().full_to_free
-        pts = _reference_markers(body, reference)
-        if markers > len(pts):
-            raise ValueError(
-                f"{body.source}: {markers} markers asked for, the body has "
-                f"{len(pts)} on {reference.path!r}"
-            )
-        self.marker_points = pts[_farthest_points(pts, markers)]
-        self.grid_points = _reference_grid(body, reference)
-        if body.markers.placement == "volume" and body.markers.region is None:
-            self._obs = interpolation_matrix(
-                self.marker_points, mesh.points, mesh.tets, f2f
-            )
-        else:
-            self._obs = _surface_interpolation(mesh, self.marker_points, f2f)
-        if body.shape_error.locate == "contained":
-            self._grid = interpolation_matrix(
-                self.grid_points, mesh.points, mesh.tets, f2f
-            )
-        else:
-            self._grid = _interpolation(mesh, self.grid_points, f2f)
-        self._probes = {
-            name: interpolation_matrix(
-                np.asarray(point, dtype=float)[None, :], mesh.points, mesh.tets, f2f
-            )
-            for name, point in body.probes
-        }
-        self.target_points = np.array(
-            [point for _, point in body.targets], dtype=float
-        ).reshape(-1, 3)
-        self._targets = _interpolation(mesh, self.target_points, f2f)
+        placed = place_points(
+            body, mesh, reference, markers, self._state_asm().full_to_free
+        )
+        self.marker_points = placed.marker_points
+        self.grid_points = placed.grid_points
+        self.target_points = placed.target_points
+        self._obs, self._grid = placed.markers, placed.grid
+        self._probes, self._targets = placed.probes, placed.targets
         self._reference = reference
         self._cost = [0, 0, 0]
         self.last_residuals: list[float] = []
@@ -296,7 +256,7 @@ class SolidModel(Observables, BatchedSteps):
             No convergence, a non-finite residual, or inverted elements that
             backtracking cannot avoid.
         """
-        modulus = self._modulus(theta, k)
+        modulus = self.element_moduli(theta, k)
         if not 1 <= k <= self.n_steps:
             raise ValueError(f"load step k = {k}: must be in 1..{self.n_steps}")
         if substeps < 1:
@@ -327,12 +287,12 @@ class SolidModel(Observables, BatchedSteps):
         asm = self._asm
         x = u[asm.unknown]
         if substeps == 1 and self.settings.path_reuse is not False:
-            self._prescribe(k)
+            self.prescribe(k)
             x = self._path_step(theta, k, x, modulus)
         else:
             self._last_path_step = None
             for j in range(1, substeps + 1):
-                self._prescribe(k, j / substeps)
+                self.prescribe(k, j / substeps)
                 x, _ = self._newton(modulus, self._load(k, j / substeps), x, k)
         self._remember_factorization(theta, x)
         return np.asarray(asm.embed(x))
@@ -359,7 +319,7 @@ class SolidModel(Observables, BatchedSteps):
             )
         if not 1 <= k <= self.n_steps:
             raise ValueError(f"load step k = {k}: must be in 1..{self.n_steps}")
-        self._prescribe(k)
+        self.prescribe(k)
         out = super().step_many(thetas, k, X[:, self._asm.unknown])
         return np.asarray(self._asm.embed(out))
 
@@ -404,24 +364,19 @@ class SolidModel(Observables, BatchedSteps):
         factorization of the step just solved plus one step of iterative
         refinement if it ended with a Newton update, else K(u) factored.
         """
-        modulus = self._modulus(theta, k)
+        modulus = self.element_moduli(theta, k)
         u = np.asarray(state, dtype=np.float64)
         if self._driven is not None:  # on the unknowns; the tool's dofs do not move
             self._asm.values = u[self._asm.prescribed]
             u = u[self._asm.unknown]
-        g = self._asm.region_forces(
-            self._asm.kinematics(u, self._factors), self._regions, self.parameters.p
-        )
+        kin = self._asm.kinematics(u, self._factors)
+        g = self._asm.region_forces(kin, self.element_regions, self.parameters.p)
         du = self._state_sensitivity(theta, k, u, modulus, g, self.sensitivity_refine)
         if self._driven is not None:
             full = np.zeros((self.n_state, du.reshape(len(u), -1).shape[1]))
             full[self._asm.unknown] = du.reshape(len(u), -1)
             du = full
         return np.asarray(self._obs @ du.reshape(self.n_state, -1))
-
-    def cost(self) -> Cost:
-        """Cumulative forward solves, Newton iterations and linear solves."""
-        return Cost(*self._cost)
 
     def describe(self) -> dict[str, Any]:
         """JSON-serialisable description of everything the results depend on."""
@@ -430,10 +385,10 @@ class SolidModel(Observables, BatchedSteps):
             "model": "solid",
             "code_version": MODEL_VERSION,
             "body": Path(self.body.source).name,  # names, not paths: the
-            "body_sha256": _body_digest(self.body),  # contents key it
+            "body_sha256": body_digest(self.body),  # contents key it
             "mesh": Path(self.mesh_data.path).name,
-            "mesh_sha256": _mesh_digest(self.mesh_data),
-            "reference_sha256": _mesh_digest(self._reference),
+            "mesh_sha256": mesh_digest(self.mesh_data),
+            "reference_sha256": mesh_digest(self._reference),
             "n_nodes": self.n_nodes,
             "n_elements": len(self.mesh_data.tets),
             "law": self.law_name,
@@ -463,7 +418,7 @@ class SolidModel(Observables, BatchedSteps):
 
     def cell_data(self) -> dict[str, FloatArray]:
         """Per-tet tags for ParaView: parameter ``region`` and ``E_factor`` c_e."""
-        return {"region": self._regions.astype(float), "E_factor": self._factors}
+        return {"region": self.element_regions.astype(float), "E_factor": self._factors}
 
     def displacement_field(self, state: FloatArray) -> FloatArray:
         """Displacement of every node (N, 3), zeros on the fixed ones."""
@@ -483,7 +438,7 @@ class SolidModel(Observables, BatchedSteps):
         The state's dofs: with a displacement-controlled grasp its prescribed
         ones too (where the tool's force is).
         """
-        modulus = self._modulus(theta, None)
+        modulus = self.element_moduli(theta, None)
         u = np.asarray(state, dtype=np.float64)
         asm = self._state_asm()
         return np.asarray(asm.forces(asm.kinematics(u, modulus)))
@@ -501,7 +456,7 @@ class SolidModel(Observables, BatchedSteps):
 
     def tangent(self, theta: FloatArray, state: FloatArray) -> Any:
         """The free-free tangent at ``state`` (scipy CSR; of the unknowns if driven)."""
-        modulus = self._modulus(theta, None)
+        modulus = self.element_moduli(theta, None)
         u = np.asarray(state, dtype=np.float64)
         if self._driven is not None:
             self._asm.values = u[self._asm.prescribed]
@@ -542,7 +497,7 @@ class SolidModel(Observables, BatchedSteps):
         mask[self._driven] = True
         return mask
 
-    def _prescribe(self, k: int, fraction: float = 1.0) -> None:
+    def prescribe(self, k: int, fraction: float = 1.0) -> None:
         """Set the prescribed dofs to their values ``fraction`` into step k."""
         if self._driven is not None:
             t = (k - 1 + fraction) / self.n_steps
@@ -569,7 +524,7 @@ class SolidModel(Observables, BatchedSteps):
         asm = self._asm
         true = np.asarray(self.parameters.default, dtype=float)
         u = asm.embed(np.zeros(asm.n_free), self._u_end / self.n_steps)
-        kin = asm.inner.kinematics(u, self._modulus(true, None))
+        kin = asm.inner.kinematics(u, self.element_moduli(true, None))
         return float(np.linalg.norm(asm.inner.forces(kin)[asm.unknown]))
 
     def _load(self, k: int, fraction: float) -> FloatArray:
@@ -585,104 +540,10 @@ class SolidModel(Observables, BatchedSteps):
         assert self._load_weights is not None
         return np.asarray(self._load_weights * traction[self._load_component])
 
-    def _modulus(self, theta: FloatArray, k: int | None) -> FloatArray:
+    def element_moduli(self, theta: FloatArray, k: int | None) -> FloatArray:
+        """The elements' moduli theta_{r(e)} c_e (T,); theta checked (step k)."""
         th = self._theta(theta, k)
-        return np.asarray(th[self._regions] * self._factors)
-
-
-def _region_value(body: Body, r: int) -> float:
-    """True value of parameter ``r``: its region's ``E_regions`` entry, else E."""
-    if not body.parameter_regions:
-        return body.material.E
-    name = body.parameter_regions[r].name
-    return dict(body.material.E_regions).get(name or "", body.material.E)
-
-
-def _digest(path: Path) -> str:
-    return _digest_cached(path, path.stat().st_mtime)
-
-
-def _body_digest(body: Body) -> str:
-    """The body file's SHA-256; of what the states depend on for a body in memory.
-
-    That is its description without markers, shape-error points and probes,
-    so that one truth serves every marker count (as the truth's key wants).
-    """
-    path = Path(body.source)
-    if path.is_file():
-        return _digest(path)
-    states = replace(body, markers=Markers(), shape_error=ShapeError(), probes=())
-    text = repr(states) + "".join(  # a driven grasp's displacement is no repr
-        f"|{m.name}:{m.displacement}" for m in body.manipulations if m.driven
-    )
-    return hashlib.sha256(text.encode()).hexdigest()
-
-
-def _mesh_digest(mesh: SolidMesh) -> str:
-    """The mesh file's SHA-256; of its arrays for a mesh built in memory."""
-    path = Path(mesh.path)
-    return _digest(path) if path.is_file() else mesh.digest()
-
-
-@functools.lru_cache(maxsize=64)
-def _digest_cached(path: Path, mtime: float) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-@functools.lru_cache(maxsize=8)
-def _reference_markers(body: Body, reference: SolidMesh) -> FloatArray:
-    return resolve.marker_points(body, reference)
-
-
-@functools.lru_cache(maxsize=8)
-def _reference_grid(body: Body, reference: SolidMesh) -> FloatArray:
-    return resolve.shape_error_points(body, reference)
-
-
-def _farthest_points(points: FloatArray, m: int) -> IntArray:
-    """Indices of ``m`` of ``points``: the first m of a farthest-point ordering.
-
-    Starts from point 0, so for listed markers the first is kept; when m
-    equals the number of points, all of them in their order.
-    """
-    if m >= len(points):
-        return np.arange(len(points))
-    chosen = [0]
-    dist = np.linalg.norm(points - points[0], axis=1)
-    for _ in range(m - 1):  # m markers, not mesh entities
-        i = int(dist.argmax())
-        chosen.append(i)
-        dist = np.minimum(dist, np.linalg.norm(points - points[i], axis=1))
-    return np.asarray(chosen)
-
-
-def _surface_interpolation(
-    mesh: SolidMesh, points: FloatArray, full_to_free: IntArray
-) -> sp.csr_matrix:
-    """Interpolate at the nearest surface points of ``mesh`` to ``points``."""
-    _, facet, bary, _ = project_to_surface(mesh, points)
-    return weights_matrix(mesh.facets[facet], bary, full_to_free)
-
-
-def _interpolation(
-    mesh: SolidMesh, points: FloatArray, full_to_free: IntArray, k: int = 16
-) -> sp.csr_matrix:
-    """P1 interpolation at ``points``; outside points use the nearest tet, clipped.
-
-    Among the ``k`` tets with the nearest centroids, the one whose smallest
-    barycentric coordinate is largest; its negative coordinates are set to
-    zero and the rest rescaled to sum to one.
-    """
-    x = mesh.points[mesh.tets]
-    k = min(k, len(mesh.tets))
-    _, cand = cKDTree(x.mean(axis=1)).query(points, k=k)
-    cand = np.asarray(cand).reshape(len(points), k)
-    bary = barycentric(points[:, None, :], x[cand])  # (P, k, 4)
-    best = bary.min(axis=2).argmax(axis=1)
-    rows = np.arange(len(points))
-    w = np.clip(bary[rows, best], 0.0, None)
-    w /= w.sum(axis=1, keepdims=True)
-    return weights_matrix(mesh.tets[cand[rows, best]], w, full_to_free)
+        return np.asarray(th[self.element_regions] * self._factors)
 
 
 def make_model(spec: ModelSpec) -> SolidModel:

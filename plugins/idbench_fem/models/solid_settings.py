@@ -77,9 +77,9 @@ class SolidSettings:
     path_reuse
         A step that continues the previous one starts from the path's
         extrapolation and keeps its factorization (chords, refactoring by the
-        rule of :meth:`~idbench_fem.fem.batched.BatchedSteps._path_step`),
-        and ``step_many`` accelerates its sigma points' chords
-        (:func:`~idbench_fem.fem.batched._accelerated_chords`); results equal
+        rule of :mod:`idbench_fem.fem.path_steps`), and ``step_many``
+        accelerates its sigma points' chords
+        (:func:`~idbench_fem.fem.chords.accelerated_chords`); results equal
         plain Newton to the tolerance (None: on; False: plain Newton from the
         given state and plain chords, as the study's beam).
     """

@@ -25,15 +25,12 @@ import logging
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
-from scipy.interpolate import PchipInterpolator
 
 from idbench import (
-    CompareConfig,
     ConfigError,
     ForwardModel,
     ModelFailure,
@@ -41,11 +38,11 @@ from idbench import (
     Registry,
     Scenario,
     build_registry,
-    effective_path,
-    shape_error,
-    simulate_truth,
 )
 from idbench_fem.models.beam_settings import EndTraction, end_traction
+
+if TYPE_CHECKING:  # pandas, scipy.interpolate, idbench's runs: loaded when used
+    import pandas as pd
 
 FloatArray = NDArray[np.float64]
 
@@ -163,6 +160,7 @@ class Calibration:
     """
 
     def __init__(self, table: pd.DataFrame, settings: CalibrationSettings) -> None:
+        from scipy.interpolate import PchipInterpolator
         if settings.stretch_magnitude is None or settings.bend_magnitude is None:
             raise ValueError("settings must carry both end magnitudes")
         self.table = table.sort_values(["angle", "step"]).reset_index(drop=True)
@@ -213,6 +211,7 @@ class Calibration:
         ValueError
             A compressive direction (x component < 0) or a negative magnitude.
         """
+        from scipy.interpolate import PchipInterpolator
         angle = angle_of(direction)
         if angle > 90.0 + 1e-9:
             raise ValueError(
@@ -241,6 +240,7 @@ class Calibration:
     @classmethod
     def load(cls, directory: str | Path) -> Calibration:
         """Read a calibration written by :meth:`save` (or ``idbench calibrate``)."""
+        import pandas as pd
         d = Path(directory)
         raw = json.loads((d / "calibration.json").read_text())
         raw["angles"] = tuple(raw["angles"])
@@ -258,6 +258,9 @@ def calibrate(
 
     ``progress(done, total, angle)`` is called after each direction.
     """
+    import pandas as pd
+
+    from idbench import effective_path, simulate_truth
     registry = registry or build_registry()
     stretch = settings.stretch_magnitude or _magnitude(registry, "stretch-x")
     bend = settings.bend_magnitude or _magnitude(registry, "bend-y")
@@ -304,6 +307,7 @@ def collapse(calibration: Calibration) -> pd.DataFrame:
     - ``tip``: a cubic in the truth tip displacement norm alone;
     - ``tip_angle``: a cubic in the direction of the truth tip displacement.
     """
+    import pandas as pd
     table = calibration.table
     angles = sorted(table["angle"].unique())
     interior = angles[1:-1]
@@ -357,7 +361,9 @@ def evaluate(
     ``shape_error_path`` (mean per grid point in m, at the last step and
     averaged over the steps), and the E range used.
     """
-    from idbench import compare
+    import pandas as pd
+
+    from idbench import CompareConfig, compare, simulate_truth
 
     registry = registry or build_registry()
     extra = {sc.name: sc for sc in scenarios if isinstance(sc, Scenario)}
@@ -438,6 +444,7 @@ def _errors(
     model: ForwardModel, moduli: FloatArray, truth_grid: FloatArray
 ) -> FloatArray:
     """Mean shape error per step of ``model`` driven by one E per step."""
+    from idbench import shape_error
     state = model.reset()
     errors = np.empty(len(moduli))
     for k, e in enumerate(moduli, start=1):

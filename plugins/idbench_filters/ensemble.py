@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from idbench import Analysis, Filter, ForwardModel, Observation, Prior, noise_matrix
-from idbench_filters._common import (
+from idbench_filters.common import (
     FloatArray,
     advance_many,
     check_choice,
