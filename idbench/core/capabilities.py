@@ -259,8 +259,8 @@ ESTIMATOR_OPTIONAL: dict[str, Member] = {
     ),
     "innovation": Member(
         None,
-        "(nu, S) after an observed step: the innovation nu (m,) of the forecast "
-        "and its covariance S (m, m); the traces' nis column is nu^T S^-1 nu "
+        "(v, S) after an observed step: the innovation v (m,) of the forecast "
+        "and its covariance S (m, m); the traces' nis column is v^T S^-1 v "
         "(an Estimate's own innovation, if it has one, is read first)",
     ),
     "estimate_solves": Member(
