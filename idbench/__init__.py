@@ -7,34 +7,36 @@ from __future__ import annotations
 
 from idbench.calibrate.effective import effective_path
 from idbench.core.interfaces import (
-    BatchModel,
-    BoundingBoxModel,
-    CellDataModel,
     Cost,
-    DiscrepancyModel,
     Diverged,
     Estimate,
     Estimator,
-    FieldModel,
     ForwardModel,
-    LoadScalingModel,
     ModelDefaults,
     ModelFailure,
     ModelSpec,
-    NodeCountModel,
     Observation,
-    ObservationNeedsModel,
     ParameterSpec,
     Prior,
+    Skipped,
+)
+from idbench.core.observation_model import ObservationModel
+from idbench.core.optional import (
+    BatchModel,
+    BoundingBoxModel,
+    CellDataModel,
+    DiscrepancyModel,
+    FieldModel,
+    LoadScalingModel,
+    NodeCountModel,
+    ObservationNeedsModel,
     ProbedModel,
     ReactionModel,
     SensitiveModel,
-    Skipped,
     SurfaceModel,
     TargetModel,
     VolumeModel,
 )
-from idbench.core.observation_model import ObservationModel
 from idbench.core.scenario import Scenario, Sparsity
 from idbench.core.version import __version__
 from idbench.estimate.filter import Analysis, Filter, noise_matrix

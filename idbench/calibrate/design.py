@@ -129,7 +129,7 @@ def scaling_holds(model: ForwardModel) -> bool:
     The check (when the model declares nothing): with a fixed theta, step 2
     from the unloaded state through step 1 equals step 1 at theta / 2.
     """
-    declared = getattr(model, LOAD_SCALING, None)
+    declared = member(model, LOAD_SCALING)
     if declared is not None:
         return bool(declared) and model.parameters.p == 1
     if model.parameters.p != 1 or model.n_steps < 2:

@@ -24,13 +24,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, cast
 
-from idbench.core.interfaces import (
+from idbench.core.interfaces import FloatArray
+from idbench.core.optional import (
     BatchModel,
     BoundingBoxModel,
     CellDataModel,
     DiscrepancyModel,
     FieldModel,
-    FloatArray,
     LoadScalingModel,
     NodeCountModel,
     ObservationNeedsModel,
@@ -120,20 +120,20 @@ def present(model: Any) -> dict[str, Any]:
 def needs_observed_of(model: Any) -> tuple[str, ...]:
     """Members an observation of ``model`` must use one of (empty: none needed).
 
-    See :class:`~idbench.core.interfaces.ObservationNeedsModel`.
+    See :class:`~idbench.core.optional.ObservationNeedsModel`.
     """
     value = member(model, "needs_observed")
     return tuple(str(v) for v in value) if value else ()
 
 
 def n_nodes_of(model: Any) -> int | None:
-    """The model's mesh size (:class:`~idbench.core.interfaces.NodeCountModel`)."""
+    """The model's mesh size (:class:`~idbench.core.optional.NodeCountModel`)."""
     value: int | None = member(model, "n_nodes")
     return value
 
 
 def probes_of(model: Any) -> Callable[[FloatArray], dict[str, float]] | None:
-    """The model's ``probes`` (:class:`~idbench.core.interfaces.ProbedModel`)."""
+    """The model's ``probes`` (:class:`~idbench.core.optional.ProbedModel`)."""
     value: Callable[[FloatArray], dict[str, float]] | None = member(model, "probes")
     return value
 
@@ -143,7 +143,7 @@ StepLike = Callable[[FloatArray, int, FloatArray], FloatArray]
 
 
 def sensitivity_of(model: Any) -> StepLike | None:
-    """The model's ``sensitivity`` (:class:`~idbench.core.interfaces.SensitiveModel`).
+    """The model's ``sensitivity`` (:class:`~idbench.core.optional.SensitiveModel`).
 
     None where the model has none.
     """
@@ -151,14 +151,14 @@ def sensitivity_of(model: Any) -> StepLike | None:
 
 
 def step_many_of(model: Any) -> StepLike | None:
-    """The model's ``step_many`` (:class:`~idbench.core.interfaces.BatchModel`)."""
+    """The model's ``step_many`` (:class:`~idbench.core.optional.BatchModel`)."""
     return cast("StepLike | None", member(model, "step_many"))
 
 
 def bounds_of(model: Any) -> Any:
     """The model's ``bounds``, as it gives them.
 
-    See :class:`~idbench.core.interfaces.BoundingBoxModel`.
+    See :class:`~idbench.core.optional.BoundingBoxModel`.
     """
     return member(model, "bounds")
 
@@ -166,7 +166,7 @@ def bounds_of(model: Any) -> Any:
 def volume_of(model: Any) -> Any:
     """The model's ``volume``, as given.
 
-    See :class:`~idbench.core.interfaces.VolumeModel`.
+    See :class:`~idbench.core.optional.VolumeModel`.
     """
     return member(model, "volume")
 
@@ -174,7 +174,7 @@ def volume_of(model: Any) -> Any:
 def field_model(model: Any) -> FieldModel | None:
     """``model`` if it has ``mesh`` and ``displacement_field``, else None.
 
-    See :class:`~idbench.core.interfaces.FieldModel`.
+    See :class:`~idbench.core.optional.FieldModel`.
     """
     if member(model, "mesh") is None or member(model, "displacement_field") is None:
         return None
@@ -182,7 +182,7 @@ def field_model(model: Any) -> FieldModel | None:
 
 
 def cell_data_of(model: Any) -> Callable[[], dict[str, FloatArray]] | None:
-    """The model's ``cell_data`` (:class:`~idbench.core.interfaces.CellDataModel`)."""
+    """The model's ``cell_data`` (:class:`~idbench.core.optional.CellDataModel`)."""
     value: Callable[[], dict[str, FloatArray]] | None = member(model, "cell_data")
     return value
 
@@ -196,7 +196,7 @@ def observation_cov_of(model: Any) -> Callable[[FloatArray], FloatArray] | None:
 def extrapolated_of(model: Any) -> int:
     """Predictions a corrected model made beyond its calibration (0: none, or no count).
 
-    See :class:`~idbench.core.interfaces.DiscrepancyModel`.
+    See :class:`~idbench.core.optional.DiscrepancyModel`.
     """
     return int(member(model, "extrapolated") or 0)
 

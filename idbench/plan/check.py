@@ -301,7 +301,7 @@ def _same(given: Any, recorded: Any) -> bool:
 def _check_observed(spec: RunSpec, model: ForwardModel, session: PlanSession) -> None:
     """Refuse a run whose observation uses none of the members its model needs.
 
-    See :class:`~idbench.core.interfaces.ObservationNeedsModel` (a solid whose tool
+    See :class:`~idbench.core.optional.ObservationNeedsModel` (a solid whose tool
     moves by a prescribed displacement needs its ``reaction``: the force).
 
     Raises

@@ -28,7 +28,6 @@ from idbench.core.capabilities import (
     volume_of,
 )
 from idbench.core.interfaces import (
-    BatchModel,
     Cost,
     Estimate,
     FloatArray,
@@ -36,6 +35,7 @@ from idbench.core.interfaces import (
     ParameterSpec,
     Prior,
 )
+from idbench.core.optional import BatchModel
 from idbench.core.view import Absent, ModelView
 
 

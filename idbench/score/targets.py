@@ -1,6 +1,6 @@
 """Hidden targets: the target registration error (TRE) of a run, and its region.
 
-A model with ``targets(state)`` (:class:`~idbench.core.interfaces.TargetModel`)
+A model with ``targets(state)`` (:class:`~idbench.core.optional.TargetModel`)
 names points nobody observes (a tumour's centroid, points on a vessel). Each
 step's ``tre_mm`` is the mean over the targets of the distance between the
 target moved by the model with the estimator's state and moved by the truth

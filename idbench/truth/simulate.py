@@ -45,7 +45,7 @@ class Truth:
         The truth model's ``n_nodes`` (NaN if it does not say).
     targets
         Hidden-target displacements per step, shape (K, T, 3), or None if the
-        model has no ``targets`` (:class:`~idbench.core.interfaces.TargetModel`)
+        model has no ``targets`` (:class:`~idbench.core.optional.TargetModel`)
         or none to show (T = 0).
     held_points
         A recording's held-out points per step (K, N, 3), NaN rows where a

@@ -30,6 +30,7 @@ as using R + Sigma (for the EnKF the perturbations become N(0, R + Sigma)).
 
 from __future__ import annotations
 
+from abc import abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,7 +74,7 @@ def draw_prior(
 
 
 @dataclass
-class EnsembleFilter(Filter):
+class EnsembleFilter(Filter, abstract=True):
     """Base of the ensemble filters: settings, start, forecast and reporting.
 
     Attributes
@@ -142,6 +143,7 @@ class EnsembleFilter(Filter):
         """The current members (N, n), rows [u_i; xi_i] (a copy)."""
         return self._X.copy()
 
+    @abstractmethod
     def analysis(
         self, X: FloatArray, HX: FloatArray, y: FloatArray, r: float
     ) -> FloatArray:
