@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from idbench.calibrate.effective import effective_path
 from idbench.core.interfaces import (
+    LOAD_FIGURES,
     BatchModel,
     BoundingBoxModel,
     CellDataModel,
@@ -16,6 +17,7 @@ from idbench.core.interfaces import (
     Estimator,
     FieldModel,
     ForwardModel,
+    LoadFiguresModel,
     ModelDefaults,
     ModelFailure,
     ModelSpec,
@@ -53,6 +55,7 @@ from idbench.score.metrics import shape_error
 from idbench.truth.simulate import simulate_path, simulate_truth
 
 __all__ = [
+    "LOAD_FIGURES",
     "TRANSFORMS",
     "Analysis",
     "BatchModel",
@@ -68,6 +71,7 @@ __all__ = [
     "FieldModel",
     "Filter",
     "ForwardModel",
+    "LoadFiguresModel",
     "IdentityTransform",
     "LogTransform",
     "LowRankCovariance",

@@ -20,6 +20,7 @@ from idbench.core.interfaces import (
     CellDataModel,
     FieldModel,
     FloatArray,
+    LoadFiguresModel,
     NodeCountModel,
     ObservationNeedsModel,
     ProbedModel,
@@ -44,6 +45,7 @@ OPTIONAL: dict[str, type] = {
     "reaction": ReactionModel,
     "targets": TargetModel,
     "needs_observed": ObservationNeedsModel,
+    "load_figures": LoadFiguresModel,
 }
 """Each optional member of a forward model and the protocol that declares it."""
 
@@ -58,6 +60,7 @@ METHODS = frozenset(
         "surface",
         "reaction",
         "targets",
+        "load_figures",
     }
 )
 """The optional members that are methods (the others are values)."""
@@ -162,4 +165,13 @@ def field_model(model: Any) -> FieldModel | None:
 def cell_data_of(model: Any) -> Callable[[], dict[str, FloatArray]] | None:
     """The model's ``cell_data`` (:class:`~idbench.core.interfaces.CellDataModel`)."""
     value: Callable[[], dict[str, FloatArray]] | None = member(model, "cell_data")
+    return value
+
+
+def load_figures_of(model: Any) -> Callable[[], dict[str, float]] | None:
+    """The model's ``load_figures``.
+
+    See :class:`~idbench.core.interfaces.LoadFiguresModel`.
+    """
+    value: Callable[[], dict[str, float]] | None = member(model, "load_figures")
     return value
