@@ -97,3 +97,61 @@ def write_box_mesh(path, n_x: int, length: float, width: float, n_yz: int = 3) -
         np.linspace(0, width, n_yz),
     )
     meshio.write(path, meshio.Mesh(m.p.T, [("tetra", m.t.T)]))
+
+
+ORGAN_AXES = (60.0, 40.0, 30.0)
+"""Semi-axes (mm) of the synthetic organ surface: an ellipsoid."""
+
+
+def ellipsoid_surface(level: int = 2, axes=ORGAN_AXES):  # type: ignore[no-untyped-def]
+    """An ellipsoid triangulated from a subdivided icosahedron: (V, 3), (T, 3).
+
+    ``level`` 2: 162 vertices and 320 triangles, outward normals; jittered
+    slightly (seeded) so that no two triangles are symmetric images.
+    """
+    import numpy as np
+
+    t = (1 + 5**0.5) / 2
+    v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t],
+                  [0, 1, t], [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1],
+                  [-t, 0, -1], [-t, 0, 1]], dtype=float)  # fmt: skip
+    f = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11],
+                  [1, 5, 9], [5, 11, 4], [11, 10, 2], [10, 7, 6], [7, 1, 8],
+                  [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9],
+                  [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]])  # fmt: skip
+    v /= np.linalg.norm(v, axis=1)[:, None]
+    for _ in range(level):
+        e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+        edges, inverse = np.unique(e, axis=0, return_inverse=True)
+        mid = v[edges].mean(axis=1)
+        mid /= np.linalg.norm(mid, axis=1)[:, None]
+        m = inverse.reshape(3, -1).T + len(v)
+        v = np.vstack([v, mid])
+        a, b, c = f.T
+        ab, bc, ca = m.T
+        f = np.vstack([np.c_[a, ab, ca], np.c_[b, bc, ab], np.c_[c, ca, bc],
+                       np.c_[ab, bc, ca]])  # fmt: skip
+    rng = np.random.default_rng(7)
+    v = v * (1 + 0.003 * rng.standard_normal((len(v), 1)))
+    return v * np.asarray(axes, dtype=float), f
+
+
+def write_surface(path, points, triangles) -> None:  # type: ignore[no-untyped-def]
+    """Write a triangulated surface (STL, OBJ or PLY by the suffix) with meshio."""
+    import meshio
+    import numpy as np
+
+    cells = [("triangle", np.asarray(triangles, dtype=np.int32))]  # PLY: 32 bits
+    meshio.write_points_cells(str(path), points, cells)
+
+
+def folded(points):  # type: ignore[no-untyped-def]
+    """A copy of an ellipsoid's vertices with the +x tip pushed through the body.
+
+    The tip's triangles then cross the far side: a fold near x = -axes[0].
+    """
+    out = points.copy()
+    tip = int(out[:, 0].argmax())
+    out[tip] = [-1.5 * out[tip, 0], 3.0, 2.0]
+    return out
+

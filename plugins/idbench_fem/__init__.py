@@ -31,6 +31,7 @@ from idbench_fem.models.solid import make_model as make_solid
 from idbench_fem.models.solid_settings import SolidSettings, all_scenarios
 from idbench_fem.tools.calibrate import Calibration, CalibrationSettings, calibrate
 from idbench_fem.tools.commands import CALIBRATE
+from idbench_fem.tools.surface import MESH
 
 __all__ = [
     "BACKENDS",
@@ -89,8 +90,13 @@ def register_models(register: Callable[..., None]) -> None:
 
 @idbench.hookimpl
 def register_commands(register: Callable[[str, Any], None]) -> None:
-    """Register ``idbench calibrate`` (the beam's effective-E map)."""
+    """Register ``idbench calibrate`` and ``mesh``.
+
+    ``calibrate``: the beam's effective-E map; ``mesh``: tetrahedral meshes of
+    a surface file.
+    """
     register("calibrate", CALIBRATE)
+    register("mesh", MESH)
 
 
 @idbench.hookimpl

@@ -129,6 +129,18 @@ def _det(a: FloatArray, b: FloatArray, c: FloatArray) -> FloatArray:
     return np.einsum("ti,ti->t", a, np.cross(b, c))
 
 
+def tet_quality(points: FloatArray, tets: IntArray) -> FloatArray:
+    r"""The mean-ratio quality of each tet (T,): 1 regular, 0 flat.
+
+    .. math:: q = 12\, (3 |V|)^{2/3} / \sum_{i<j} l_{ij}^2
+    """
+    x = points[tets]
+    volume = np.abs(_det(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], x[:, 3] - x[:, 0])) / 6
+    pairs = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
+    lengths = sum(((x[:, i] - x[:, j]) ** 2).sum(axis=1) for i, j in pairs)
+    return np.asarray(12.0 * np.cbrt(3.0 * volume) ** 2 / lengths)
+
+
 def check_not_folded(
     points: NDArray[np.float64], tets: NDArray[np.int64], spec: str
 ) -> None:
