@@ -155,3 +155,77 @@ def folded(points):  # type: ignore[no-untyped-def]
     out[tip] = [-1.5 * out[tip, 0], 3.0, 2.0]
     return out
 
+
+ORGAN_BODY = """
+[mesh]
+truth = "meshes/organ-n1200.msh"
+models = ["meshes/organ-n150.msh"]
+
+[material]
+law = "neo-hookean"
+E = 4000.0
+nu = 0.45
+density = 1000.0
+
+[fixed]
+half_space = { point = [-0.045, 0.0, 0.0], normal = [-1.0, 0.0, 0.0] }
+
+[[manipulation]]
+name = "push"
+kind = "pressure"
+region = { sphere = { centre = [0.06, 0.0, 0.0], radius = 0.025 } }
+pressure = 100.0
+
+[[manipulation]]
+name = "push-conserved"
+kind = "pressure"
+region = { sphere = { centre = [0.06, 0.0, 0.0], radius = 0.025 } }
+pressure = 100.0
+conserve = "resultant"
+
+[[manipulation]]
+name = "lift"
+kind = "grasp"
+point = [0.03, 0.0, 0.03]
+radius = 0.01
+force = [0.0, 0.0, 0.3]
+
+[[manipulation]]
+name = "sag"
+kind = "gravity"
+acceleration = [0.0, 0.0, -9.81]
+conserve = "resultant"
+
+[markers]
+points = [[0.04, 0.0, 0.025], [0.0, 0.0, 0.03], [0.05, -0.02, 0.0]]
+
+[shape_error]
+grid = [8, 5, 4]
+margin = 0.003
+
+[targets]
+lesion = [0.02, 0.0, 0.0]
+"""
+"""A body on the synthetic organ (:func:`organ_body`): a pressure inside a
+sphere (as is and conserved), a grasp and a conserved gravity."""
+
+
+def organ_body(folder, sizes=(150, 1200)):  # type: ignore[no-untyped-def]
+    """Write the synthetic organ's meshes (``sizes`` nodes) and ORGAN_BODY there.
+
+    Returns the body TOML's path; the meshes are ``meshes/organ-nN.msh``.
+    """
+    from pathlib import Path
+
+    from idbench_fem.bodies.surface_file import merged
+    from idbench_fem.bodies.surface_mesh import mesh_surface
+
+    folder = Path(folder)
+    (folder / "meshes").mkdir(parents=True, exist_ok=True)
+    v, f = ellipsoid_surface(2)
+    surface = merged("organ", v / 1000.0, f)
+    for n in sizes:
+        mesh_surface(surface, n, folder / "meshes" / f"organ-n{n}.msh")
+    path = folder / "body.toml"
+    path.write_text(ORGAN_BODY)
+    return path
