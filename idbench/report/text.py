@@ -126,7 +126,11 @@ def load_lines(runs: pd.DataFrame, markdown: bool = False) -> list[str]:
     if flagged.empty:
         return []
     keys = [k for k in ("scenario", "mesh") if k in runs]
-    groups = list(flagged.groupby([flagged[k].astype(str) for k in keys], sort=True))
+    order = [k for k in ("scenario", "model_nodes", "mesh") if k in runs]
+    flagged = flagged.sort_values(order, kind="stable") if order else flagged
+    groups = list(
+        flagged.groupby([flagged[k].astype(str) for k in keys], sort=False)
+    )
     lines = [
         f"load: {len(groups)} row(s) whose model's load differs from the truth's by "
         f"more than {LOAD_TOLERANCE:.0%} (runs.parquet, columns load_*_ratio; "

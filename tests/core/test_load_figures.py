@@ -68,6 +68,11 @@ def test_each_run_stores_its_load_against_the_truths(registry, tmp_path):
     assert lines[1] == "  pull 5: resultant 0.804"  # volume 1: not shown
     assert len(lines) == 2  # mesh 100 is within 2% (0.995)
     assert "load: 1 row(s)" in summary_text(runs, "markdown")
+    from idbench.report.write import write_report
+
+    write_report(tmp_path / "out")
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "\n- pull 5: resultant 0.804\n" in report
 
 
 def test_a_model_without_load_figures_has_no_load_columns(registry, tmp_path):
