@@ -88,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
         say(
             f"[{time.perf_counter() - t0:.0f} s] {path.name}: {result.nodes} nodes "
             f"(asked {n}), {result.tets} tets, h = {result.h * 1000:.3g} mm, "
-            f"{result.tries} tries, {result.seconds:.1f} s"
+            f"{result.tries} {'try' if result.tries == 1 else 'tries'}, "
+            f"{result.seconds:.1f} s"
         )
     print(quality_table(made, surface.volume))
     print()
