@@ -22,11 +22,13 @@ from idbench.core.interfaces import (
 )
 from idbench.core.observation_model import ObservationModel
 from idbench.core.optional import (
+    LOAD_FIGURES,
     BatchModel,
     BoundingBoxModel,
     CellDataModel,
     DiscrepancyModel,
     FieldModel,
+    LoadFiguresModel,
     LoadScalingModel,
     NodeCountModel,
     ObservationNeedsModel,
@@ -58,6 +60,7 @@ from idbench.score.metrics import shape_error
 from idbench.truth.simulate import simulate_path, simulate_truth
 
 __all__ = [
+    "LOAD_FIGURES",
     "TRANSFORMS",
     "Analysis",
     "BatchModel",
@@ -74,6 +77,7 @@ __all__ = [
     "FieldModel",
     "Filter",
     "ForwardModel",
+    "LoadFiguresModel",
     "IdentityTransform",
     "LoadScalingModel",
     "LogTransform",

@@ -31,6 +31,7 @@ from idbench.core.optional import (
     CellDataModel,
     DiscrepancyModel,
     FieldModel,
+    LoadFiguresModel,
     LoadScalingModel,
     NodeCountModel,
     ObservationNeedsModel,
@@ -63,6 +64,7 @@ OPTIONAL: dict[str, type] = {
     "targets_cov": DiscrepancyModel,
     "extrapolated": DiscrepancyModel,
     "load_scaling": LoadScalingModel,
+    "load_figures": LoadFiguresModel,
 }
 """Each optional member of a forward model and the protocol that declares it."""
 
@@ -80,6 +82,7 @@ METHODS = frozenset(
         "observation_cov",
         "grid_cov",
         "targets_cov",
+        "load_figures",
     }
 )
 """The optional members that are methods (the others are values)."""
@@ -498,3 +501,12 @@ def lacking(cls: type, protocol: type) -> list[str]:
         if (not callable(value)) if method else (value is None and name not in fields):
             out.append(name)
     return out
+
+
+def load_figures_of(model: Any) -> Callable[[], dict[str, float]] | None:
+    """The model's ``load_figures``.
+
+    See :class:`~idbench.core.optional.LoadFiguresModel`.
+    """
+    value: Callable[[], dict[str, float]] | None = member(model, "load_figures")
+    return value

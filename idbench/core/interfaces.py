@@ -242,7 +242,8 @@ class ForwardModel(Protocol):
     (:class:`TargetModel`, hidden targets scored by their TRE);
     ``observation_cov``, ``grid_cov``, ``targets_cov`` and ``extrapolated``
     (:class:`DiscrepancyModel`, a model corrected by its calibration) and
-    ``load_scaling`` (:class:`LoadScalingModel`). The core
+    ``load_scaling`` (:class:`LoadScalingModel`) and ``load_figures``
+    (:class:`LoadFiguresModel`, each run's load against the truth's). The core
     looks them up in one place, :mod:`idbench.core.capabilities`;
     :func:`idbench.registry.testing.check_model` checks them.
 

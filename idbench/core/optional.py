@@ -232,3 +232,42 @@ class LoadScalingModel(ForwardModel, Protocol):
     def load_scaling(self) -> bool:
         """Whether the path depends on (k, theta) only through (k / K) / theta."""
         ...
+
+
+LOAD_FIGURES: dict[str, str] = {
+    "resultant": "N",
+    "moment": "N m",
+    "area": "m^2",
+    "fixed_area": "m^2",
+    "volume": "m^3",
+    "mass": "kg",
+}
+"""The figures a :class:`LoadFiguresModel` reports, by name, with their units.
+
+``resultant``: the magnitude of the sum of the scenario's external nodal
+forces at the end of its load path; ``moment``: the magnitude of their
+moment about the centroid of the fixed (supported) region; ``area``: the
+loaded surface's area (0 for a body force); ``fixed_area``: the fixed
+region's surface area; ``volume`` and ``mass``: the body's. A model may
+report a subset, or other names (each a column ``load_NAME_ratio``).
+"""
+
+
+@runtime_checkable
+class LoadFiguresModel(ForwardModel, Protocol):
+    """A forward model that measures its scenario's load on its own mesh.
+
+    Optional: a run stores, per figure, the ratio of its model's figure to
+    the truth model's (columns ``load_NAME_ratio``, NaN where the truth's is
+    0 or missing), and the summary flags the rows whose ratios differ from
+    1 by more than 2%: on a coarse mesh of a curved body the same selector
+    captures another area, and a lighter load looks like a stiffer body.
+    """
+
+    def load_figures(self) -> dict[str, float]:
+        """Finite figures >= 0 by name (:data:`LOAD_FIGURES`: names and units).
+
+        Of the whole load path's end load, in model units (SI for the
+        built-ins); they do not depend on the parameters or the state.
+        """
+        ...

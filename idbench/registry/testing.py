@@ -19,6 +19,7 @@ from idbench.core.capabilities import (
     cell_data_of,
     field_model,
     given,
+    load_figures_of,
     member,
     n_nodes_of,
     present,
@@ -136,7 +137,9 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
     ``parameters.default``, if set, must lie inside the bounds;
     ``surface(state)`` must give finite vertices (V, 3) and triangles (T, 3)
     indexing them; ``reaction(theta, k, state)`` a finite vector;
-    ``targets(state)`` finite displacements (T, 3) (T = 0: none).
+    ``targets(state)`` finite displacements (T, 3) (T = 0: none);
+    ``load_figures()`` finite numbers >= 0 by name (each a column
+    ``load_NAME_ratio``).
     """
     usable = present(model)
     for name in given(model):
@@ -184,6 +187,17 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
             assert name not in reserved, f"probe {name!r} shadows a traces column"
             assert np.ndim(value) == 0 and np.isfinite(value), (
                 f"probe {name!r} must be a finite scalar, got {value!r}"
+            )
+    figures = load_figures_of(model)
+    if figures is not None:
+        named = figures()
+        assert isinstance(named, dict), "load_figures() must return a dict"
+        for name, value in named.items():
+            assert isinstance(name, str) and name.isidentifier(), (
+                f"load figure name {name!r} must be an identifier"
+            )
+            assert np.ndim(value) == 0 and np.isfinite(value) and value >= 0, (
+                f"load figure {name!r} must be a finite number >= 0, got {value!r}"
             )
     n_nodes = n_nodes_of(model)
     if n_nodes is not None:

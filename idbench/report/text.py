@@ -95,12 +95,62 @@ def summary_text(
     return "\n".join(lines).rstrip()
 
 
+LOAD_TOLERANCE = 0.02
+"""A run's load figure is flagged when its ratio to the truth's is off 1 by more."""
+
+
 def flagged_lines(runs: pd.DataFrame, markdown: bool = False) -> list[str]:
     """Lines naming the runs whose ``warning`` column flags them (none: []).
 
+    Then the rows whose load is not the truth's (:func:`load_lines`).
     Plugin-supplied names are shown as text (:mod:`idbench.core.sanitize`), escaped for
     markdown with ``markdown=True``.
     """
+    return _warning_lines(runs, markdown) + load_lines(runs, markdown)
+
+
+def load_lines(runs: pd.DataFrame, markdown: bool = False) -> list[str]:
+    """Lines naming the (scenario, mesh) whose load differs from the truth's.
+
+    A ``load_NAME_ratio`` column (model over truth, see
+    :func:`idbench.run.rows.load_columns`) off 1 by more than
+    :data:`LOAD_TOLERANCE` flags its rows; each line gives the figures that
+    are off, as ratios (the same for every estimator and seed of a mesh).
+    """
+    cols = [c for c in runs.columns if c.startswith("load_") and c.endswith("_ratio")]
+    if not cols or runs.empty:
+        return []
+    ratios = runs[cols].apply(pd.to_numeric, errors="coerce")
+    off = (ratios - 1).abs() > LOAD_TOLERANCE
+    flagged = runs[off.any(axis=1)]
+    if flagged.empty:
+        return []
+    keys = [k for k in ("scenario", "mesh") if k in runs]
+    order = [k for k in ("scenario", "model_nodes", "mesh") if k in runs]
+    flagged = flagged.sort_values(order, kind="stable") if order else flagged
+    groups = list(
+        flagged.groupby([flagged[k].astype(str) for k in keys], sort=False)
+    )
+    lines = [
+        f"load: {len(groups)} row(s) whose model's load differs from the truth's by "
+        f"more than {LOAD_TOLERANCE:.0%} (runs.parquet, columns load_*_ratio; "
+        "model / truth):"
+    ]
+    shown = markdown_cell if markdown else printable
+    for key, g in groups:
+        names = key if isinstance(key, tuple) else (key,)
+        mean = ratios.loc[g.index].mean()
+        parts = [
+            f"{c[len('load_') : -len('_ratio')]} {mean[c]:.3g}"
+            for c in cols
+            if abs(mean[c] - 1) > LOAD_TOLERANCE
+        ]
+        lines.append(f"  {shown(' '.join(map(str, names)))}: {', '.join(parts)}")
+    return lines
+
+
+def _warning_lines(runs: pd.DataFrame, markdown: bool = False) -> list[str]:
+    """:func:`flagged_lines` of the ``warning`` column."""
     if "warning" not in runs or runs.empty:
         return []
     text = runs["warning"].fillna("").astype(str)

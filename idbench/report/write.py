@@ -17,7 +17,12 @@ from idbench.core.sanitize import markdown_cell
 from idbench.report.columns import headers, legend, seeds_note
 from idbench.report.paired import Paired, paired_markdown
 from idbench.report.summary import parameter_names, summarise, sweep_axes
-from idbench.report.text import FORMATS, markdown_table, summary_text
+from idbench.report.text import (
+    FORMATS,
+    flagged_lines,
+    markdown_table,
+    summary_text,
+)
 from idbench.store import lock
 
 __all__ = [
@@ -294,6 +299,7 @@ def _write_report(
         "",
         *(markdown_cell(x) + "\n" for x in [legend(summary)] if not summary.empty),
         *(markdown_cell(x) + "\n" for x in seeds_note(summary)),
+        *_markdown_flags(runs),
     ]
     for p in paired or []:
         lines += [paired_markdown(p), ""]
@@ -318,3 +324,14 @@ def _write_report(
         write_html(root, runs, summary, frontier_display(table), svgs, paired)
     )
     return written
+
+
+def _markdown_flags(runs: pd.DataFrame) -> list[str]:
+    """The summary's flagged lines (warnings, loads) as markdown lists."""
+    out = []
+    for line in flagged_lines(runs, markdown=True):
+        if line.startswith("  "):
+            out.append(f"- {line.strip()}")
+        else:
+            out += ["", line, ""]
+    return [*out, ""] if out else []

@@ -315,6 +315,7 @@ def _run_on(
     row["model_nodes"] = np.nan if nodes is None else nodes
     row["truth_nodes"] = session.truth(spec).nodes
     row.update(rows.empty_parameter_columns(spec))
+    row.update(rows.load_columns(master, session.truth(spec)))
 
     cls = session.registry.estimator(spec.estimator)
     with _blame(who, "its constructor"):

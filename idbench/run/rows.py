@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from idbench.core.interfaces import Estimate, FloatArray, Observation
+from idbench.core.capabilities import load_figures_of
+from idbench.core.interfaces import Estimate, FloatArray, ForwardModel, Observation
 from idbench.plan.runspec import RunSpec
 from idbench.run.session import Session
 from idbench.score import metrics
@@ -52,6 +53,27 @@ def base_row(spec: RunSpec) -> dict[str, Any]:
         "traceback": "",
         "warning": "",
     }
+
+
+def load_columns(model: ForwardModel, truth: Truth) -> dict[str, float]:
+    """The run's load against the truth's: ``load_NAME_ratio`` per figure.
+
+    Each figure of ``model.load_figures()``
+    (:class:`~idbench.core.optional.LoadFiguresModel`) over the truth
+    model's (``truth.loads``); NaN where the truth's is missing, zero or not
+    finite (a recording's truth has none). No columns for a model without
+    load figures. They depend on the scenario and the mesh only, so a run
+    that fails still has them.
+    """
+    figures = load_figures_of(model)
+    if figures is None:
+        return {}
+    out: dict[str, float] = {}
+    for name, value in figures().items():
+        ref = truth.loads.get(name, np.nan)
+        usable = np.isfinite(ref) and ref != 0
+        out[f"load_{name}_ratio"] = float(value) / ref if usable else np.nan
+    return out
 
 
 def step_row(

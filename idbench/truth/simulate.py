@@ -11,12 +11,17 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from idbench.core.capabilities import member, n_nodes_of, probes_of
+from idbench.core.capabilities import (
+    load_figures_of,
+    member,
+    n_nodes_of,
+    probes_of,
+)
 from idbench.core.interfaces import FloatArray, ForwardModel, ModelFailure
 from idbench.store.files import stable_hash
 from idbench.truth.cache import cache_dir, read_states, write_states
@@ -51,6 +56,10 @@ class Truth:
         A recording's held-out points per step (K, N, 3), NaN rows where a
         frame has fewer, scored by their distance to the model's surface; None
         without (every simulated truth).
+    loads
+        The truth model's load figures
+        (:class:`~idbench.core.optional.LoadFiguresModel`), empty if it
+        reports none: what each run's own are compared with.
     """
 
     states: FloatArray
@@ -60,6 +69,7 @@ class Truth:
     nodes: float = float("nan")
     targets: FloatArray | None = None
     held_points: FloatArray | None = None
+    loads: dict[str, float] = field(default_factory=dict)
 
 
 def truth_key(model: ForwardModel, theta: FloatArray) -> str:
@@ -109,6 +119,7 @@ def probe(model: ForwardModel, states: FloatArray) -> Truth:
             for name, value in probes(s).items():
                 named.setdefault(name, []).append(float(value))
     nodes = n_nodes_of(model)
+    figures = load_figures_of(model)
     return Truth(
         states=states,
         observations=np.array([model.observe(s) for s in states]),
@@ -116,6 +127,7 @@ def probe(model: ForwardModel, states: FloatArray) -> Truth:
         probes={name: np.array(values) for name, values in named.items()},
         nodes=float("nan") if nodes is None else float(nodes),
         targets=_targets(targets, states),
+        loads={} if figures is None else {k: float(v) for k, v in figures().items()},
     )
 
 

@@ -30,7 +30,9 @@ from idbench_fem.models.solid import SolidModel
 from idbench_fem.models.solid import make_model as make_solid
 from idbench_fem.models.solid_settings import SolidSettings, all_scenarios
 from idbench_fem.tools.calibrate import Calibration, CalibrationSettings, calibrate
+from idbench_fem.tools.check import CHECK
 from idbench_fem.tools.commands import CALIBRATE
+from idbench_fem.tools.surface import MESH
 
 __all__ = [
     "BACKENDS",
@@ -89,8 +91,14 @@ def register_models(register: Callable[..., None]) -> None:
 
 @idbench.hookimpl
 def register_commands(register: Callable[[str, Any], None]) -> None:
-    """Register ``idbench calibrate`` (the beam's effective-E map)."""
+    """Register ``idbench calibrate``, ``mesh`` and ``check``.
+
+    ``calibrate``: the beam's effective-E map; ``mesh``: tetrahedral meshes of
+    a surface file; ``check``: a body TOML on each of its meshes.
+    """
     register("calibrate", CALIBRATE)
+    register("mesh", MESH)
+    register("check", CHECK)
 
 
 @idbench.hookimpl

@@ -130,3 +130,42 @@ def test_probe_interpolates_linear_fields_exactly():
     np.testing.assert_allclose(got, pts[:, :1] * c, atol=1e-14)
     with pytest.raises(ValueError, match="outside"):
         interpolation_matrix(np.array([[0.3, 0.01, 0.01]]), m.points, m.tets, f2f)
+
+
+def test_a_legacy_gmsh_mesh_gets_its_conversion_command(tmp_path):
+    from idbench_fem.bodies.mesh import read_mesh
+
+    legacy = tmp_path / "old.msh"
+    legacy.write_text("$NOD\n4\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n$ENDNOD\n"
+                      "$ELM\n1\n1 4 1 1 4 1 2 3 4\n$ENDELM\n")  # fmt: skip
+    with pytest.raises(ValueError) as exc:
+        read_mesh(legacy)
+    text = str(exc.value)
+    assert "meshio cannot read it" in text and "legacy gmsh v1 mesh" in text
+    assert f"gmsh {legacy} -save -format msh22 -o {tmp_path / 'old-v22.msh'}" in text
+
+
+def test_a_point_outside_a_model_mesh_is_named_as_the_toml_counts(tmp_path):
+    from helpers import write_box_mesh
+
+    from idbench_fem.bodies.catalog import get_mesh
+    from idbench_fem.bodies.description import parse_body
+    from idbench_fem.models.points import place_points
+
+    write_box_mesh(tmp_path / "box.vtu", 4, 0.1, 0.02)
+    body = parse_body({
+        "mesh": {"truth": "box.vtu"}, "fixed": {"box": {"lower": [-1, -1, -1],
+                                                        "upper": [0.001, 1, 1]}},
+        "manipulation": [{"name": "g", "kind": "gravity",
+                          "acceleration": [0, 0, -9.81]}],
+        "markers": {"points": [[0.05, 0.01, 0.01], [0.2, 0.01, 0.01]],
+                    "placement": "volume"},
+    }, "box.toml", tmp_path)  # fmt: skip
+    mesh = get_mesh(tmp_path / "box.vtu")
+    f2f = np.arange(3 * len(mesh.points))
+    with pytest.raises(ValueError) as exc:
+        place_points(body, mesh, mesh, 2, f2f)
+    assert "box.toml: [markers] point 2 at [0.2, 0.01, 0.01] lies outside" in str(
+        exc.value
+    )
+    assert "(36 nodes)" in str(exc.value)

@@ -205,7 +205,7 @@ def test_markers_outside_the_body(tmp_path):
     body, _ = write_beam_body(tmp_path, markers=[[0.1, 0.5, 0.015]])
     with pytest.raises(ValueError) as exc:
         solid(body, markers=1)
-    assert "marker 0" in one_line(exc) and "outside" in one_line(exc)
+    assert "[markers] point 1" in one_line(exc) and "outside" in one_line(exc)
 
 
 def test_more_markers_than_the_body_has(tmp_path):

@@ -25,6 +25,7 @@ manipulated, what is observed and what is identified::
     radius = 0.01
     force = [0.0, 0.0, 0.5]            # N at the end of the ramp
     transfer = "lateral-push"          # optional: the transfer target scenario
+    # conserve = "resultant"           # optional: every mesh gets the truth's force
 
     [[manipulation]]
     name = "grasp-pull"
@@ -74,6 +75,12 @@ points to), ``{ patch = { point = [...], radius = r } }`` (the surface around
 the surface point nearest to ``point``), ``{ slab = { index = i, count = n } }``
 (slab i of n equal slabs along x of the mesh's bounding box).
 
+``conserve = "resultant"`` on a manipulation scales each mesh's nodal loads
+so that their resultant equals the reference (truth) mesh's (for gravity:
+its mass); absent or ``"none"``, each mesh carries what its selector
+captures there (:mod:`idbench_fem.bodies.figures`). A displacement-controlled
+grasp has no load to conserve (refused).
+
 A grasp has either ``force`` (force-controlled: a dead load) or
 ``displacement`` (displacement-controlled: the patch's nodes move by it,
 ramped like a load, and the tool's force is what the model's ``reaction``
@@ -101,8 +108,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from idbench_fem.bodies.figures import CONSERVE
 from idbench_fem.bodies.reader import TableReader, table
 from idbench_fem.bodies.regions import SELECTORS, Region
+from idbench_fem.bodies.resolve import SNAP_DISTANCE
 from idbench_fem.fem.materials import LAWS, lame, make_material
 
 FloatArray = NDArray[np.float64]
@@ -168,6 +177,10 @@ class Manipulation:
     displacement: Vec | None = field(default=None, repr=False)
     """(Not in the repr, which keys the truths of bodies built in memory: a
     force-controlled manipulation's is as before the field existed.)"""
+    conserve: str = field(default="none", repr=False)
+    """``"resultant"``: each mesh's nodal loads are scaled to the reference
+    mesh's resultant (:mod:`idbench_fem.bodies.figures`); ``"none"``: each
+    mesh carries what its selector captures. (Not in the repr either.)"""
 
     @property
     def driven(self) -> bool:
@@ -194,7 +207,7 @@ class Markers:
 
     points: tuple[Vec, ...] = ()
     region: Region | None = None
-    snap_distance: float = 0.005
+    snap_distance: float = SNAP_DISTANCE
     placement: str = "surface"
 
 
@@ -384,7 +397,9 @@ def parse_body(
     markers = Markers(
         tuple(c.vector(f"points[{i}]", p) for i, p in enumerate(pts)),
         c.region("region", mk["region"]) if "region" in mk else None,
-        c.number("snap_distance", mk.get("snap_distance", 0.005), positive=True),
+        c.number(
+            "snap_distance", mk.get("snap_distance", SNAP_DISTANCE), positive=True
+        ),
         c.choice("placement", mk.get("placement", "surface"), PLACEMENTS),
     )
     if "points" in mk and not markers.points:
@@ -510,10 +525,16 @@ def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
                 "or displacement-controlled (displacement), not both"
             )
         needs = ("point", "radius", "displacement")
-    c.keys(raw, ("name", "kind", "transfer", *needs))
+    c.keys(raw, ("name", "kind", "transfer", "conserve", *needs))
     transfer = raw.get("transfer", "")
     if not isinstance(transfer, str):
         raise c.error(f"transfer = {transfer!r}: need a manipulation name")
+    conserve = c.choice("conserve", raw.get("conserve", "none"), CONSERVE)
+    if conserve != "none" and "displacement" in raw:
+        raise c.error(
+            f"conserve = {conserve!r}: a displacement-controlled grasp puts no "
+            "load on the body (the tool's force is measured); remove conserve"
+        )
     for key in needs:
         if key not in raw:
             also = "; or displacement instead of force" if kind == "grasp" else ""
@@ -525,6 +546,7 @@ def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
             c.region("region", raw["region"]),
             c.vector("traction", raw["traction"]),
             transfer=transfer,
+            conserve=conserve,
         )
     if kind == "pressure":
         return Manipulation(
@@ -533,6 +555,7 @@ def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
             c.region("region", raw["region"]),
             pressure=c.number("pressure", raw["pressure"]),
             transfer=transfer,
+            conserve=conserve,
         )
     if kind == "gravity":
         return Manipulation(
@@ -540,6 +563,7 @@ def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
             kind,
             vector=c.vector("acceleration", raw["acceleration"]),
             transfer=transfer,
+            conserve=conserve,
         )
     patch = (c.vector("point", raw["point"]), c.number("radius", raw["radius"], True))
     if "displacement" in raw:
@@ -548,6 +572,7 @@ def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
             kind,
             Region(patch=patch),
             transfer=transfer,
+            conserve=conserve,
             displacement=c.vector("displacement", raw["displacement"]),
         )
     return Manipulation(
@@ -556,6 +581,7 @@ def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
         Region(patch=patch),
         c.vector("force", raw["force"]),
         transfer=transfer,
+        conserve=conserve,
     )
 
 

@@ -131,7 +131,7 @@ def nodal_forces(
     surface_load = m.kind in ("traction", "pressure")
     if surface_load and name is not None and mesh.volume_only(name):
         raise ValueError(
-            f"{what}: region {name!r} is a volume region of mesh {mesh.path!r}: a "
+            f"{what}: region {name!r} is a volume region of mesh {mesh.label}: a "
             f"{m.kind} loads a surface, and this one would load the volume's whole "
             "boundary (the fixed face too); name a surface group or select the "
             "surface with box, sphere, half_space or patch"

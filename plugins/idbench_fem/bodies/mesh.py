@@ -77,6 +77,11 @@ class SolidMesh:
         return name in self.cell_sets and name not in self.surface_names
 
     @property
+    def label(self) -> str:
+        """The mesh for messages: its file and node count, ``'a.msh' (975 nodes)``."""
+        return f"{self.path!r} ({len(self.points)} nodes)"
+
+    @property
     def names(self) -> list[str]:
         """All region names, sorted."""
         return sorted(set(self.cell_sets) | set(self.facet_sets) | set(self.node_sets))
@@ -122,6 +127,18 @@ class SolidMesh:
 
 def _det(a: FloatArray, b: FloatArray, c: FloatArray) -> FloatArray:
     return np.einsum("ti,ti->t", a, np.cross(b, c))
+
+
+def tet_quality(points: FloatArray, tets: IntArray) -> FloatArray:
+    r"""The mean-ratio quality of each tet (T,): 1 regular, 0 flat.
+
+    .. math:: q = 12\, (3 |V|)^{2/3} / \sum_{i<j} l_{ij}^2
+    """
+    x = points[tets]
+    volume = np.abs(_det(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], x[:, 3] - x[:, 0])) / 6
+    pairs = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
+    lengths = sum(((x[:, i] - x[:, j]) ** 2).sum(axis=1) for i, j in pairs)
+    return np.asarray(12.0 * np.cbrt(3.0 * volume) ** 2 / lengths)
 
 
 def check_not_folded(
@@ -297,6 +314,31 @@ def from_arrays(
     )  # fmt: skip
 
 
+def conversion_hint(path: Path) -> str:
+    """What to do with a mesh file meshio cannot read: how to convert it.
+
+    A legacy gmsh (v1) file, which starts with ``$NOD``, is named as one.
+    """
+    import shlex
+
+    command = (
+        f"gmsh {shlex.quote(str(path))} -save -format msh22 -o "
+        f"{shlex.quote(str(path.with_name(path.stem + '-v22.msh')))}"
+    )
+    with contextlib.suppress(OSError):
+        with path.open("rb") as f:
+            head = f.read(64).lstrip()
+        if head.startswith((b"$NOD", b"$PTS")):
+            return (
+                "it is a legacy gmsh v1 mesh: convert it with the gmsh installed "
+                f"with idbench: {command}"
+            )
+    return (
+        "convert it to a format meshio reads (gmsh 2.2 or 4.1 .msh, .vtu, "
+        f".xdmf), e.g. {command} (or meshio convert IN OUT.vtu)"
+    )
+
+
 def read_mesh(path: str | Path) -> SolidMesh:
     """Read a tetrahedral mesh file with meshio, keeping its named sets.
 
@@ -317,7 +359,8 @@ def read_mesh(path: str | Path) -> SolidMesh:
     except (Exception, SystemExit) as exc:
         why = " ".join(chatter.getvalue().split()) or f"{type(exc).__name__}: {exc}"
         raise ValueError(
-            f"mesh file {str(path)!r}: meshio cannot read it ({why})"
+            f"mesh file {str(path)!r}: meshio cannot read it ({why}); "
+            + conversion_hint(path)
         ) from None
     offsets: dict[int, int] = {}
     tets = []

@@ -89,7 +89,7 @@ SELECTORS = ("name", "box", "sphere", "half_space", "patch", "slab")
 
 def _unknown(mesh: SolidMesh, name: str, what: str) -> ValueError:
     return ValueError(
-        f"{what} {name!r} is not in mesh {mesh.path!r}; its regions are "
+        f"{what} {name!r} is not in mesh {mesh.label}; its regions are "
         f"{', '.join(mesh.names) or '(none)'}"
     )
 
@@ -129,7 +129,7 @@ def patch_facets(
     if dist[0] > radius:
         raise ValueError(
             f"{what} at {list(point)} is {dist[0]:.3g} m from the surface of "
-            f"{mesh.path!r}, more than its radius {radius:g} m: move it onto the "
+            f"{mesh.label}, more than its radius {radius:g} m: move it onto the "
             "surface"
         )
     centroids = mesh.points[mesh.facets].mean(axis=1)
@@ -192,7 +192,7 @@ def _members(mesh: SolidMesh, region: Region, what: str, kind: str) -> IntArray:
     if kind == "cells" and region.name in mesh.node_sets.keys() - sets:
         raise ValueError(
             f"{what} {region.name!r} is not a volume region of mesh "
-            f"{mesh.path!r}; volume regions: {', '.join(sorted(sets))}"
+            f"{mesh.label}; volume regions: {', '.join(sorted(sets))}"
         )
     if region.name is not None:
         if region.name not in sets:
@@ -216,6 +216,6 @@ def _members(mesh: SolidMesh, region: Region, what: str, kind: str) -> IntArray:
     if len(out) == 0:
         raise ValueError(
             f"{what} {region.describe()} contains no {_NOUNS[kind]} of mesh "
-            f"{mesh.path!r}"
+            f"{mesh.label}"
         )
     return out

@@ -22,6 +22,9 @@ from idbench_fem.bodies.surface import inside, project_to_surface
 if TYPE_CHECKING:
     from idbench_fem.bodies.description import Body
 
+SNAP_DISTANCE = 0.005
+"""The default ``[markers] snap_distance`` (m)."""
+
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
@@ -42,7 +45,7 @@ def fixed_nodes(body: Body, mesh: SolidMesh) -> IntArray:
     if len(nodes) < 3 or sv[1] <= 1e-9 * scale:
         raise ValueError(
             f"{body.source}: [fixed] region {body.fixed.describe()} has "
-            f"{len(nodes)} node(s) on one line in {mesh.path!r}: the body could "
+            f"{len(nodes)} node(s) on one line in {mesh.label}: the body could "
             "still rotate; fix a larger region"
         )
     return nodes
@@ -65,7 +68,7 @@ def driven_nodes(body: Body, name: str, mesh: SolidMesh) -> IntArray:
     if len(both):
         raise ValueError(
             f"{body.source}: [[manipulation]] {m.name!r}: its patch shares "
-            f"{len(both)} node(s) with the [fixed] region in {mesh.path!r}; move "
+            f"{len(both)} node(s) with the [fixed] region in {mesh.label}; move "
             "the grasp point or shrink its radius"
         )
     return nodes
@@ -91,7 +94,7 @@ def marker_points(body: Body, mesh: SolidMesh) -> FloatArray:
         if len(on_surface) == 0:
             raise ValueError(
                 f"{body.source}: [markers] region {mk.region.describe()} has no "
-                f"surface node in {mesh.path!r}"
+                f"surface node in {mesh.label}"
             )
         return mesh.points[on_surface]
     pts = np.asarray(mk.points, dtype=float)
@@ -100,8 +103,9 @@ def marker_points(body: Body, mesh: SolidMesh) -> FloatArray:
         if len(out):
             i = int(out[0])
             raise ValueError(
-                f"{body.source}: marker {i} at {list(mk.points[i])} lies outside "
-                f"{mesh.path!r} (placement = 'volume')"
+                f"{body.source}: [markers] point {i + 1} at {list(mk.points[i])} "
+                f"lies outside {mesh.label} (placement = 'volume')"
+                + _more(len(out))
             )
         return pts
     snapped, _, _, dist = project_to_surface(mesh, pts)
@@ -109,11 +113,46 @@ def marker_points(body: Body, mesh: SolidMesh) -> FloatArray:
     if len(far):
         i = int(far[0])
         side = "inside" if inside(mesh, pts[i])[0] else "outside"
+        default = " (the default)" if mk.snap_distance == SNAP_DISTANCE else ""
         raise ValueError(
-            f"{body.source}: marker {i} at {list(mk.points[i])} is {side} the body, "
-            f"{dist[i]:.3g} m from its surface (snap_distance = {mk.snap_distance:g} m)"
+            f"{body.source}: [markers] point {i + 1} at {list(mk.points[i])} is "
+            f"{side} the body of mesh {mesh.label}, {dist[i]:.3g} m from its "
+            "surface, farther than "
+            f"snap_distance = {mk.snap_distance:g} m{default}"
+            + _more(len(far))
+            + "; move it onto the surface or raise snap_distance"
         )
     return snapped
+
+
+def _more(n: int) -> str:
+    """`` (and k more)`` for ``n`` > 1 culprits of which the first is named."""
+    return f" (and {n - 1} more)" if n > 1 else ""
+
+
+def target_depths(body: Body, mesh: SolidMesh) -> FloatArray:
+    """Each target's distance (T,) to the surface of ``mesh``: < 0 outside it (m).
+
+    Raises
+    ------
+    ValueError
+        A target outside the mesh (numbered from 1 as the TOML lists them).
+    """
+    if not body.targets:
+        return np.zeros(0)
+    pts = np.array([p for _, p in body.targets], dtype=float)
+    dist = project_to_surface(mesh, pts)[3]
+    out = ~inside(mesh, pts)
+    if out.any():
+        i = int(np.flatnonzero(out)[0])
+        name, point = body.targets[i]
+        raise ValueError(
+            f"{body.source}: [targets] {name} (target {i + 1}) at {list(point)} "
+            f"lies outside {mesh.label}, {dist[i]:.3g} m from its surface"
+            + _more(int(out.sum()))
+            + "; a hidden target must lie inside the body"
+        )
+    return dist
 
 
 def shape_error_points(
@@ -144,7 +183,7 @@ def shape_error_points(
     if not keep.any():
         raise ValueError(
             f"{body.source}: [shape_error] no point lies {margin:g} m inside "
-            f"{truth.path!r}; use a finer grid or a smaller margin"
+            f"{truth.label}; use a finer grid or a smaller margin"
         )
     return pts[keep]
 
@@ -169,7 +208,7 @@ def element_regions(body: Body, mesh: SolidMesh) -> IntArray:
         t = int(np.flatnonzero(count != 1)[0])
         how = "no" if count[t] == 0 else "more than one"
         raise ValueError(
-            f"{body.source}: [parameters] regions: tetrahedron {t} of {mesh.path!r} "
+            f"{body.source}: [parameters] regions: tetrahedron {t} of {mesh.label} "
             f"is in {how} region ({int((count == 0).sum())} in none, "
             f"{int((count > 1).sum())} in several); regions must partition the body"
         )

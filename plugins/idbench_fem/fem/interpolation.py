@@ -68,6 +68,14 @@ def barycentric(points: FloatArray, x: FloatArray) -> FloatArray:
     return np.concatenate([1.0 - lam.sum(axis=-1, keepdims=True), lam], axis=-1)
 
 
+class OutsideMesh(ValueError):
+    """A point lies outside the mesh; ``index`` is its index in the points given."""
+
+    def __init__(self, message: str, index: int) -> None:
+        super().__init__(message)
+        self.index = index
+
+
 def locate(
     points: FloatArray, nodes: FloatArray, tets: NDArray[np.int64]
 ) -> tuple[NDArray[np.int64], FloatArray]:
@@ -82,8 +90,8 @@ def locate(
 
     Raises
     ------
-    ValueError
-        If a point lies outside the mesh.
+    OutsideMesh
+        If a point lies outside the mesh (a ValueError).
     """
     points = np.atleast_2d(np.asarray(points, dtype=float))
     x = nodes[tets]
@@ -102,7 +110,9 @@ def locate(
         b = barycentric(np.broadcast_to(points[i], (len(tets), 3)), x)
         j = int(b.min(axis=1).argmax())
         if b[j].min() < -_TOL * max(1.0, scale):
-            raise ValueError(f"point {points[i].tolist()} lies outside the mesh")
+            raise OutsideMesh(
+                f"point {points[i].tolist()} lies outside the mesh", int(i)
+            )
         elements[i], out[i] = j, b[j]
     return elements, out
 

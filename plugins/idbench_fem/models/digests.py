@@ -34,6 +34,11 @@ def body_digest(body: Body) -> str:
     text = repr(states) + "".join(  # a driven grasp's displacement is no repr
         f"|{m.name}:{m.displacement}" for m in body.manipulations if m.driven
     )
+    text += "".join(  # nor is conserve
+        f"|{m.name}:conserve={m.conserve}"
+        for m in body.manipulations
+        if m.conserve != "none"
+    )
     return hashlib.sha256(text.encode()).hexdigest()
 
 

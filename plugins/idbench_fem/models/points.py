@@ -10,6 +10,7 @@ the tet containing them or the nearest one, clipped.
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,6 +23,7 @@ from idbench_fem.bodies.description import Body
 from idbench_fem.bodies.mesh import SolidMesh
 from idbench_fem.bodies.surface import project_to_surface
 from idbench_fem.fem.interpolation import (
+    OutsideMesh,
     barycentric,
     interpolation_matrix,
     weights_matrix,
@@ -79,24 +81,41 @@ def place_points(
     if markers > len(pts):
         raise ValueError(
             f"{body.source}: {markers} markers asked for, the body has "
-            f"{len(pts)} on {reference.path!r}"
+            f"{len(pts)} on {reference.label}"
         )
-    marker_points = pts[farthest_points(pts, markers)]
+    chosen = farthest_points(pts, markers)
+    marker_points = pts[chosen]
     grid_points = reference_grid(body, reference)
+
+    def located(points: FloatArray, what: Callable[[int], str]) -> sp.csr_matrix:
+        try:
+            return interpolation_matrix(points, mesh.points, mesh.tets, f2f)
+        except OutsideMesh as exc:
+            raise ValueError(
+                f"{body.source}: {what(exc.index)} at "
+                f"{np.round(points[exc.index], 9).tolist()} lies outside mesh "
+                f"{mesh.label}"
+            ) from None
+
     if body.markers.placement == "volume" and body.markers.region is None:
-        observe = interpolation_matrix(marker_points, mesh.points, mesh.tets, f2f)
+        observe = located(
+            marker_points,
+            lambda i: f"[markers] point {chosen[i] + 1} (placement = 'volume')",
+        )
     else:
         observe = surface_interpolation(mesh, marker_points, f2f)
     if body.shape_error.locate == "contained":
-        grid = interpolation_matrix(grid_points, mesh.points, mesh.tets, f2f)
+        grid = located(
+            grid_points, lambda i: f"[shape_error] point {i + 1} (locate = 'contained')"
+        )
     else:
         grid = nearest_interpolation(mesh, grid_points, f2f)
-    probes = {
-        name: interpolation_matrix(
-            np.asarray(point, dtype=float)[None, :], mesh.points, mesh.tets, f2f
+    probes = {}
+    for name, point in body.probes:
+        probes[name] = located(
+            np.asarray(point, dtype=float)[None, :],
+            functools.partial("[[probe]] {0!r}".format, name),
         )
-        for name, point in body.probes
-    }
     target_points = np.array(
         [point for _, point in body.targets], dtype=float
     ).reshape(-1, 3)

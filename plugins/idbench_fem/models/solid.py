@@ -44,7 +44,10 @@ with helper processes (setting ``processes``).
 
 Markers, shape-error points, probes and targets are placed on the reference
 mesh (the comparison's truth) and located in each model mesh by
-:mod:`idbench_fem.models.points`.
+:mod:`idbench_fem.models.points`. A manipulation with ``conserve =
+"resultant"`` scales this mesh's nodal loads by :attr:`load_factor`, so that
+their resultant is the reference mesh's; :meth:`load_figures` measures the
+load either way (:mod:`idbench_fem.bodies.figures`).
 """
 
 from __future__ import annotations
@@ -63,6 +66,7 @@ from idbench import ConfigError, ModelSpec, ParameterSpec, Scenario
 from idbench_fem.bodies import resolve
 from idbench_fem.bodies.catalog import body_path, get_body, get_mesh, mesh_file
 from idbench_fem.bodies.description import Body
+from idbench_fem.bodies.figures import conserve_scale, figures
 from idbench_fem.bodies.loads import nodal_forces, traction_weights
 from idbench_fem.bodies.mesh import SolidMesh, extent
 from idbench_fem.bodies.regions import region_facets
@@ -188,6 +192,13 @@ class SolidModel(Observables, BatchedSteps):
         f1 = nodal_forces(
             self.manipulation, mesh, body.material.density, t=float(s.load_scale)
         )
+        # conserve = "resultant": the reference mesh's total force (else 1.0)
+        self.load_factor = conserve_scale(body, self.manipulation, mesh, reference)
+        if self.load_factor != 1.0:
+            f1 = self.load_factor * f1
+        self._figures = figures(
+            body, self.manipulation, mesh, f1, fixed, self.load_factor
+        )
         self._f_end = f1.ravel()[self._state_asm().free_dofs]
         if self._driven is not None:  # zeros: no load but the tool's
             self._f_end = self._f_end[self._asm.unknown]
@@ -201,6 +212,8 @@ class SolidModel(Observables, BatchedSteps):
                 self._asm.free_dofs
             ]
             self._traction = float(s.load_scale) * np.asarray(self.manipulation.vector)
+            if self.load_factor != 1.0:
+                self._traction = self.load_factor * self._traction
         end = float(np.linalg.norm(self.external_force(self.n_steps)))
         self.atol = (
             float(s.atol or ATOL) * end
@@ -408,7 +421,18 @@ class SolidModel(Observables, BatchedSteps):
                 out[name] = getattr(self.settings, name)
         if m.displacement is not None:
             out["scenario"]["displacement"] = list(m.displacement)
+        if m.conserve != "none":
+            out["scenario"]["conserve"] = m.conserve
         return out
+
+    def load_figures(self) -> dict[str, float]:
+        """The end load on this mesh, measured (:mod:`idbench_fem.bodies.figures`).
+
+        ``resultant`` (N), ``moment`` (N m, about the fixed region's
+        centroid), ``area`` (the loaded area, m^2), ``fixed_area`` (m^2),
+        ``volume`` (m^3), ``mass`` (kg); after ``conserve``'s scaling.
+        """
+        return dict(self._figures)
 
     # -- extras: idbench simulate, tests ------------------------------------------
 
