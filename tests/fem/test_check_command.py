@@ -7,7 +7,7 @@ inside the body, an unknown region and an unreadable legacy mesh.
 from __future__ import annotations
 
 import pytest
-from helpers import ORGAN_BODY, organ_body
+from support.helpers import ORGAN_BODY, organ_body
 
 from idbench.cli.commands import main
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import ORGAN_BODY, organ_body
+from support.helpers import ORGAN_BODY, organ_body
 
 import idbench
 from idbench.plan.config import CompareConfig

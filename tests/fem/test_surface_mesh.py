@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import ellipsoid_surface, folded, write_surface
+from support.helpers import ellipsoid_surface, folded, write_surface
 
 from idbench.cli.commands import main
 from idbench_fem.bodies.mesh import read_mesh

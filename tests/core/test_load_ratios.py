@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-from helpers import registry_with
-from test_report_models import SpringChain, SpringPlugin
+from support.helpers import registry_with
+from support.springs import SpringChain, SpringPlugin
 
 import idbench
 from idbench.plan.config import CompareConfig
