@@ -1,8 +1,10 @@
 """The report's figures, keyed on the model's parameter names.
 
 Every figure works for any model and any number of parameters p: one panel
-per parameter (small multiples) where a figure shows parameter values, one
-per scenario where it shows shape errors. Conventions shared by all figures:
+per parameter and scenario (small multiples) where a figure shows parameter
+values, one per scenario where it shows shape errors: the effective value
+depends on the deformation, so scenarios are never pooled into one point.
+Conventions shared by all figures:
 
 - shape error in mm per grid point (the runs' ``shape_error_mean*`` columns
   times 1000), never the sum over the grid;
@@ -111,6 +113,21 @@ def _offset(x: np.ndarray, i: int, n: int, log: bool) -> np.ndarray:
     return x * np.exp(shift) if log else x + 2 * shift
 
 
+def _scenarios(ok: pd.DataFrame) -> list[Any]:
+    """The scenarios of ``ok`` in order ([None]: no scenario column)."""
+    return sorted(ok["scenario"].unique()) if "scenario" in ok else [None]
+
+
+def _of(df: pd.DataFrame, scen: Any) -> pd.DataFrame:
+    """The rows of scenario ``scen`` (all rows for None)."""
+    return df if scen is None else df[df["scenario"] == scen]
+
+
+def _titled(text: str, scen: Any, scenarios: list[Any]) -> str:
+    """``text``, naming the scenario where a figure has more than one."""
+    return f"{text}, {plain(scen)}" if len(scenarios) > 1 else text
+
+
 def _panels(n: int, width: float = 4.6, height: float = 3.6) -> tuple[Any, Any]:
     import matplotlib.pyplot as plt
 
@@ -157,19 +174,24 @@ def parameters_vs_resolution(
     axes: list[str],
     study: pd.DataFrame | None = None,
 ) -> Any:
-    """Identified parameters against model resolution, one panel per parameter.
+    """Identified parameters against model resolution.
 
-    y is ``x_final / x_true`` where the true value is known (1 = the truth),
-    else ``x_final``; markers are means over seeds, bars their 95% t
+    One panel per parameter and scenario (the effective value depends on the
+    deformation: scenarios are never pooled); one series per estimator and
+    swept setting. y is ``x_final / x_true`` where the true value is known
+    (1 = the truth), else ``x_final``; markers are means over seeds, bars their 95% t
     intervals.
     """
-    fig, panels = _panels(len(names))
+    scenarios = _scenarios(ok)
+    cases = [(scen, name) for scen in scenarios for name in names]
+    fig, panels = _panels(len(cases))
     x_all, log = _resolution_x(ok)
     series = _series_names(ok, axes)
-    for ax, name in zip(panels, names, strict=True):
+    for ax, (scen, name) in zip(panels, cases, strict=True):
         ratio = f"{name}_true" in ok
         y = ok[f"{name}_final"] / ok[f"{name}_true"] if ratio else ok[f"{name}_final"]
         df = ok.assign(_x=x_all, _y=y, _s=[_label(r, axes) for _, r in ok.iterrows()])
+        df = _of(df, scen)
         metric = f"{name}_ratio" if ratio else f"{name}_final"
         for i, s in enumerate(series):
             d = df[df["_s"] == s]
@@ -182,9 +204,9 @@ def parameters_vs_resolution(
             ylabel=f"identified {name} / true {name}"
             if ratio
             else f"identified {name}",
-            title=f"{name} against resolution",
+            title=_titled(f"{name} against resolution", scen, scenarios),
         )
-        _resolution_axis(ax, ok, x_all, log)
+        _resolution_axis(ax, df, df["_x"], log)
     _legend(fig, panels)
     return fig
 
@@ -265,7 +287,7 @@ def shape_error_vs_resolution(
 def estimates_vs_step(
     ok: pd.DataFrame, traces: pd.DataFrame, names: list[str], axes: list[str]
 ) -> Any:
-    """Estimates along the load path (first seed), one panel per parameter.
+    """Estimates along the load path (first seed), one panel per parameter and scenario.
 
     Colour and marker: the estimator (with swept axes); line style: the mesh.
     y is the estimate over the true value where it is known.
@@ -274,18 +296,20 @@ def estimates_vs_step(
     from matplotlib.ticker import MaxNLocator
 
     keys = ["run_id", "mesh", "estimator", "seed", *axes]
-    if "scenario" in ok and ok["scenario"].nunique() > 1:
+    scenarios = _scenarios(ok)
+    if scenarios != [None]:
         keys.append("scenario")
     trues = [f"{n}_true" for n in names if f"{n}_true" in ok]
     tr = traces.merge(ok[[*keys, *trues]], on="run_id")
     tr = tr[tr["seed"] == tr["seed"].min()]
     series = _series_names(ok, axes)
     meshes = list(dict.fromkeys(ok.sort_values("model_nodes")["mesh"]))
-    fig, panels = _panels(len(names), width=5.2)
-    group = ["mesh", "estimator", *axes] + (["scenario"] if "scenario" in keys else [])
-    for ax, name in zip(panels, names, strict=True):
+    cases = [(scen, name) for scen in scenarios for name in names]
+    fig, panels = _panels(len(cases), width=5.2)
+    group = ["mesh", "estimator", *axes]
+    for ax, (scen, name) in zip(panels, cases, strict=True):
         ratio = f"{name}_true" in tr
-        for key, df in tr.groupby(group, sort=True):
+        for key, df in _of(tr, scen).groupby(group, sort=True):
             row = dict(zip(group, key, strict=True))
             i = series.index(_label(row, axes))
             y = df[name] / df[f"{name}_true"] if ratio else df[name]
@@ -300,7 +324,10 @@ def estimates_vs_step(
         ax.set(
             xlabel="load step",
             ylabel=f"estimate of {name} / true {name}" if ratio else name,
-            title=f"{name} along the load path (seed {tr['seed'].min()})",
+            title=_titled(
+                f"{name} along the load path (seed {tr['seed'].min()})",
+                scen, scenarios,
+            ),
         )
     for i, s in enumerate(series):
         panels[0].plot([], [], lw=1.1, label=s, **style(i))
@@ -317,19 +344,27 @@ def uncertainty_vs_resolution(
 ) -> Any:
     """Coverage of the 95% intervals and mean NEES against resolution.
 
-    One panel per parameter: the share of seeds whose reported 95% interval
-    holds the true value (filled markers, solid lines) and the reference
-    value (hollow markers, dotted lines), with the nominal 0.95; a last panel:
-    the mean NEES against the true value (log scale) with the calibrated
-    value p. Estimators without a std have no points.
+    Per scenario, one panel per parameter: the share of seeds whose reported
+    95% interval holds the true value (filled markers, solid lines) and the
+    reference value (hollow markers, dotted lines), with the nominal 0.95; and
+    a panel of the mean NEES against the true value (log scale) with the
+    calibrated value p. Estimators without a std have no points.
     """
-    fig, panels = _panels(len(names) + 1)
+    scenarios = _scenarios(ok)
+    cases = [(scen, name) for scen in scenarios for name in [*names, None]]
+    fig, panels = _panels(len(cases))
     x_all, log = _resolution_x(ok)
     series = _series_names(ok, axes)
     df = ok.assign(_x=x_all, _s=[_label(r, axes) for _, r in ok.iterrows()])
-    for ax, name in zip(panels, names, strict=False):
+    for ax, (scen, name) in zip(panels, cases, strict=True):
+        if name is None:
+            _nees_panel(ax, _of(df, scen), series, len(names), log)
+            ax.set_title(_titled("NEES (mean over seeds)", scen, scenarios))
+            _resolution_axis(ax, ok, x_all, log)
+            continue
         for i, s in enumerate(series):
-            d = df[df["_s"] == s]
+            d = _of(df, scen)
+            d = d[d["_s"] == s]
             for what, filled, ls in (("true", True, "-"), ("ref", False, ":")):
                 col = f"{name}_cover95_{what}"
                 if col not in d:
@@ -347,11 +382,20 @@ def uncertainty_vs_resolution(
         ax.set(
             xlabel="model nodes" if log else "model mesh",
             ylabel="share of seeds covered by the 95% interval",
-            title=f"{name}: covers true (filled) / ref (hollow)",
+            title=_titled(
+                f"{name}: covers true (filled) / ref (hollow)", scen, scenarios
+            ),
             ylim=(-0.05, 1.05),
         )
         _resolution_axis(ax, ok, x_all, log)
-    ax = panels[-1]
+    _legend(fig, panels)
+    return fig
+
+
+def _nees_panel(
+    ax: Any, df: pd.DataFrame, series: list[str], p: int, log: bool
+) -> None:
+    """The mean NEES against the true value per series, with the calibrated p."""
     for i, s in enumerate(series):
         g = df[df["_s"] == s].groupby("_x")["nees_true"].mean().dropna()
         g = g[g > 0]
@@ -361,16 +405,12 @@ def uncertainty_vs_resolution(
             _offset(g.index.to_numpy(), i, len(series), log), g.to_numpy(),
             lw=1.2, ms=6, label=s, **style(i),
         )  # fmt: skip
-    ax.axhline(len(names), color="0.4", ls="-.", lw=1, label="calibrated NEES = p")
+    ax.axhline(p, color="0.4", ls="-.", lw=1, label="calibrated NEES = p")
     ax.set(
         yscale="log",
         xlabel="model nodes" if log else "model mesh",
         ylabel="mean NEES against the true value",
-        title="NEES (mean over seeds)",
     )
-    _resolution_axis(ax, ok, x_all, log)
-    _legend(fig, panels)
-    return fig
 
 
 def frontier_figure(table: pd.DataFrame, budgets_hz: tuple[int, ...] = (30, 60)) -> Any:
