@@ -370,8 +370,9 @@ def _paired(args: argparse.Namespace) -> list[Any]:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    """``idbench info NAME``: a registered estimator's or model's settings."""
+    """``idbench info NAME``: an estimator's, model's or observation's settings."""
     from idbench.core.sanitize import printable
+    from idbench.observe import kinds as observe
     from idbench.registry.info import settings, summary_line
 
     reg = registry()
@@ -382,8 +383,12 @@ def cmd_info(args: argparse.Namespace) -> int:
     elif args.name in reg.models:
         kind, obj = "model", reg.models[args.name].settings or reg.model(args.name)
         plugin = reg.models[args.name].plugin
+    elif args.name in observe.kinds(reg):
+        kind, obj = "observation", observe.kinds(reg)[args.name]
+        entry = reg.observations.get(args.name)
+        plugin = entry.plugin if entry is not None else "idbench"
     else:
-        known = sorted({*reg.estimators, *reg.models})
+        known = sorted({*reg.estimators, *reg.models, *observe.kinds(reg)})
         raise UsageError(f"unknown name {args.name!r}; known: {', '.join(known)}")
     rows = settings(obj)
     summary = printable(summary_line(obj), join_lines=True)
@@ -397,6 +402,11 @@ def cmd_info(args: argparse.Namespace) -> int:
         return 0
     if kind == "estimator":
         print(f"set in a TOML file as [estimators.{args.name}] NAME = VALUE")
+    elif kind == "observation":
+        print(
+            f"set with --observe-option {args.name}.NAME=VALUE or in a TOML file "
+            f"as [observe.{args.name}] NAME = VALUE"
+        )
     else:
         print(
             f"set with --model-option NAME=VALUE or in a TOML file as "

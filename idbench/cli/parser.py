@@ -418,12 +418,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     i = sub.add_parser(
         "info",
-        help="an estimator's or model's settings, defaults and meaning",
-        description="Print the settings of a registered estimator or model: "
-        "name, type, default and one line of meaning. Estimators: "
-        "%(estimators)s; models: %(models)s.",
+        help="an estimator's, model's or observation's settings and meaning",
+        description="Print the settings of a registered estimator, model or "
+        "observation kind: name, type, default and one line of meaning. "
+        "Estimators: %(estimators)s; models: %(models)s; observations: "
+        "markers, cloud, force and the plugins'.",
     )
-    i.add_argument("name", help="a registered estimator or model name")
+    i.add_argument(
+        "name", help="a registered estimator, model or observation kind (e.g. cloud)"
+    )
     i.add_argument("--json", action="store_true", help="machine-readable output")
 
     s = sub.add_parser(

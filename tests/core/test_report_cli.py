@@ -168,3 +168,15 @@ def test_info_shows_settings_not_private_fields(capsys):
         "transform", "sigma_floor", "correction", "sigma_points", "param_noise",
         "model_error"]  # fmt: skip
     assert main(["info", "no-such-thing"]) == 2
+
+
+def test_info_knows_observation_kinds(capsys):
+    assert main(["info", "cloud"]) == 0
+    out = capsys.readouterr().out
+    assert "cloud (observation, plugin idbench)" in out
+    assert "points" in out and "--observe-option cloud.NAME=VALUE" in out
+    assert main(["info", "force", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["kind"] == "observation"
+    assert main(["info", "no-such-kind"]) == 2
+    assert "markers" in capsys.readouterr().err
