@@ -200,7 +200,11 @@
     camera.aspect = w / h;
     camera.updateProjectionMatrix();
   }
-  function draw() { renderer.render(scene, camera); }
+  var frames = 0;
+  function draw() {
+    renderer.render(scene, camera);
+    root.setAttribute("data-drawn", String(++frames));  // frames drawn so far
+  }
 
   // choosing a run: one select per axis; the run matching most choices wins
   function choose(wanted, first) {
