@@ -99,7 +99,8 @@ def axes(runs: pd.DataFrame) -> list[str]:
 
     Scenario (if several), mesh, estimator, the sweep's axes, seed.
     """
-    out = ["scenario"] if runs["scenario"].nunique() > 1 else []
+    several = "scenario" in runs and runs["scenario"].nunique() > 1
+    out = ["scenario"] if several else []
     out += ["mesh", "estimator"]
     out += [a for a in sweep_axes(runs) if a not in out and a != "seed"]
     return [a for a in out if a in runs.columns] + ["seed"]

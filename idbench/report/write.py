@@ -322,9 +322,11 @@ def _write_report(
     lines += [f"![{p.stem}]({p.name})" for p in written if p.suffix == ".png"]
     scenes = read_scenes(root, runs)
     stills = write_stills(root, runs, scenes)
-    lines += ["", "## 3D view", "", VIEW_NOTE if not scenes.problem else (
-        f"No 3D view: this folder fails its checks: {markdown_cell(scenes.problem)}"
-    ), ""]  # fmt: skip
+    if scenes.problem:
+        note = f"No 3D view: this folder fails its checks: {scenes.problem}"
+    else:
+        note = VIEW_NOTE if scenes.runs else "No 3D view: no run stored a surface."
+    lines += ["", "## 3D view", "", markdown_cell(note), ""]
     lines += [f"![{p.stem}]({p.name})" for p in stills]
     written += stills
     md = root / "report.md"

@@ -9,6 +9,7 @@ import pytest
 from support.helpers import STEPS, tiny
 
 from idbench.report.scene import read_scenes
+from idbench.report.write import write_report
 from idbench.run.compare import compare
 from idbench.store import surfaces
 from idbench.store.results import ResultsError
@@ -82,6 +83,21 @@ def test_an_altered_run_surface_is_named_not_shown(folder, tmp_path):
     scenes = read_scenes(out, pd.read_parquet(out / "runs.parquet"))
     assert "altered" in scenes.problem and path.name in scenes.problem
     assert scenes.runs == {}
+    write_report(out)  # the report says so, and draws no still of it
+    assert "No 3D view: this folder fails its checks" in (out / "report.md").read_text()
+    assert not list(out.glob("view_*.png"))
+
+
+def test_the_report_has_stills_of_the_best_and_the_worst_run(folder, tmp_path):
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(folder, out)
+    write_report(out)
+    text = (out / "report.md").read_text()
+    assert "![view_best](view_best.png)" in text
+    assert "![view_worst](view_worst.png)" in text
+    assert (out / "view_best.png").stat().st_size > 5000
 
 
 def test_a_resume_keeps_the_stored_surfaces(folder, tmp_path):
