@@ -60,6 +60,7 @@ def main(argv: list[str] | None = None) -> int:
             "compare": cmd_compare,
             "simulate": cmd_simulate,
             "info": cmd_info,
+            "view": _view,
         }
         if args.command in handlers:
             return handlers[args.command](args)
@@ -335,6 +336,16 @@ def cmd_report(args: argparse.Namespace) -> int:
     for path in written:
         print(f"wrote {path}")
     return 0
+
+
+def _view(args: argparse.Namespace) -> int:
+    """``idbench view DIR``: :func:`idbench.cli.view.cmd_view`, its refusals usage."""
+    from idbench.cli.view import ViewError, cmd_view
+
+    try:
+        return cmd_view(args)
+    except ViewError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def _paired(args: argparse.Namespace) -> list[Any]:

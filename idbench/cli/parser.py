@@ -14,6 +14,7 @@ import logging
 from pathlib import Path
 from typing import Any, NoReturn
 
+from idbench.cli import view
 from idbench.core.sanitize import printable
 from idbench.plan.config import ConfigError
 from idbench.registry.registry import cached_registry as registry
@@ -463,11 +464,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--seed", type=_number("seed", int), default=0, help="noise seed (default 0)"
     )
+    view.add_parser(sub)
     _add_plugin_commands(sub)
     return parser
 
 
-BUILTIN_COMMANDS = ("plugins", "compare", "report", "info", "simulate")
+BUILTIN_COMMANDS = ("plugins", "compare", "report", "info", "simulate", "view")
 
 
 def _add_plugin_commands(sub: Any) -> None:

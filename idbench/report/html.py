@@ -128,6 +128,7 @@ def write_html(
     frontier: pd.DataFrame,
     svgs: dict[str, str],
     paired: list[Any] | None = None,
+    view: str = "",
 ) -> Path:
     """Write ``root/report.html`` and return its path.
 
@@ -146,6 +147,9 @@ def write_html(
     paired
         Paired-difference tables (:class:`idbench.report.paired.Paired`) to show
         after the summary.
+    view
+        The 3D view's section (:func:`idbench.report.view3d.section`), shown
+        after them.
     """
     manifest_path = root / "manifest.json"
     manifest = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
@@ -176,6 +180,7 @@ def write_html(
         _summary_table(summary, headers(summary)),
         *(f"<p>{html.escape(line)}</p>" for line in seeds_note(summary)),
         *(paired_html(p) for p in paired or []),
+        view,
     ]
     if svgs:
         parts.append("<h2>Figures</h2>")

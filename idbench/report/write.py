@@ -42,6 +42,12 @@ __all__ = [
 ]
 
 BUDGETS_HZ = (30, 60)
+VIEW_NOTE = (
+    "The best and the worst run (by shape error at the last step) at their last"
+    " stored step, coloured by the displacement error against the truth (mm)."
+    " Every run, at every stored step, is in report.html's 3D view: open it"
+    " in a browser, or run `idbench view DIR`."
+)
 FRONTIER_KEYS = ["scenario", "mesh", "model_nodes", "estimator"]
 
 
@@ -265,6 +271,9 @@ def _write_report(
     import matplotlib.pyplot as plt
 
     from idbench.report.html import write_html
+    from idbench.report.scene import read_scenes
+    from idbench.report.stills import write_stills
+    from idbench.report.view3d import section
 
     runs_path, traces_path = root / "runs.parquet", root / "traces.parquet"
     runs = pd.read_parquet(runs_path)
@@ -317,11 +326,23 @@ def _write_report(
             "",
         ]
     lines += [f"![{p.stem}]({p.name})" for p in written if p.suffix == ".png"]
+    scenes = read_scenes(root, runs)
+    stills = write_stills(root, runs, scenes)
+    if scenes.problem:
+        note = f"No 3D view: this folder fails its checks: {scenes.problem}"
+    else:
+        note = VIEW_NOTE if scenes.runs else "No 3D view: no run stored a surface."
+    lines += ["", "## 3D view", "", markdown_cell(note), ""]
+    lines += [f"![{p.stem}]({p.name})" for p in stills]
+    written += stills
     md = root / "report.md"
     md.write_text("\n".join(lines) + "\n")
     written.append(md)
     written.append(
-        write_html(root, runs, summary, frontier_display(table), svgs, paired)
+        write_html(
+            root, runs, summary, frontier_display(table), svgs, paired,
+            section(scenes, runs),
+        )
     )
     return written
 

@@ -38,7 +38,8 @@ from idbench.run.executors import (
     started,
 )
 from idbench.run.session import Session
-from idbench.store.results import ResultStore
+from idbench.store import surfaces
+from idbench.store.results import ResultsError, ResultStore
 
 log = logging.getLogger(__name__)
 
@@ -187,6 +188,9 @@ def _compare(
         },
         wait=wait,
     ) as store:
+        stale = surfaces.check(out, the_plan.inputs)  # what the runs showed
+        if stale:
+            raise ResultsError(f"{stale}; use another --out DIR or delete it")
         return _run(the_plan, store, session, jobs, scheduler, progress, isolate)
 
 
@@ -216,6 +220,7 @@ def _run(
             if scheduler:  # before the truths are computed: a wrong address fails fast
                 client = connect(scheduler)
             prepare(pending, session)
+            store_truth_surfaces(pending, session, store.root, the_plan.inputs)
         except BaseException as exc:
             if client is not None:
                 client.close()
@@ -236,6 +241,9 @@ def _run(
     order = [r.run_id for r in the_plan.runs]
     try:
         for row, traces in results:
+            shown = row.pop(surfaces.ROW_KEY, None)  # before its parts: see there
+            if shown is not None:
+                surfaces.write_run(store.root, shown, the_plan.inputs)
             store.write(row, traces)
             count += 1
             if progress:
@@ -295,6 +303,21 @@ def prepare(runs: list[RunSpec], session: Session) -> None:
                     ) from None
         if spec.observed_otherwise():
             sense(spec, session)
+
+
+def store_truth_surfaces(
+    runs: list[RunSpec], session: Session, root: Path, inputs: list[Any]
+) -> None:
+    """Store the truth's surface of each data set of ``runs`` once (if missing)."""
+    for spec in runs:
+        if not spec.setup.data:  # a recording has no truth field
+            mesh, scenario = spec.setup.truth_mesh, spec.scenario
+            surfaces.write_truth(
+                root, spec.truth_product_key(scenario),
+                spec.model_key(mesh, scenario, "truth"),
+                session.model(spec, mesh, scenario, role="truth"),
+                session.truth(spec).states, inputs,
+            )  # fmt: skip
 
 
 def dispatch_order(runs: list[RunSpec], work: dict[str, float]) -> list[RunSpec]:

@@ -45,6 +45,7 @@ from idbench.plan.validity import run_warning
 from idbench.run import rows
 from idbench.run.session import Session
 from idbench.score import targets
+from idbench.store import surfaces
 from idbench.truth.simulate import Truth
 
 log = logging.getLogger(__name__)
@@ -258,6 +259,8 @@ def execute(
     if _SIGINT["received"]:  # a Ctrl-C that plugin code caught and turned
         raise KeyboardInterrupt  # into something else still stops the sweep
     row["wall_s"] = time.perf_counter() - t_start
+    if surfaces.ROW_KEY in row:  # what the run shows, for the results folder
+        row[surfaces.ROW_KEY] = row[surfaces.ROW_KEY].arrays()
     return row, traces
 
 
@@ -337,6 +340,11 @@ def _run_on(
     if refused:  # NaN entries an estimator off idbench.Filter does not mask
         raise Skipped(refused)
     direct = session.direct(spec)
+    row[surfaces.ROW_KEY] = recorder = surfaces.Recorder(
+        metrics_model, spec.setup.steps, _view_keys(spec),
+        session.observation_model(spec),
+        session.frames(spec) if spec.observed_otherwise() or spec.setup.data else None,
+    )  # fmt: skip
     if phase is not None:
         phase("estimator")
     with _deadline(spec.timeout):  # the estimator's own work, not shared inputs
@@ -346,7 +354,7 @@ def _run_on(
             estimator.start(seen, session.prior(master, spec))  # observation model
         est, means, stds, last = _estimate(
             spec, estimator, who, stream, truth, direct, traces,
-            (model, metrics_model), t_start,
+            (model, metrics_model), t_start, recorder,
         )  # fmt: skip
     if phase is not None:
         phase("scoring")
@@ -384,6 +392,13 @@ def _run_on(
         row["warning"] = "; ".join(w for w in (row["warning"], note) if w)
 
 
+def _view_keys(spec: RunSpec) -> dict[str, str]:
+    """The keys a run's stored surfaces name (see :mod:`idbench.store.surfaces`)."""
+    truth = "" if spec.setup.data else spec.truth_product_key(spec.scenario)
+    mesh = spec.model_key(spec.mesh, spec.scenario, "est")
+    return {"run_id": spec.run_id, "mesh_key": mesh, "truth_key": truth}
+
+
 def _estimate(
     spec: RunSpec,
     estimator: Any,
@@ -394,6 +409,7 @@ def _estimate(
     traces: list[dict[str, Any]],
     models: tuple[ForwardModel, ForwardModel],
     t_start: float,
+    recorder: surfaces.Recorder,
 ) -> tuple[Any, FloatArray, FloatArray, FloatArray]:
     """Feed the stream to the estimator; score and trace every step.
 
@@ -426,6 +442,7 @@ def _estimate(
         else:
             shadow = metrics_model.step(mean, k, shadow)
             state = shadow
+        recorder.step(k, state)
         innovation = innovation_of(est, estimator)
         trace = rows.step_row(
             spec, k, obs, est, mean, std, metrics_model.grid(state), truth, direct,

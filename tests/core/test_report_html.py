@@ -1,47 +1,21 @@
 """report.html in a real headless browser (Chromium through Playwright).
 
-Skipped, with the reason, only where no browser can be driven: Playwright
-not installed, or no Chromium (Debian: ``apt-get install chromium``; or
-``playwright install chromium``).
+Skipped, with the reason, only where no browser can be driven
+(:mod:`support.browser`).
 """
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import pytest
+from support.browser import launched
 from support.helpers import compare_into
-
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-]
-
-
-def _chromium() -> str | None:
-    """Debian's chromium if installed (None: Playwright's own, if any)."""
-    for name in ("chromium", "chromium-browser"):
-        path = shutil.which(name)
-        if path:
-            return path
-    return None
 
 
 @pytest.fixture(scope="module")
 def browser():
-    sync_api = pytest.importorskip(
-        "playwright.sync_api", reason="playwright is not installed (test extra)"
-    )
-    with sync_api.sync_playwright() as p:
-        try:
-            b = p.chromium.launch(executable_path=_chromium(), args=CHROMIUM_ARGS)
-        except Exception as exc:  # no browser binary on this machine
-            pytest.skip(f"no Chromium to drive: {str(exc).splitlines()[0]}")
-        yield b
-        b.close()
+    yield from launched()
 
 
 @pytest.fixture(scope="module")
