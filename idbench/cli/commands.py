@@ -260,13 +260,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
         from idbench.run.executors import quiet_logging
 
         quiet_logging()  # a lost scheduler is said once, below, not by Dask
-    the_plan = plan(config, Session(reg))
+    session = Session(reg)
+    the_plan = plan(config, session)
     if args.dry_run:
-        nodes = ", ".join(f"{m}: {n} nodes" for m, n in the_plan.nodes.items())
-        print(
-            f"{len(the_plan.runs)} runs; meshes {nodes}; "
-            f"about {the_plan.solves} forward solves"
-        )
+        _dry_run(the_plan, session)
         return 0
     # one hold of the folder's lock over the sweep and its report, taken
     # before the progress bar starts (--wait may wait here)
@@ -275,6 +272,70 @@ def cmd_compare(args: argparse.Namespace) -> int:
         return _compare_and_report(args, config, the_plan.runs)
     finally:
         lock.release(args.out)
+
+
+PROBE_BATCH = 8
+"""Parameter/state pairs of the dry run's batched probe."""
+
+
+def _dry_run(the_plan: Any, session: Any) -> None:
+    """Print what a comparison will run, skip and roughly cost (``--dry-run``).
+
+    The cost is the estimators' guessed forward solves times one load step of
+    each mesh, timed once here (the second step at the prior mean, warm
+    started; a batch of :data:`PROBE_BATCH` where the model steps batches):
+    a rough figure, without the truth's simulation and the scoring.
+    """
+    import collections
+    import time
+
+    import numpy as np
+
+    from idbench.core.capabilities import step_many_of
+    from idbench.core.sanitize import printable
+
+    nodes = ", ".join(f"{m}: {n} nodes" for m, n in the_plan.nodes.items())
+    print(
+        f"{len(the_plan.runs)} runs; meshes {nodes}; "
+        f"about {the_plan.solves} forward solves"
+    )
+    seconds: dict[str, float] = {}
+    for spec in the_plan.runs:
+        if spec.mesh in seconds:
+            continue
+        model = session.model(spec, spec.mesh)
+        theta = np.array(spec.setup.prior[0], dtype=float) * np.ones(
+            model.parameters.p
+        )
+        k = 2 if model.n_steps > 1 else 1
+        many = step_many_of(model)
+        try:
+            first = model.step(theta, 1, model.reset())  # compiles, warms caches
+            start = time.perf_counter()
+            if many is None:
+                model.step(theta, k, first)
+                seconds[spec.mesh] = time.perf_counter() - start
+            else:  # sigma points: a batch shares its factorizations
+                spread = theta * (1 + 0.01 * np.arange(PROBE_BATCH))[:, None]
+                many(spread, k, np.tile(first, (PROBE_BATCH, 1)))
+                seconds[spec.mesh] = (time.perf_counter() - start) / PROBE_BATCH
+        except Exception:  # the run itself will say why
+            seconds[spec.mesh] = float("nan")
+    total = sum(the_plan.guesses.get(s.run_id, 0) * seconds[s.mesh]
+                for s in the_plan.runs)  # fmt: skip
+    probe = ", ".join(f"{m}: {1000 * t:.1f} ms" for m, t in seconds.items())
+    print(
+        f"one forward solve (a probe) {probe}; the runs' forward solves take "
+        f"about {total:.0f} s in one process"
+    )
+    skipped = set(the_plan.skipped)
+    if skipped:
+        count = collections.Counter(
+            (s.estimator, s.mesh) for s in the_plan.runs if s.run_id in skipped
+        )
+        print(f"{len(skipped)} runs will be skipped by their estimator:")
+        for (estimator, mesh), n in sorted(count.items()):
+            print(printable(f"  {estimator} on {mesh}: {n} runs"))
 
 
 def _compare_and_report(args: argparse.Namespace, config: Any, planned: Any) -> int:

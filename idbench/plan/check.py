@@ -94,6 +94,11 @@ class Plan:
     plugins
         Plugin -> version of the plugins whose model, estimators and
         scenarios the runs use.
+    skipped
+        Run ids whose estimator says it will not run them (it guesses 0
+        solves: e.g. the full UKF over its solve budget).
+    guesses
+        Per run id, the estimator's guess of its forward solves.
     """
 
     config: CompareConfig
@@ -103,6 +108,8 @@ class Plan:
     work: dict[str, float] = field(default_factory=dict)
     inputs: list[dict[str, Any]] = field(default_factory=list)
     plugins: dict[str, str] = field(default_factory=dict)
+    skipped: list[str] = field(default_factory=list)
+    guesses: dict[str, int] = field(default_factory=dict)
 
 
 def plan(config: CompareConfig, session: PlanSession) -> Plan:
@@ -189,14 +196,17 @@ def plan(config: CompareConfig, session: PlanSession) -> Plan:
         runs = expand(config, setup, resolve(config, reg, built))
     _check_corrected(runs, config)
     runs, inputs = model_inputs(runs, session, config, settings, reg)
-    solves, work = 0, {}
+    solves, work, skipped, guesses = 0, {}, [], {}
     for spec in runs:
         model = session.model(spec, spec.mesh)
         _check_observed(spec, model, session)
         n_state = model.reset().size
         guess = _guess_solves(reg, spec, n_state, model.parameters.p)
         work[spec.run_id] = float(guess) * n_state
+        guesses[spec.run_id] = guess
         solves += guess
+        if guess == 0:
+            skipped.append(spec.run_id)
     transfers = [reg.scenario(n).transfer for n in config.scenarios]
     scenarios = {*config.scenarios, *transfers}
     plugins = used_plugins(
@@ -205,7 +215,9 @@ def plan(config: CompareConfig, session: PlanSession) -> Plan:
         ("estimators", [*(config.estimators or ()), config.reference or ""]),
         ("scenarios", sorted(n for n in scenarios if n)),
     )
-    return Plan(config, runs, nodes, solves, work, inputs, plugins)
+    return Plan(
+        config, runs, nodes, solves, work, inputs, plugins, skipped, guesses
+    )
 
 
 TRUTH_MESH = "recording"
