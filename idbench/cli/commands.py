@@ -19,6 +19,7 @@ from idbench.cli.parser import (
     model_options,
     observe_options,
     raw_option,
+    shorthand_model,
     shorthand_settings,
 )
 from idbench.plan.config import ConfigError
@@ -48,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     with contextlib.suppress(Exception):  # stderr may have no file descriptor
         faulthandler.enable()  # a crash in compiled code at least says where
     try:
-        args = build_parser().parse_args(argv)
+        args = build_parser(_help_config(argv)).parse_args(argv)
         args.prior_text = raw_option(argv, "--prior")
         if args.command is None:
             build_parser().print_help()
@@ -86,6 +87,25 @@ def main(argv: list[str] | None = None) -> int:
         return _fail(
             exc, 1, debug, f"unexpected {type(exc).__name__}: ", " (--debug shows more)"
         )
+
+
+def _help_config(argv: list[str]) -> Any:
+    """For ``compare --help`` with a model or body: the config its defaults come from.
+
+    None (the default model's defaults) for any other command line, or when
+    the other options cannot be read.
+    """
+    if not {"-h", "--help"} & set(argv) or "compare" not in argv:
+        return None
+    rest = [a for a in argv if a not in ("-h", "--help")]
+    try:
+        args = build_parser().parse_args(rest)
+        args.prior_text = raw_option(rest, "--prior")
+        if args.command != "compare":
+            return None
+        return compare_config(args, registry()).resolve(registry())
+    except (Exception, SystemExit):
+        return None
 
 
 def _fail(
@@ -212,25 +232,20 @@ def cmd_plugins(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_compare(args: argparse.Namespace) -> int:
-    """``idbench compare``: run a comparison, write the tables, print a summary."""
-    from idbench.plan.config import build_config, load_toml
-    from idbench.run.compare import plan
-    from idbench.run.session import Session
-    from idbench.store import lock
-    from idbench.store.results import lock_folder
+def compare_config(args: argparse.Namespace, reg: Any) -> Any:
+    """The :class:`~idbench.plan.config.CompareConfig` of ``idbench compare``'s args.
 
-    if args.out is None:
-        args.out = Path("idbench-out-quick" if args.quick else "idbench-out")
-    reg = registry()
+    ``--config``'s TOML, then the options given (they win), for ``reg``.
+    """
+    from idbench.plan.config import build_config, load_toml
+
     toml = load_toml(args.config, shorthand_settings(reg)) if args.config else None
     prior = args.prior
     if prior is not None and len(prior) != 2:
         raise UsageError(f"--prior {args.prior_text!r}: need MEAN,STD")
-    if args.jobs < 1:
-        raise UsageError(f"--jobs {args.jobs}: must be a whole number >= 1")
+    model = args.model or shorthand_model(args, reg)
     options = model_options(args)  # may move a shorthand into args.true
-    config = build_config(
+    return build_config(
         quick=args.quick,
         toml=toml,
         registry=reg,
@@ -252,10 +267,25 @@ def cmd_compare(args: argparse.Namespace) -> int:
         calibration=(
             {"mesh": args.calibration_mesh} if args.calibration_mesh else None
         ),
-        model=args.model,
+        model=model,
         shorthand_settings=options or None,
         data=str(args.data) if args.data else None,
     )
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    """``idbench compare``: run a comparison, write the tables, print a summary."""
+    from idbench.plan.check import plan
+    from idbench.run.session import Session
+    from idbench.store import lock
+    from idbench.store.results import lock_folder
+
+    if args.out is None:
+        args.out = Path("idbench-out-quick" if args.quick else "idbench-out")
+    reg = registry()
+    if args.jobs < 1:
+        raise UsageError(f"--jobs {args.jobs}: must be a whole number >= 1")
+    config = compare_config(args, reg)
     if args.scheduler and logging.getLogger().getEffectiveLevel() > logging.INFO:
         from idbench.run.executors import quiet_logging
 

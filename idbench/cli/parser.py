@@ -10,6 +10,7 @@ that cannot be added is reported in ``idbench plugins``, never fatal.
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
 from pathlib import Path
 from typing import Any, NoReturn
@@ -100,14 +101,19 @@ def _text(text: str) -> str:
     return "\n".join(printable(line) for line in text.split("\n"))
 
 
-def _config_default(name: str) -> str:
-    """A CompareConfig field's default (the default model's) as the CLI writes it."""
+def _config_default(name: str, config: Any = None) -> str:
+    """A CompareConfig field's default as the CLI writes it.
+
+    Of ``config`` (a resolved config: the model and body the command line
+    names), else of the default model's.
+    """
     from idbench.plan.config import CompareConfig
 
-    try:
-        config = CompareConfig().resolve(registry())
-    except ConfigError:
-        config = CompareConfig()
+    if config is None:
+        try:
+            config = CompareConfig().resolve(registry())
+        except ConfigError:
+            config = CompareConfig()
     value = getattr(config, name)
     if value is None:
         return "none"
@@ -218,8 +224,13 @@ def raw_option(argv: list[str], name: str) -> str | None:
     return None
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of every subcommand."""
+def build_parser(defaults: Any = None) -> argparse.ArgumentParser:
+    """The argument parser of every subcommand.
+
+    ``defaults``: a resolved :class:`~idbench.plan.config.CompareConfig` whose
+    values ``compare --help`` shows as the defaults (None: the default
+    model's), so that ``compare --help --body kidney`` shows the kidney's.
+    """
     from idbench.core.version import __version__
 
     parser = _Parser(
@@ -242,7 +253,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--out and print a summary. Comma lists become sweep axes. Options not "
         "given come from --config, else from the defaults shown.",
     )
-    d = _config_default
+    d = functools.partial(_config_default, config=defaults)
     c.add_argument("--config", type=Path, help="TOML file with any of these options")
     c.add_argument(
         "--data",
@@ -324,7 +335,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=_number("steps", int),
         help=f"load steps K (default: {d('steps')})",
     )
-    _add_model_arguments(c)
+    _add_model_arguments(c, defaults)
     _add_shorthands(c)
     c.add_argument(
         "--prior",
@@ -495,12 +506,12 @@ def _disable(plugin: str, message: str) -> None:
     errors[plugin] = f"{errors[plugin]}; {message}" if plugin in errors else message
 
 
-def _add_model_arguments(parser: argparse.ArgumentParser) -> None:
+def _add_model_arguments(parser: argparse.ArgumentParser, defaults: Any = None) -> None:
     """``--model``, ``--model-option`` and ``--true`` (compare and simulate)."""
     parser.add_argument(
         "--model",
         help="registered model, one of %(models)s "
-        f"(default: {_config_default('model')})",
+        f"(default: {_config_default('model', defaults)})",
     )
     _add_option_argument(
         parser,
@@ -559,6 +570,28 @@ def shorthand_settings(reg: Any) -> dict[str, str]:
             for option, (setting, _) in entry.defaults.shorthands.items():
                 out.setdefault(option, setting)
     return out
+
+
+def shorthand_model(args: argparse.Namespace, reg: Any) -> str | None:
+    """The model the given shorthand options belong to, when only one has them all.
+
+    So ``--body kidney`` alone picks the model whose shorthand ``--body`` is;
+    None when no shorthand is given or several models have them.
+    """
+    given = {
+        key.split(":", 1)[1]
+        for key, value in vars(args).items()
+        if key.startswith("shorthand:") and value is not None
+    }
+    if not given:
+        return None
+    owners = [
+        name
+        for name, entry in reg.models.items()
+        if entry.defaults
+        and given <= {setting for setting, _ in entry.defaults.shorthands.values()}
+    ]
+    return owners[0] if len(owners) == 1 else None
 
 
 def model_options(args: argparse.Namespace) -> dict[str, Any]:
