@@ -109,7 +109,7 @@ def run(quick: bool, opens: int, keep: Path | None) -> None:
         start = text.index('<h2 id="view">')
         end = text.index("</script>", text.index('id="view3d-data"'))
         mb = page.stat().st_size / 1e6
-        three = len(asset("three.min.js").encode()) / 1e6
+        three = len(asset("vendor/three.min.js").encode()) / 1e6
         stored = sum(p.stat().st_size for p in surfaces.folder(out).glob("run-*"))
         print(f"report.html: {mb:.2f} MB (target < {TARGET_MB} MB); the view's data "
               f"{(end - start) / 1e6:.2f} MB, three.js {three:.2f} MB; "

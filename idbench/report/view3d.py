@@ -1,6 +1,6 @@
 """report.html's interactive 3D view: the organ at each stored step, per run.
 
-The page embeds, once: a subset of three.js (``assets/three.min.js``, MIT,
+The page embeds, once: a subset of three.js (``assets/vendor/three.min.js``, MIT,
 bundled from the npm package; see THIRD_PARTY.md) and the view's own script
 (``assets/view3d.js``); and the scenes (:mod:`idbench.report.scene`) as one
 JSON block of base64 arrays, compact:
@@ -239,6 +239,6 @@ def section(scenes: Scenes, runs: pd.DataFrame) -> str:
         f'<div><div class="view-bar"></div><div class="view-ticks">{ticks}</div></div>',
         "</div></div>",
         f'<script type="application/json" id="view3d-data">{_json(data)}</script>',
-        f"<script>{asset('three.min.js')}</script>",
+        f"<script>{asset('vendor/three.min.js')}</script>",
         f"<script>{asset('view3d.js')}</script>",
     ])  # fmt: skip
