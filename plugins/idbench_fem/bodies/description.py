@@ -103,6 +103,7 @@ from numpy.typing import NDArray
 
 from idbench_fem.bodies.reader import TableReader, table
 from idbench_fem.bodies.regions import SELECTORS, Region
+from idbench_fem.bodies.supports import Support, parse_supports
 from idbench_fem.fem.materials import LAWS, lame, make_material
 
 FloatArray = NDArray[np.float64]
@@ -227,7 +228,8 @@ class Body:
     source: str
     mesh: MeshFiles
     material: Material
-    fixed: Region
+    fixed: Region | None
+    """None: the body is held by its ``supports`` only."""
     manipulations: tuple[Manipulation, ...]
     markers: Markers
     shape_error: ShapeError
@@ -239,6 +241,9 @@ class Body:
     ...); none: the largest nodal displacement ``u_max``."""
     targets: tuple[tuple[str, Vec], ...] = ()
     """Hidden target points (name, point); ``name[i]`` for a list's i-th."""
+    supports: tuple[Support, ...] = field(default=(), repr=False)
+    """Surface regions on springs (:mod:`idbench_fem.bodies.supports`); not in
+    the repr, which keys the truths of bodies built in memory."""
 
     def manipulation(self, name: str) -> Manipulation:
         """The manipulation called ``name``."""
@@ -302,6 +307,7 @@ def parse_body(
         "parameters",
         "probe",
         "targets",
+        "support",
     )
     TableReader(source, "body").keys(raw, top)
 
@@ -346,13 +352,16 @@ def parse_body(
     )
     material = Material(law, E, nu, density, E_regions)
 
-    if "fixed" not in raw:
+    supports = parse_supports(raw.get("support", []), source)
+    if "fixed" not in raw and not supports:
         raise ValueError(
             f"{source}: no [fixed] region: the body could move rigidly; name a "
-            f"region or give one of {', '.join(SELECTORS[1:])}"
+            f"region or give one of {', '.join(SELECTORS[1:])} (or a [[support]])"
         )
     fx = table(raw, "fixed", source)
-    fixed = TableReader(source, "[fixed]").region("fixed", fx)
+    fixed = None
+    if "fixed" in raw:
+        fixed = TableReader(source, "[fixed]").region("fixed", fx)
 
     manip = raw.get("manipulation", [])
     if not isinstance(manip, list) or not manip:
@@ -445,6 +454,7 @@ def parse_body(
         bounds,
         _probes(raw.get("probe", []), source),
         _targets(table(raw, "targets", source), source),
+        supports,
     )
 
 

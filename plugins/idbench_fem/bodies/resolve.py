@@ -27,7 +27,7 @@ IntArray = NDArray[np.int64]
 
 
 def fixed_nodes(body: Body, mesh: SolidMesh) -> IntArray:
-    """Indices of the fixed nodes (all components zero).
+    """Indices of the fixed nodes (all components zero); none without ``[fixed]``.
 
     Raises
     ------
@@ -35,6 +35,8 @@ def fixed_nodes(body: Body, mesh: SolidMesh) -> IntArray:
         Unknown or empty region, or one that cannot stop rigid motion (fewer
         than three nodes not on one line).
     """
+    if body.fixed is None:  # held by its supports (springs) only
+        return np.zeros(0, dtype=np.int64)
     nodes = region_nodes(mesh, body.fixed, what=f"{body.source}: [fixed] region")
     x = mesh.points[nodes] - mesh.points[nodes].mean(axis=0)
     sv = np.linalg.svd(x, compute_uv=False) if len(x) >= 2 else np.zeros(1)

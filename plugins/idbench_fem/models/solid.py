@@ -76,6 +76,7 @@ from idbench_fem.models.digests import body_digest, mesh_digest
 from idbench_fem.models.observables import Observables
 from idbench_fem.models.points import place_points
 from idbench_fem.models.solid_settings import DEFAULT_BODY, SolidSettings
+from idbench_fem.models.supported import Supported, attach_springs
 
 log = logging.getLogger(__name__)
 
@@ -94,7 +95,7 @@ _BOUNDS = (1e-3, 1e3)
 """Parameter bounds as multiples of the body's E."""
 
 
-class SolidModel(Observables, BatchedSteps):
+class SolidModel(Supported, Observables, BatchedSteps):
     """A body under one manipulation, on one mesh, stepped by Newton.
 
     Parameters
@@ -184,6 +185,7 @@ class SolidModel(Observables, BatchedSteps):
             names, tuple(lo for _ in names), tuple(hi for _ in names),
             default=tuple(float(v) for v in true),
         )  # fmt: skip
+        attach_springs(self, body, mesh)  # [[support]]: springs, their parameters
 
         f1 = nodal_forces(
             self.manipulation, mesh, body.material.density, t=float(s.load_scale)
@@ -541,9 +543,10 @@ class SolidModel(Observables, BatchedSteps):
         return np.asarray(self._load_weights * traction[self._load_component])
 
     def element_moduli(self, theta: FloatArray, k: int | None) -> FloatArray:
-        """The elements' moduli theta_{r(e)} c_e (T,); theta checked (step k)."""
+        """Moduli theta_{r(e)} c_e (T,), then any springs' (T + q,); theta checked."""
         th = self._theta(theta, k)
-        return np.asarray(th[self.element_regions] * self._factors)
+        out = np.asarray(th[self.element_regions] * self._factors)
+        return out if self._springs is None else self._springs.moduli(out, th)
 
 
 def make_model(spec: ModelSpec) -> SolidModel:
