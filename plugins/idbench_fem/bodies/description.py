@@ -102,6 +102,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from idbench_fem.bodies.reader import TableReader, table
+from idbench_fem.bodies.reference import ImagedShape, parse_reference
 from idbench_fem.bodies.regions import SELECTORS, Region
 from idbench_fem.bodies.supports import Support, parse_supports
 from idbench_fem.fem.materials import LAWS, lame, make_material
@@ -244,6 +245,8 @@ class Body:
     supports: tuple[Support, ...] = field(default=(), repr=False)
     """Surface regions on springs (:mod:`idbench_fem.bodies.supports`); not in
     the repr, which keys the truths of bodies built in memory."""
+    reference: ImagedShape | None = field(default=None, repr=False)
+    """The meshes are the shape imaged under a manipulation (``[reference]``)."""
 
     def manipulation(self, name: str) -> Manipulation:
         """The manipulation called ``name``."""
@@ -308,6 +311,7 @@ def parse_body(
         "probe",
         "targets",
         "support",
+        "reference",
     )
     TableReader(source, "body").keys(raw, top)
 
@@ -455,6 +459,7 @@ def parse_body(
         _probes(raw.get("probe", []), source),
         _targets(table(raw, "targets", source), source),
         supports,
+        parse_reference(raw.get("reference"), source, tuple(names)),
     )
 
 

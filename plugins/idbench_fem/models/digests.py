@@ -34,6 +34,8 @@ def body_digest(body: Body) -> str:
     text = repr(states) + "".join(  # a driven grasp's displacement is no repr
         f"|{m.name}:{m.displacement}" for m in body.manipulations if m.driven
     )
+    if body.supports or body.reference:  # nor are these (both change states)
+        text += f"|{body.supports!r}|{body.reference!r}"
     return hashlib.sha256(text.encode()).hexdigest()
 
 

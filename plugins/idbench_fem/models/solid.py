@@ -75,6 +75,7 @@ from idbench_fem.fem.svk_assembly import Assembler
 from idbench_fem.models.digests import body_digest, mesh_digest
 from idbench_fem.models.observables import Observables
 from idbench_fem.models.points import place_points
+from idbench_fem.models.rest_shape import rest_mesh
 from idbench_fem.models.solid_settings import DEFAULT_BODY, SolidSettings
 from idbench_fem.models.supported import Supported, attach_springs
 
@@ -585,8 +586,9 @@ def make_model(spec: ModelSpec) -> SolidModel:
             f"{', '.join(m.name for m in own.manipulations)})"
         )
     body.manipulation(name)  # one line if unknown
-    mesh = get_mesh(mesh_file(body, spec.mesh))
-    reference = get_mesh(mesh_file(body, settings.reference or "truth"))
+    mesh = rest_mesh(body, get_mesh(mesh_file(body, spec.mesh)), settings)
+    on = get_mesh(mesh_file(body, settings.reference or "truth"))
+    reference = rest_mesh(body, on, settings)  # [reference]: stress-free shapes
     return SolidModel(body, mesh, name, reference, spec.n_steps, spec.markers, settings)
 
 
