@@ -23,11 +23,14 @@ a translation :math:`\delta`:
 
 then moves the points by the exact rotation :math:`\exp(\omega)`. It stops
 when an update moves no point by more than ``tolerance`` times the scale
-c. Starts: the given transform and rotations of it about the cloud's
-centroid by ``start_angle`` about each axis, both ways (7); the best is the
-one whose points lie closest to the surface (the robust cost at a common
-scale). A result whose inliers (|r| <= 3 c) are fewer than ``min_inliers``,
-or that did not converge, raises :class:`RegistrationError` in one line.
+c (fixed after a few iterations), or when the robust cost stops falling
+(the closest triangles switching back and forth). Starts: the given
+transform and rotations of it about the cloud's centroid by
+``start_angle`` about each axis, both ways (7); the best is the one whose
+points lie closest to the surface (the robust cost at a common scale). A
+result whose inliers (|r| <= 5 ``floor``, the cloud's noise) are fewer
+than ``min_inliers``, or that did not converge, raises
+:class:`RegistrationError` in one line.
 
 The exact point-to-triangle distance (no sampled surface) is what lets a
 1,000-point cloud recover a pose to a fraction of a millimetre; with
@@ -68,7 +71,7 @@ class Registration:
     rms
         Root mean square of the inliers' point-to-surface distances after it.
     inliers
-        Fraction of the points within 3 scales of the surface.
+        Fraction of the points within :data:`INLIER` ``floor`` of the surface.
     scale
         The robust scale c at the end (model units).
     iterations, start
@@ -154,6 +157,16 @@ class _Surface:
         return q[pick], self.normals[flat[pick]]
 
 
+INLIER = 5.0
+"""An inlier lies within this many ``floor`` (the cloud's noise) of the surface."""
+
+FREEZE = 5
+"""ICP iterations after which the robust scale stays fixed."""
+
+STALL = 10
+"""ICP iterations without a lower robust cost that end it."""
+
+
 def _scale(r: FloatArray, floor: float) -> float:
     return max(3.0 * 1.4826 * float(np.median(np.abs(r))), floor)
 
@@ -162,13 +175,31 @@ def _icp(
     surface: _Surface, p: FloatArray, R: FloatArray, t: FloatArray, floor: float,
     max_iterations: int, tolerance: float,
 ) -> tuple[FloatArray, FloatArray, int, bool]:  # fmt: skip
-    """Robust point-to-plane ICP from (R, t); returns R, t, iterations, converged."""
+    """Robust point-to-plane ICP from (R, t); returns R, t, iterations, converged.
+
+    The scale c is the residuals' until :data:`FREEZE` iterations, then
+    fixed. Converged: an update moves no point by more than ``tolerance``
+    c, or the robust cost at that scale has not fallen by 1e-9 of itself in
+    :data:`STALL` iterations (the closest triangles switching back and forth:
+    the best iterate is returned).
+    """
+    c = math.inf
+    best: tuple[float, FloatArray, FloatArray] = (math.inf, R, t)
+    since = 0
     for it in range(1, max_iterations + 1):
         x = p @ R.T + t
         q, n = surface.closest(x)
         r = np.einsum("ij,ij->i", n, x - q)
-        c = _scale(r, floor)
+        if it <= FREEZE:
+            c = _scale(r, floor)
         w = 1.0 / (1.0 + (r / c) ** 2)
+        cost = float(np.log1p((r / c) ** 2)[w > 0].sum())
+        if it > FREEZE:
+            since = 0 if cost < best[0] * (1 - 1e-9) else since + 1
+            if cost < best[0]:
+                best = (cost, R, t)
+            if since >= STALL:
+                return best[1], best[2], it, True
         centre = x.mean(axis=0)
         A = np.hstack([np.cross(x - centre, n), n])
         Aw = A * w[:, None]
@@ -209,7 +240,7 @@ def register(
     floor: float = 1e-4,
     start_angle: float = 15.0,
     max_iterations: int = 100,
-    tolerance: float = 0.01,
+    tolerance: float = 1e-4,
     min_inliers: float = 0.5,
     candidates: int = 8,
     backend: str = "numpy",
@@ -225,7 +256,8 @@ def register(
     rotation, translation
         A first guess of the transform (None: identity, zero).
     floor
-        The smallest robust scale c (model units; about the cloud's noise).
+        The cloud's noise std (model units): the smallest robust scale c,
+        and :data:`INLIER` times it the farthest an inlier lies.
     start_angle
         Degrees of the rotated starts about each axis (0: the guess only).
     max_iterations, tolerance
@@ -252,11 +284,13 @@ def register(
     surface = _Surface(vertices, triangles, candidates)
     R0 = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
     t0 = np.zeros(3) if translation is None else np.asarray(translation, dtype=float)
-    solve = _icp if backend == "numpy" else _open3d_icp
-    tried = [
-        (*solve(surface, p, R, t, floor, max_iterations, tolerance), i)
-        for i, (R, t) in enumerate(_starts(p, R0, t0, start_angle))
-    ]
+    tried = []
+    for i, (R, t) in enumerate(_starts(p, R0, t0, start_angle)):
+        if backend == "numpy":
+            out = _icp(surface, p, R, t, floor, max_iterations, tolerance)
+        else:
+            out = _open3d_icp(surface, p, R, t, floor, max_iterations, tolerance)
+        tried.append((*out, i))
     scored = []
     for R, t, its, ok, i in tried:
         x = p @ R.T + t
@@ -266,7 +300,7 @@ def register(
     c = min(_scale(s[0], floor) for s in scored)  # one scale: comparable costs
     costs = [float(np.log1p((s[0] / c) ** 2).sum()) for s in scored]
     r, R, t, its, ok, i = scored[int(np.argmin(costs))]
-    inside = np.abs(r) <= 3.0 * _scale(r, floor)
+    inside = np.abs(r) <= INLIER * floor
     rms = float(np.sqrt(np.mean(r[inside] ** 2))) if inside.any() else math.inf
     fit = Registration(R, t, rms, float(inside.mean()), _scale(r, floor), its, i,
                        backend)  # fmt: skip
@@ -274,7 +308,7 @@ def register(
         why = "did not converge" if not ok else "fits too few points"
         raise RegistrationError(
             f"registration {why}: {100 * fit.inliers:.0f}% of {len(p)} points "
-            f"within {3 * fit.scale:.3g} of the surface (rms {rms:.3g}) after "
+            f"within {INLIER * floor:.3g} of the surface (rms {rms:.3g}) after "
             f"{its} iterations, best of {len(tried)} starts; the cloud may show "
             "another body, or lie farther from it than the starts reach"
         )
