@@ -325,7 +325,7 @@ def _open3d_icp(
     except ImportError:
         raise RegistrationError(
             "registration backend 'open3d': Open3D is not installed (pip install "
-            "open3d-cpu), or use backend 'numpy'"
+            "'idbench[open3d]'), or use backend 'numpy'"
         ) from None
     reg = o3d.pipelines.registration
     target = _open3d_target(o3d, surface)

@@ -223,3 +223,16 @@ def test_springs_on_a_clamped_face_do_nothing(tmp_path):
     K = model.tangent(np.array([E]), model.reset())
     # the bottom's springs lie on fixed nodes; the sides' hold the rest
     assert K.shape == (model.n_state, model.n_state)
+
+
+def test_the_body_check_resolves_the_supports(tmp_path):
+    from idbench_fem.bodies import resolve
+
+    body = block_body(tmp_path)
+    resolve.check(load_body(body))
+    far = "{ sphere = { centre = [1.0, 1.0, 1.0], radius = 0.001 } }"
+    text = body.read_text().replace(_face(0, False), far, 1)
+    body.write_text(text)
+    with pytest.raises(ValueError, match="support") as err:
+        resolve.check(load_body(body))
+    assert "\n" not in str(err.value)

@@ -16,7 +16,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from idbench_fem.bodies.mesh import SolidMesh, read_mesh
-from idbench_fem.bodies.regions import Region, region_cells, region_nodes
+from idbench_fem.bodies.regions import (
+    Region,
+    region_cells,
+    region_facets,
+    region_nodes,
+)
 from idbench_fem.bodies.surface import inside, project_to_surface
 
 if TYPE_CHECKING:
@@ -224,6 +229,8 @@ def check(body: Body, meshes: list[SolidMesh] | None = None) -> None:
         marker_points(body, mesh)
         element_regions(body, mesh)
         element_moduli(body, mesh)
+        for s in body.supports:  # springs: a surface region each
+            region_facets(mesh, s.region, what=f"{body.source}: [[support]] region")
         for m in body.manipulations:
             nodal_forces(m, mesh, body.material.density)
             if m.driven:
