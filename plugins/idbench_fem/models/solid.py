@@ -77,7 +77,7 @@ from idbench_fem.models.observables import Observables
 from idbench_fem.models.points import place_points
 from idbench_fem.models.rest_shape import rest_mesh
 from idbench_fem.models.solid_settings import DEFAULT_BODY, SolidSettings
-from idbench_fem.models.supported import Supported, attach_springs
+from idbench_fem.models.supported import Supported
 
 log = logging.getLogger(__name__)
 
@@ -186,7 +186,7 @@ class SolidModel(Supported, Observables, BatchedSteps):
             names, tuple(lo for _ in names), tuple(hi for _ in names),
             default=tuple(float(v) for v in true),
         )  # fmt: skip
-        attach_springs(self, body, mesh)  # [[support]]: springs, their parameters
+        self._attach_springs(body, mesh)  # [[support]]: springs, their parameters
 
         f1 = nodal_forces(
             self.manipulation, mesh, body.material.density, t=float(s.load_scale)

@@ -3,7 +3,7 @@ r"""A solid model's elastic supports: its springs, their parameters and weights.
 A body's ``[[support]]`` tables (:mod:`idbench_fem.bodies.supports`) become
 spring *channels* on the model's mesh, a constant sparse matrix S_c each
 (:func:`~idbench_fem.fem.springs.spring_matrices`: S_n and S_t of a region,
-those of nonzero stiffness), and :func:`attach_springs` wraps the model's
+those of nonzero stiffness), and :meth:`Supported._attach_springs` wraps the model's
 assembler in a :class:`~idbench_fem.fem.springs.SpringAssembler`. A channel's
 stiffness is a known value or a parameter (``k_n_<support>``, after the
 moduli, with the support's bounds and prior); the model's moduli array then
@@ -87,23 +87,28 @@ class Springs:
             priors=(*spec.priors, *self.priors),
         )
 
-    def weights(self, model: Any) -> FloatArray:
+    @property
+    def pairs(self) -> tuple[tuple[int, int], ...]:
+        """(parameter, channel) of each identified stiffness."""
+        return tuple((j, c) for c, j in enumerate(self.index) if j >= 0)
+
+    def weights(
+        self, asm: Any, pattern: Any, spec: ParameterSpec, regions: Any, unit: Any
+    ) -> FloatArray:
         r"""Each parameter's share of the rest tangent's trace at the true values.
 
         :math:`w_j \propto \theta^*_j\, \mathrm{tr}\, K_j(0)` over the
         parameters and the known springs (so the weights sum to less than 1
         where known springs hold part of the body): the first-order scale of
         a factorization to other parameters, :math:`d \ln s = \sum_j w_j\,
-        d \ln \theta_j`.
+        d \ln \theta_j`. From the model's assembler and tangent pattern, its
+        parameters, its elements' regions (T,) and moduli at theta = 1.
         """
-        asm, p = model.assembler, model.parameters.p
         T = asm.n_elements
-        pattern = model._pattern
-        true = np.asarray(model.parameters.default, dtype=float)
+        true = np.asarray(spec.default, dtype=float)
         u0 = np.zeros(asm.n_free)
-        traces = np.zeros(p)
-        regions = model.element_regions
-        unit = np.asarray(model.unit_moduli[:T])
+        traces = np.zeros(spec.p)
+        unit = np.asarray(unit[:T])
         for r in range(int(regions.max()) + 1):
             mod = np.where(regions == r, unit, 0.0)
             mod = np.concatenate([mod, np.zeros(len(self.index))])
@@ -121,26 +126,19 @@ class Springs:
         return np.asarray(traces / (traces.sum() + known))
 
 
-def attach_springs(model: Any, body: Body, mesh: SolidMesh) -> None:
-    """Give ``model`` its body's supports (none: ``model._springs`` stays None).
+def springs_of(body: Body, mesh: SolidMesh, full_to_free: Any, p0: int) -> Springs:
+    """The spring channels of ``body``'s supports on ``mesh`` (free dofs' map).
 
-    Wraps the assembler of the state's dofs in a
-    :class:`~idbench_fem.fem.springs.SpringAssembler`, extends
-    ``model.parameters`` by the identified stiffnesses and sets
-    ``force_is_cubic = False`` (see the module). Call it after the moduli's
-    parameters are set and before the model freezes its arrays.
+    ``p0``: the number of parameters before the stiffnesses (the moduli).
 
     Raises
     ------
     ValueError
-        A support region with no boundary facet in ``mesh``, or a volume
-        region's name (one line).
+        A support region with no boundary facet in ``mesh``, a volume
+        region's name, or springs that leave a body without ``[fixed]`` free
+        to move rigidly (one line).
     """
-    if not body.supports:
-        return
-    inner = model._state_asm()
     springs = Springs()
-    p0 = model.parameters.p
     for s in body.supports:
         what = f"{body.source}: [[support]] {s.name!r} region"
         if s.region.name is not None and mesh.volume_only(s.region.name):
@@ -149,7 +147,7 @@ def attach_springs(model: Any, body: Body, mesh: SolidMesh) -> None:
                 "surface: name a surface group or use a selector"
             )
         facets = region_facets(mesh, s.region, what=what)
-        pair = spring_matrices(mesh.points, mesh.facets[facets], inner.full_to_free)
+        pair = spring_matrices(mesh.points, mesh.facets[facets], full_to_free)
         for which, S in zip(("k_n", "k_t"), pair, strict=True):
             if s.value(which) == 0.0:
                 continue
@@ -169,16 +167,8 @@ def attach_springs(model: Any, body: Body, mesh: SolidMesh) -> None:
             mean, std = next((m, d) for k, m, d in s.prior if k == which)
             springs.priors.append((s.parameter(which), mean, std))
     if body.fixed is None:
-        _check_held(springs, mesh, inner.full_to_free, body.source)
-    pairs = tuple((j, c) for c, j in enumerate(springs.index) if j >= 0)
-    wrapped = SpringAssembler(inner, springs.matrices, pairs)
-    if inner is model._asm:
-        model._asm = wrapped
-    else:  # a displacement-controlled grasp's assembler wraps the state's
-        model._asm.inner = wrapped
-    model.parameters = springs.extend(model.parameters)
-    model.force_is_cubic = False
-    model._springs = springs
+        _check_held(springs, mesh, full_to_free, body.source)
+    return springs
 
 
 HELD = 1e-8
@@ -227,9 +217,39 @@ def _check_held(
 
 
 class Supported:
-    """Mixin: the chord weights of a model with springs (see the module)."""
+    """Mixin: a solid model's springs and their chord weights (see the module)."""
 
     _springs: Springs | None = None
+    _asm: Any
+    parameters: ParameterSpec
+    force_is_cubic: bool
+
+    def _attach_springs(self, body: Body, mesh: SolidMesh) -> None:
+        """Give the model its body's supports (none: ``_springs`` stays None).
+
+        Wraps the assembler of the state's dofs in a
+        :class:`~idbench_fem.fem.springs.SpringAssembler`, extends
+        ``parameters`` by the identified stiffnesses and sets
+        ``force_is_cubic = False`` (see the module). Called after the
+        moduli's parameters are set and before the model freezes its arrays.
+
+        Raises
+        ------
+        ValueError
+            See :func:`springs_of`.
+        """
+        if not body.supports:
+            return
+        inner = self._state_asm()  # type: ignore[attr-defined]
+        springs = springs_of(body, mesh, inner.full_to_free, self.parameters.p)
+        wrapped = SpringAssembler(inner, springs.matrices, springs.pairs)
+        if inner is self._asm:
+            self._asm = wrapped
+        else:  # a displacement-controlled grasp's assembler wraps the state's
+            self._asm.inner = wrapped
+        self.parameters = springs.extend(self.parameters)
+        self.force_is_cubic = False
+        self._springs = springs
 
     def region_weights(self) -> FloatArray:
         """The parameters' stiffness shares (:meth:`Springs.weights` with springs)."""
@@ -237,5 +257,9 @@ class Supported:
             return np.asarray(super().region_weights())  # type: ignore[misc]
         cached = self.__dict__.get("_spring_weights")
         if cached is None:
-            cached = self.__dict__["_spring_weights"] = self._springs.weights(self)
+            cached = self._springs.weights(
+                self._asm, self._pattern, self.parameters,  # type: ignore[attr-defined]
+                self.element_regions, self.unit_moduli,  # type: ignore[attr-defined]
+            )  # fmt: skip
+            self.__dict__["_spring_weights"] = cached
         return np.asarray(cached)
