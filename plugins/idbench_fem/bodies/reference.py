@@ -4,7 +4,7 @@
 
     [reference]
     imaged_under = "sag"   # a manipulation of the body (gravity, typically)
-    tolerance = 1e-6       # m: the re-loaded stress-free shape vs the imaged one
+    tolerance = 1e-5       # m: the re-loaded stress-free shape vs the imaged one
     max_iterations = 30
     steps = 10             # load steps of the first solve (the ramp)
 
@@ -26,7 +26,7 @@ class ImagedShape:
     """What the ``[reference]`` table says (see the module)."""
 
     imaged_under: str
-    tolerance: float = 1e-6
+    tolerance: float = 1e-5
     max_iterations: int = 30
     steps: int = 10
 
@@ -53,7 +53,7 @@ def parse_reference(
             f"imaged_under = {name!r}: need a manipulation of this body "
             f"({', '.join(manipulations)})"
         )
-    tol = c.number("tolerance", raw.get("tolerance", 1e-6), positive=True)
+    tol = c.number("tolerance", raw.get("tolerance", 1e-5), positive=True)
     counts = []
     for key, default in (("max_iterations", 30), ("steps", 10)):
         n = raw.get(key, default)

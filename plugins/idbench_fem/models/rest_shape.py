@@ -23,7 +23,7 @@ In a body TOML (:mod:`idbench_fem.bodies.reference`)::
 
     [reference]
     imaged_under = "sag"   # a manipulation: the meshes are the shape under it
-    tolerance = 1e-6       # m (default), on the re-loaded shape
+    tolerance = 1e-5       # m (default), on the re-loaded shape
     max_iterations = 30
 
 and every mesh of the body (the truth's, the models', the reference the
@@ -71,7 +71,7 @@ def stress_free(
     build: Any,
     imaged: FloatArray,
     *,
-    tolerance: float = 1e-6,
+    tolerance: float = 1e-5,
     max_iterations: int = 30,
 ) -> RestShape:
     """Sellier's fixed point: the X whose loaded shape is ``imaged`` (N, 3).
@@ -149,9 +149,9 @@ def _rest_mesh(body: Body, mesh: SolidMesh, law: Any, nu: Any) -> SolidMesh:
     assert ref is not None
     settings = SolidSettings(law=law, nu=nu, path_reuse=False)
 
-    def build(points: FloatArray) -> SolidModel:
+    def build(points: FloatArray) -> SolidModel:  # its points placed on the image
         moved = dataclasses.replace(mesh, points=points)
-        return SolidModel(body, moved, ref.imaged_under, moved, ref.steps, 1, settings)
+        return SolidModel(body, moved, ref.imaged_under, mesh, ref.steps, 1, settings)
 
     shape = stress_free(
         build, mesh.points, tolerance=ref.tolerance,
