@@ -66,12 +66,17 @@ class ParameterSpec:
     default
         True values a comparison uses when it is not given them (``--true``),
         or None: then they must be given.
+    priors
+        ((name, mean, std), ...): parameters with a prior of their own, in
+        natural units (a stiffness of another unit than a modulus, say); the
+        comparison's prior is every other parameter's (:meth:`prior`).
     """
 
     names: tuple[str, ...]
     lower: tuple[float, ...]
     upper: tuple[float, ...]
     default: tuple[float, ...] | None = None
+    priors: tuple[tuple[str, float, float], ...] = ()
 
     def __post_init__(self) -> None:
         if not self.names:
@@ -85,11 +90,24 @@ class ParameterSpec:
         for n, lo, hi in zip(self.names, self.lower, self.upper, strict=True):
             if not lo < hi:
                 raise ValueError(f"parameter {n!r}: lower {lo} must be < upper {hi}")
+        for n, mean, std in self.priors:
+            if n not in self.names or not (np.isfinite(mean) and np.isfinite(std)):
+                raise ValueError(f"prior of {n!r}: no such parameter or not finite")
+            if not std > 0:
+                raise ValueError(f"prior of {n!r}: std {std} must be > 0")
 
     @property
     def p(self) -> int:
         """Number of parameters."""
         return len(self.names)
+
+    def prior(self, mean: float, std: float) -> Prior:
+        """The prior: (mean, std) for every parameter but those of ``priors``."""
+        own = {n: (m, s) for n, m, s in self.priors}
+        pairs = [own.get(n, (mean, std)) for n in self.names]
+        return Prior(
+            tuple(float(m) for m, _ in pairs), tuple(float(s) for _, s in pairs)
+        )
 
     def contains(self, theta: FloatArray) -> bool:
         """Whether ``theta`` (p,) is finite and inside the bounds."""

@@ -39,12 +39,15 @@ def check_prior(
 ) -> None:
     """Refuse a prior mean outside the parameter bounds (every run would fail).
 
+    ``prior`` is every parameter's but those with a prior of their own (the
+    model's :attr:`~idbench.ParameterSpec.priors`, checked too).
+
     Raises
     ------
     ConfigError
         Naming the prior mean and the bounds.
     """
-    mean = np.full(parameters.p, float(prior[0]))
+    mean = np.asarray(parameters.prior(float(prior[0]), float(prior[1])).mean)
     if not parameters.contains(mean):
         ranges = ", ".join(
             f"{n}: {lo:g}..{hi:g}"

@@ -369,9 +369,12 @@ class Session:
         return typing.cast(ForwardModel, wrapped)
 
     def prior(self, model: ForwardModel, spec: RunSpec) -> Prior:
-        """The run's prior, the same for every parameter."""
+        """The run's prior: the comparison's, but for parameters with their own.
+
+        (:attr:`idbench.ParameterSpec.priors`, a model's.)
+        """
         mean, std = spec.setup.prior
-        return Prior.broadcast(mean, std, model.parameters.p)
+        return model.parameters.prior(mean, std)
 
     def known_reference(self, spec: RunSpec) -> FloatArray | None:
         """The reference value of ``spec``'s data if this session has it."""

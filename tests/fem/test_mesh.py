@@ -146,7 +146,7 @@ def test_a_legacy_gmsh_mesh_gets_its_conversion_command(tmp_path):
 
 
 def test_a_point_outside_a_model_mesh_is_named_as_the_toml_counts(tmp_path):
-    from helpers import write_box_mesh
+    from support.helpers import write_box_mesh
 
     from idbench_fem.bodies.catalog import get_mesh
     from idbench_fem.bodies.description import parse_body

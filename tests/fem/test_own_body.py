@@ -220,8 +220,8 @@ def test_info_solid_shows_whole_help_texts(capsys):
 def test_nodal_forces_refuse_a_volume_name_but_not_a_surface_name():
     from skfem import MeshTet
 
-    from idbench_fem.bodies.description import Manipulation
     from idbench_fem.bodies.loads import nodal_forces
+    from idbench_fem.bodies.manipulations import Manipulation
     from idbench_fem.bodies.mesh import from_arrays
     from idbench_fem.bodies.regions import Region
 

@@ -108,21 +108,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench_fem.bodies.figures import CONSERVE
+from idbench_fem.bodies.manipulations import Manipulation, parse_manipulation
 from idbench_fem.bodies.reader import TableReader, table
+from idbench_fem.bodies.reference import ImagedShape, parse_reference
 from idbench_fem.bodies.regions import SELECTORS, Region
 from idbench_fem.bodies.resolve import SNAP_DISTANCE
+from idbench_fem.bodies.supports import Support, parse_supports
 from idbench_fem.fem.materials import LAWS, lame, make_material
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 Vec = tuple[float, float, float]
-
-KINDS = ("traction", "pressure", "gravity", "grasp")
-"""Manipulation kinds."""
-
-_REFUSED = ("displacement", "prescribed-displacement", "prescribed_displacement")
-
 
 @dataclass(frozen=True)
 class Material:
@@ -141,51 +137,6 @@ class Material:
     def make(self, E: float | None = None):  # type: ignore[no-untyped-def]
         """The law object of :mod:`idbench_fem.fem.materials` (at ``E`` if given)."""
         return make_material(self.law, self.E if E is None else E, self.nu)
-
-
-@dataclass(frozen=True)
-class Manipulation:
-    """One load path, ramped linearly over the K steps of a scenario.
-
-    Attributes
-    ----------
-    name
-        Scenario name.
-    kind
-        ``traction``, ``pressure``, ``gravity`` or ``grasp``.
-    region
-        Loaded surface (traction, pressure) or the grasp patch.
-    vector
-        Traction (Pa), gravity acceleration (m/s2) or grasp force (N) at t = 1
-        (None for a displacement-controlled grasp).
-    pressure
-        Dead pressure (Pa) at t = 1, positive into the body.
-    transfer
-        The manipulation its identified values are tested on (the transfer
-        error); empty: the next one of the body.
-    displacement
-        A displacement-controlled grasp's displacement (m) at t = 1: every
-        node of the patch moves by it (None: force-controlled).
-    """
-
-    name: str
-    kind: str
-    region: Region | None = None
-    vector: Vec | None = None
-    pressure: float | None = None
-    transfer: str = ""
-    displacement: Vec | None = field(default=None, repr=False)
-    """(Not in the repr, which keys the truths of bodies built in memory: a
-    force-controlled manipulation's is as before the field existed.)"""
-    conserve: str = field(default="none", repr=False)
-    """``"resultant"``: each mesh's nodal loads are scaled to the reference
-    mesh's resultant (:mod:`idbench_fem.bodies.figures`); ``"none"``: each
-    mesh carries what its selector captures. (Not in the repr either.)"""
-
-    @property
-    def driven(self) -> bool:
-        """Whether it prescribes a displacement (the tool moves; its force is read)."""
-        return self.displacement is not None
 
 
 PLACEMENTS = ("surface", "volume")
@@ -240,7 +191,8 @@ class Body:
     source: str
     mesh: MeshFiles
     material: Material
-    fixed: Region
+    fixed: Region | None
+    """None: the body is held by its ``supports`` only."""
     manipulations: tuple[Manipulation, ...]
     markers: Markers
     shape_error: ShapeError
@@ -252,6 +204,11 @@ class Body:
     ...); none: the largest nodal displacement ``u_max``."""
     targets: tuple[tuple[str, Vec], ...] = ()
     """Hidden target points (name, point); ``name[i]`` for a list's i-th."""
+    supports: tuple[Support, ...] = field(default=(), repr=False)
+    """Surface regions on springs (:mod:`idbench_fem.bodies.supports`); not in
+    the repr, which keys the truths of bodies built in memory."""
+    reference: ImagedShape | None = field(default=None, repr=False)
+    """The meshes are the shape imaged under a manipulation (``[reference]``)."""
 
     def manipulation(self, name: str) -> Manipulation:
         """The manipulation called ``name``."""
@@ -315,6 +272,8 @@ def parse_body(
         "parameters",
         "probe",
         "targets",
+        "support",
+        "reference",
     )
     TableReader(source, "body").keys(raw, top)
 
@@ -359,18 +318,21 @@ def parse_body(
     )
     material = Material(law, E, nu, density, E_regions)
 
-    if "fixed" not in raw:
+    supports = parse_supports(raw.get("support", []), source)
+    if "fixed" not in raw and not supports:
         raise ValueError(
             f"{source}: no [fixed] region: the body could move rigidly; name a "
-            f"region or give one of {', '.join(SELECTORS[1:])}"
+            f"region or give one of {', '.join(SELECTORS[1:])} (or a [[support]])"
         )
     fx = table(raw, "fixed", source)
-    fixed = TableReader(source, "[fixed]").region("fixed", fx)
+    fixed = None
+    if "fixed" in raw:
+        fixed = TableReader(source, "[fixed]").region("fixed", fx)
 
     manip = raw.get("manipulation", [])
     if not isinstance(manip, list) or not manip:
         raise ValueError(f"{source}: no [[manipulation]]: give at least one load path")
-    manipulations = tuple(_manipulation(m, i, source) for i, m in enumerate(manip))
+    manipulations = tuple(parse_manipulation(m, i, source) for i, m in enumerate(manip))
     names = [m.name for m in manipulations]
     if len(set(names)) != len(names):
         dup = next(n for n in names if names.count(n) > 1)
@@ -460,6 +422,8 @@ def parse_body(
         bounds,
         _probes(raw.get("probe", []), source),
         _targets(table(raw, "targets", source), source),
+        supports,
+        parse_reference(raw.get("reference"), source, tuple(names)),
     )
 
 
@@ -492,97 +456,6 @@ def _probes(raw: Any, source: str) -> tuple[tuple[str, Vec], ...]:
             raise c.error(f"name = {name!r}: need a name (letters, digits, _)")
         out.append((name, c.vector("point", p.get("point"))))
     return tuple(out)
-
-
-def _manipulation(raw: Any, i: int, source: str) -> Manipulation:
-    if not isinstance(raw, dict):
-        raise ValueError(f"{source}: [[manipulation]] {i} must be a table")
-    name = raw.get("name")
-    c = TableReader(
-        source, f"[[manipulation]] {name!r}" if name else f"[[manipulation]] {i}"
-    )
-    if not isinstance(name, str) or not name:
-        raise c.error(f"name = {name!r}: every manipulation needs a name")
-    kind = raw.get("kind")
-    if kind in _REFUSED:
-        raise c.error(
-            f"kind = {kind!r}: not a kind; a displacement-controlled manipulation is "
-            "a grasp with displacement = [dx, dy, dz] instead of force (observe its "
-            "force: from displacements alone, a homogeneous E cannot be identified)"
-        )
-    if kind not in KINDS:
-        raise c.error(f"kind = {kind!r}: allowed are {', '.join(KINDS)}")
-    needs = {
-        "traction": ("region", "traction"),
-        "pressure": ("region", "pressure"),
-        "gravity": ("acceleration",),
-        "grasp": ("point", "radius", "force"),
-    }[kind]
-    if kind == "grasp" and "displacement" in raw:
-        if "force" in raw:
-            raise c.error(
-                "has force and displacement: a grasp is force-controlled (force) "
-                "or displacement-controlled (displacement), not both"
-            )
-        needs = ("point", "radius", "displacement")
-    c.keys(raw, ("name", "kind", "transfer", "conserve", *needs))
-    transfer = raw.get("transfer", "")
-    if not isinstance(transfer, str):
-        raise c.error(f"transfer = {transfer!r}: need a manipulation name")
-    conserve = c.choice("conserve", raw.get("conserve", "none"), CONSERVE)
-    if conserve != "none" and "displacement" in raw:
-        raise c.error(
-            f"conserve = {conserve!r}: a displacement-controlled grasp puts no "
-            "load on the body (the tool's force is measured); remove conserve"
-        )
-    for key in needs:
-        if key not in raw:
-            also = "; or displacement instead of force" if kind == "grasp" else ""
-            raise c.error(f"needs {key} (a {kind} has {', '.join(needs)}{also})")
-    if kind == "traction":
-        return Manipulation(
-            name,
-            kind,
-            c.region("region", raw["region"]),
-            c.vector("traction", raw["traction"]),
-            transfer=transfer,
-            conserve=conserve,
-        )
-    if kind == "pressure":
-        return Manipulation(
-            name,
-            kind,
-            c.region("region", raw["region"]),
-            pressure=c.number("pressure", raw["pressure"]),
-            transfer=transfer,
-            conserve=conserve,
-        )
-    if kind == "gravity":
-        return Manipulation(
-            name,
-            kind,
-            vector=c.vector("acceleration", raw["acceleration"]),
-            transfer=transfer,
-            conserve=conserve,
-        )
-    patch = (c.vector("point", raw["point"]), c.number("radius", raw["radius"], True))
-    if "displacement" in raw:
-        return Manipulation(
-            name,
-            kind,
-            Region(patch=patch),
-            transfer=transfer,
-            conserve=conserve,
-            displacement=c.vector("displacement", raw["displacement"]),
-        )
-    return Manipulation(
-        name,
-        kind,
-        Region(patch=patch),
-        c.vector("force", raw["force"]),
-        transfer=transfer,
-        conserve=conserve,
-    )
 
 
 def load_body(path: str | Path) -> Body:

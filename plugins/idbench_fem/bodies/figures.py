@@ -16,6 +16,8 @@ whatever share the support takes):
   makes a large ratio of small numbers;
 - ``area``: the loaded boundary facets' area (m^2; 0 for gravity);
 - ``fixed_area``: the boundary facets whose three nodes are fixed (m^2);
+  ``moment`` and ``fixed_area`` are left out for a body without fixed nodes
+  (held by springs alone);
 - ``volume`` (m^3) and ``mass`` (density times volume, kg; for a conserved
   gravity load, the mass its weight stands for: times the factor below).
 
@@ -41,7 +43,8 @@ from idbench_fem.bodies.mesh import SolidMesh
 from idbench_fem.bodies.regions import region_facets
 
 if TYPE_CHECKING:
-    from idbench_fem.bodies.description import Body, Manipulation
+    from idbench_fem.bodies.description import Body
+    from idbench_fem.bodies.manipulations import Manipulation
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -91,19 +94,20 @@ def figures(
     """
     fixed = resolve.fixed_nodes(body, mesh) if fixed is None else fixed
     f = np.asarray(forces, dtype=float)
-    fixed_area, centre = fixed_region(mesh, fixed)
-    moment = np.cross(mesh.points - centre, f).sum(axis=0)
     volume = float(mesh.volumes.sum())
-    return {
+    out = {
         "resultant": float(np.linalg.norm(f.sum(axis=0))),
-        "moment": float(np.linalg.norm(moment)),
         "area": loaded_area(m, mesh),
-        "fixed_area": fixed_area,
         "volume": volume,
         "mass": float(body.material.density) * volume * (
             scale if m.kind == "gravity" else 1.0
         ),
     }
+    if len(fixed):  # a body held by springs alone has no clamp to take moments at
+        fixed_area, centre = fixed_region(mesh, fixed)
+        moment = np.cross(mesh.points - centre, f).sum(axis=0)
+        out |= {"moment": float(np.linalg.norm(moment)), "fixed_area": fixed_area}
+    return out
 
 
 def resultant(body: Body, m: Manipulation, mesh: SolidMesh) -> FloatArray:

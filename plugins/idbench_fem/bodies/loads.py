@@ -39,7 +39,7 @@ from idbench_fem.bodies.mesh import SolidMesh
 from idbench_fem.bodies.regions import region_facets
 
 if TYPE_CHECKING:
-    from idbench_fem.bodies.description import Manipulation
+    from idbench_fem.bodies.manipulations import Manipulation
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

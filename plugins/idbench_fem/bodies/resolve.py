@@ -16,7 +16,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from idbench_fem.bodies.mesh import SolidMesh, read_mesh
-from idbench_fem.bodies.regions import Region, region_cells, region_nodes
+from idbench_fem.bodies.regions import (
+    Region,
+    region_cells,
+    region_facets,
+    region_nodes,
+)
 from idbench_fem.bodies.surface import inside, project_to_surface
 
 if TYPE_CHECKING:
@@ -30,7 +35,7 @@ IntArray = NDArray[np.int64]
 
 
 def fixed_nodes(body: Body, mesh: SolidMesh) -> IntArray:
-    """Indices of the fixed nodes (all components zero).
+    """Indices of the fixed nodes (all components zero); none without ``[fixed]``.
 
     Raises
     ------
@@ -38,6 +43,8 @@ def fixed_nodes(body: Body, mesh: SolidMesh) -> IntArray:
         Unknown or empty region, or one that cannot stop rigid motion (fewer
         than three nodes not on one line).
     """
+    if body.fixed is None:  # held by its supports (springs) only
+        return np.zeros(0, dtype=np.int64)
     nodes = region_nodes(mesh, body.fixed, what=f"{body.source}: [fixed] region")
     x = mesh.points[nodes] - mesh.points[nodes].mean(axis=0)
     sv = np.linalg.svd(x, compute_uv=False) if len(x) >= 2 else np.zeros(1)
@@ -261,6 +268,8 @@ def check(body: Body, meshes: list[SolidMesh] | None = None) -> None:
         marker_points(body, mesh)
         element_regions(body, mesh)
         element_moduli(body, mesh)
+        for s in body.supports:  # springs: a surface region each
+            region_facets(mesh, s.region, what=f"{body.source}: [[support]] region")
         for m in body.manipulations:
             nodal_forces(m, mesh, body.material.density)
             if m.driven:

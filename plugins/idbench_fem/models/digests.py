@@ -39,6 +39,8 @@ def body_digest(body: Body) -> str:
         for m in body.manipulations
         if m.conserve != "none"
     )
+    if body.supports or body.reference:  # nor are these (both change states)
+        text += f"|{body.supports!r}|{body.reference!r}"
     return hashlib.sha256(text.encode()).hexdigest()
 
 

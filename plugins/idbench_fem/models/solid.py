@@ -79,7 +79,9 @@ from idbench_fem.models.digests import body_digest, mesh_digest
 from idbench_fem.models.driven import DrivenGrasp
 from idbench_fem.models.observables import Observables
 from idbench_fem.models.points import place_points
+from idbench_fem.models.rest_shape import rest_mesh
 from idbench_fem.models.solid_settings import DEFAULT_BODY, SolidSettings
+from idbench_fem.models.supported import Supported
 
 log = logging.getLogger(__name__)
 
@@ -98,7 +100,7 @@ _BOUNDS = (1e-3, 1e3)
 """Parameter bounds as multiples of the body's E."""
 
 
-class SolidModel(DrivenGrasp, Observables, BatchedSteps):
+class SolidModel(DrivenGrasp, Supported, Observables, BatchedSteps):
     """A body under one manipulation, on one mesh, stepped by Newton.
 
     Parameters
@@ -188,6 +190,7 @@ class SolidModel(DrivenGrasp, Observables, BatchedSteps):
             names, tuple(lo for _ in names), tuple(hi for _ in names),
             default=tuple(float(v) for v in true),
         )  # fmt: skip
+        self._attach_springs(body, mesh)  # [[support]]: springs, their parameters
 
         f1 = nodal_forces(
             self.manipulation, mesh, body.material.density, t=float(s.load_scale)
@@ -481,9 +484,10 @@ class SolidModel(DrivenGrasp, Observables, BatchedSteps):
         return np.asarray(self._load_weights * traction[self._load_component])
 
     def element_moduli(self, theta: FloatArray, k: int | None) -> FloatArray:
-        """The elements' moduli theta_{r(e)} c_e (T,); theta checked (step k)."""
+        """Moduli theta_{r(e)} c_e (T,), then any springs' (T + q,); theta checked."""
         th = self._theta(theta, k)
-        return np.asarray(th[self.element_regions] * self._factors)
+        out = np.asarray(th[self.element_regions] * self._factors)
+        return out if self._springs is None else self._springs.moduli(out, th)
 
 
 def make_model(spec: ModelSpec) -> SolidModel:
@@ -522,8 +526,9 @@ def make_model(spec: ModelSpec) -> SolidModel:
             f"{', '.join(m.name for m in own.manipulations)})"
         )
     body.manipulation(name)  # one line if unknown
-    mesh = get_mesh(mesh_file(body, spec.mesh))
-    reference = get_mesh(mesh_file(body, settings.reference or "truth"))
+    mesh = rest_mesh(body, get_mesh(mesh_file(body, spec.mesh)), settings)
+    on = get_mesh(mesh_file(body, settings.reference or "truth"))
+    reference = rest_mesh(body, on, settings)  # [reference]: stress-free shapes
     return SolidModel(body, mesh, name, reference, spec.n_steps, spec.markers, settings)
 
 

@@ -174,19 +174,22 @@ def _load_table(
                 continue
             fig, scale = got
             ratio = {
-                k: (fig[k] / ref[k] if ref and ref[k] else np.nan) for k in fig
+                k: (fig[k] / ref[k] if ref and ref.get(k) else np.nan) for k in fig
             }
             rows.append([
                 m.name, m.kind, m.conserve, name, _g(fig["area"]),
                 _ratio(fig["area"], ref and ref["area"]), _g(fig["resultant"]),
                 _ratio(fig["resultant"], ref and ref["resultant"]),
-                _g(fig["moment"]), _ratio(fig["moment"], ref and ref["moment"]),
+                _g(fig.get("moment")),
+                _ratio(fig.get("moment"), ref and ref.get("moment")),
                 f"{scale:.4f}",
             ])  # fmt: skip
             off = [
                 f"{k} {ratio[k]:.3f}"
                 for k in ("resultant", "moment", "area")
-                if np.isfinite(ratio[k]) and abs(ratio[k] - 1) > TOLERANCE
+                if k in ratio
+                and np.isfinite(ratio[k])
+                and abs(ratio[k] - 1) > TOLERANCE
             ]
             if off and name != found[-1][0]:
                 fix = (
