@@ -111,7 +111,9 @@ def paired_differences(
     apart = {by, *BY[by], "run_id"}
     paired_on = [c for c in described if c not in apart and c not in metrics]
     df = df.assign(
-        _pair=df[paired_on].astype(str).agg("\x1f".join, axis=1) if paired_on else "",
+        _pair=(  # str of each cell: a NaN (a recording's truth nodes) is "nan"
+            df[paired_on].map(str).agg("\x1f".join, axis=1) if paired_on else ""
+        ),
         other=df[by].astype(str),
     )
     if by == "estimator" and "settings" in df:

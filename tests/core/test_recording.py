@@ -71,6 +71,7 @@ def test_a_recording_round_trips_through_compare_data(recordings, tmp_path):
         traces = pd.read_parquet(out / "traces.parquet")
         assert traces.heldout_mm.notna().all() and traces.tre_mm.notna().all()
     write_report(out)  # no shape error anywhere: the report still draws
+    assert main(["report", str(out), "--versus", "ro-ukf"]) == 0  # NaN truth nodes
     text = (out / "report.md").read_text()
     assert "TRE, hidden targets (mm)" in text and "held-out markers (mm)" in text
 
