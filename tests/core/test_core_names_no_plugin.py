@@ -24,7 +24,7 @@ PHYSICS = ("E_true", "nu", "tip", "tip_x", "traction", "E_regions", "Young",
 def builtin_names() -> set[str]:
     reg = idbench.build_registry(idbench.get_plugin_manager(autoload=False))
     names: set[str] = set()
-    for table in (reg.models, reg.scenarios, reg.estimators, reg.commands):
+    for table in (reg.models, reg.scenarios, reg.estimators):
         names |= {n for n, e in table.items() if e.plugin in ("fem", "filters")}
     for entry in reg.models.values():
         d = entry.defaults
@@ -112,3 +112,28 @@ def test_core_module_names_no_plugin_and_no_physics(path):
     banned = builtin_names() | set(PHYSICS)
     found = offences(path, banned)
     assert not found, "\n".join(found)
+
+
+def test_the_command_line_names_no_plugin_command():
+    """Plugin commands (``calibrate``, ``mesh``, ``check``) come from the registry.
+
+    Their names are everyday words elsewhere in the core (a mesh, a check), so
+    only the command line is held to it: no string of ``idbench/cli/`` is a
+    plugin's command name, unless it is a field of a run (``mesh``).
+    """
+    import dataclasses
+
+    from idbench.plan.runspec import RunSpec
+
+    reg = idbench.build_registry(idbench.get_plugin_manager(autoload=False))
+    commands = {n for n, e in reg.commands.items() if e.plugin in ("fem", "filters")}
+    assert commands, "the built-in plugins register commands"
+    commands -= {f.name for f in dataclasses.fields(RunSpec)}  # a run's mesh
+    found = [
+        f"{path.name}:{node.lineno}: {node.value!r}"
+        for path in sorted((CORE / "cli").glob("*.py"))
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
+        if isinstance(node, ast.Constant) and node.value in commands
+    ]
+    assert not found, "\n".join(found)
+
