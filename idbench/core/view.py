@@ -114,6 +114,7 @@ class ModelView:
     step_many = Delegated()
     bounds = Delegated()
     volume = Delegated()
+    load_figures = Delegated()
     mesh = Delegated()
     displacement_field = Delegated()
     cell_data = Delegated()
