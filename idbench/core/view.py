@@ -121,6 +121,8 @@ class ModelView:
     surface = Delegated()
     reaction = Delegated()
     targets = Delegated()
+    marker_points = Delegated()
+    target_points = Delegated()
     needs_observed = Delegated()
     observation_cov = Delegated()
     grid_cov = Delegated()
