@@ -63,6 +63,20 @@ def runs(
     return table, table[table["status"] == "ok"], traces
 
 
+def report(folder: str | Path | None, quick: bool) -> None:
+    """Write ``folder``'s report (report.html with its 3D view, report.md).
+
+    For a full run that keeps its comparison in ``folder``
+    (:func:`idbench.report.write.write_report`); nothing for a quick run or
+    without a folder.
+    """
+    if folder is None or quick:
+        return
+    from idbench.report.write import write_report
+
+    write_report(Path(folder))
+
+
 def over_seeds(
     frame: pd.DataFrame,
     by: list[str],

@@ -23,7 +23,8 @@ grasp on 6,000 nodes. So for SVK the study scales the grasp and the push to
 doubles the strain) and leaves sag-90 out (:data:`SKIP`), transferring
 between the other two.
 
-Run ``python studies/organ_discretization.py [--quick] [--out DIR]``.
+Run ``python studies/organ_discretization.py [--quick] [--out DIR]``; a full
+run writes each law's report (report.html, with the 3D view) in ``DIR/LAW``.
 """
 
 from __future__ import annotations
@@ -105,6 +106,7 @@ def compute(
         )
         folder = None if out is None else Path(out) / law
         runs, _ = compare(config, folder, registry=registry)
+        _cli.report(folder, quick)  # report.html, with the 3D view
         ok = runs[runs["status"] == "ok"]
         direct = ("shape_error_direct", "transfer_scenario", "transfer_error_direct")
         table = _cli.over_seeds(

@@ -22,7 +22,9 @@ The paths: the five registered beam paths and two new directions
 95% interval, NEES against E_true, shape error (mm a grid point), step time,
 and whether the correction said it extrapolated.
 
-Run ``python studies/physical_stiffness.py [--quick] [--out DIR]``.
+Run ``python studies/physical_stiffness.py [--quick] [--out DIR]``; a full
+run writes the liver's reports (report.html, with the 3D view) in
+``DIR/liver-MODE``.
 """
 
 from __future__ import annotations
@@ -257,6 +259,7 @@ def compute(
                              ("not used", tuple(p["LIVER_DESIGN"]))):  # fmt: skip
             name = "liver-" + mode.replace(" ", "-")
             runs = _runs(p, registry, root, name, scenarios, design, "liver")
+            _cli.report(None if root is None else root / name, quick)  # 3D view
             runs["mode"] = mode
             parts.append(runs)
     runs = pd.concat(parts, ignore_index=True)

@@ -18,7 +18,8 @@ Run ``python studies/point_clouds.py [--quick] [--out DIR] [--bodies ...]``;
 ``--quick``: the liver only, small meshes, two knob values each, the RO-UKF,
 one seed. A full run also writes each body's summary to
 ``docs/results/data/point_clouds_<body>.csv``, the numbers of the point
-clouds' results page (its table: :func:`markdown`).
+clouds' results page (its table: :func:`markdown`), and each comparison's
+report (report.html, with the 3D view) in ``DIR/BODY/ESTIMATOR``.
 """
 
 from __future__ import annotations
@@ -133,6 +134,7 @@ def compute(
         )
         folder = None if out is None else Path(out) / body / estimator
         runs, _ = compare(config, folder)
+        _cli.report(folder, quick)  # report.html, with the 3D view
         first = next(c[: -len("_true")] for c in runs.columns if c.endswith("_true"))
         for _, r in runs.iterrows():
             knob, value = knobs[r["observe"]]

@@ -124,6 +124,7 @@ def compute_organ(
         model_settings={"solid": {"body": organ, "reference": truth}},
     )
     runs, _, traces = _cli.runs(config, out, jobs=1)
+    _cli.report(out, quick)  # report.html, with the 3D view
     table = frontier(runs, traces)
     table = table[[c for c in COLUMNS if c in table.columns]]
     return table.merge(moduli(runs), on=["model_nodes", "estimator"], how="left")

@@ -24,6 +24,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, cast
 
+import numpy as np
+
 from idbench.core.interfaces import FloatArray
 from idbench.core.optional import (
     BatchModel,
@@ -35,6 +37,7 @@ from idbench.core.optional import (
     LoadScalingModel,
     NodeCountModel,
     ObservationNeedsModel,
+    PlacedPointsModel,
     ProbedModel,
     ReactionModel,
     SensitiveModel,
@@ -58,6 +61,8 @@ OPTIONAL: dict[str, type] = {
     "surface": SurfaceModel,
     "reaction": ReactionModel,
     "targets": TargetModel,
+    "marker_points": PlacedPointsModel,
+    "target_points": PlacedPointsModel,
     "needs_observed": ObservationNeedsModel,
     "observation_cov": DiscrepancyModel,
     "grid_cov": DiscrepancyModel,
@@ -202,6 +207,24 @@ def extrapolated_of(model: Any) -> int:
     See :class:`~idbench.core.optional.DiscrepancyModel`.
     """
     return int(member(model, "extrapolated") or 0)
+
+
+def marker_points_of(model: Any) -> FloatArray | None:
+    """The model's markers' undeformed positions (M, 3), floats, or None.
+
+    See :class:`~idbench.core.optional.PlacedPointsModel`.
+    """
+    value = member(model, "marker_points")
+    return None if value is None else np.asarray(value, dtype=float).reshape(-1, 3)
+
+
+def target_points_of(model: Any) -> FloatArray | None:
+    """The model's targets' undeformed positions (T, 3), floats, or None.
+
+    See :class:`~idbench.core.optional.PlacedPointsModel`.
+    """
+    value = member(model, "target_points")
+    return None if value is None else np.asarray(value, dtype=float).reshape(-1, 3)
 
 
 def requirement_met(model: Any, name: str) -> bool:

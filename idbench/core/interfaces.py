@@ -258,6 +258,8 @@ class ForwardModel(Protocol):
     (:class:`SurfaceModel`, for the ``cloud`` observation) and ``reaction``
     (:class:`ReactionModel`, for ``force``) and ``targets``
     (:class:`TargetModel`, hidden targets scored by their TRE);
+    ``marker_points`` and ``target_points`` (:class:`PlacedPointsModel`,
+    where a report draws the markers and the targets);
     ``observation_cov``, ``grid_cov``, ``targets_cov`` and ``extrapolated``
     (:class:`DiscrepancyModel`, a model corrected by its calibration) and
     ``load_scaling`` (:class:`LoadScalingModel`) and ``load_figures``

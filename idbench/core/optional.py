@@ -103,6 +103,35 @@ class TargetModel(ForwardModel, Protocol):
 
 
 @runtime_checkable
+class PlacedPointsModel(ForwardModel, Protocol):
+    """A forward model that says where its markers and its targets are.
+
+    Optional: a run's stored scene (:mod:`idbench.store.surfaces`) places the
+    displacements of ``observe`` and ``targets`` at these points, so that a
+    report draws the markers (observed and predicted) and the targets (true
+    and predicted, with their 95% regions) in the body.
+    """
+
+    @property
+    def marker_points(self) -> FloatArray:
+        """The markers' undeformed positions (M, 3), in model coordinates.
+
+        In the order of :meth:`ForwardModel.observe`: marker i moves by its
+        entries 3i..3i+2 (``observe(state)`` has 3M values).
+        """
+        ...
+
+    @property
+    def target_points(self) -> FloatArray:
+        """The targets' undeformed positions (T, 3), in model coordinates.
+
+        In the order of ``targets(state)`` (:class:`TargetModel`); (0, 3)
+        for a model without targets.
+        """
+        ...
+
+
+@runtime_checkable
 class BatchModel(ForwardModel, Protocol):
     """A forward model that can also advance several parameter/state pairs at once.
 

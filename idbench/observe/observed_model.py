@@ -33,8 +33,9 @@ from idbench.observe import kinds as observe
 class ObservedModel(ModelView):
     """``model`` whose ``observe`` is the observation model's h(x) for each step.
 
-    It has no ``sensitivity`` and always a ``step_many``; the rest of the
-    protocol and of the optional members is the model's own
+    It has no ``sensitivity`` (nor ``marker_points`` and ``target_points``:
+    its ``observe`` is not the markers') and always a ``step_many``; the rest
+    of the protocol and of the optional members is the model's own
     (:class:`~idbench.core.view.ModelView`).
 
     Parameters
@@ -67,6 +68,10 @@ class ObservedModel(ModelView):
 
     sensitivity = Absent()
     """None: estimators that need one use finite differences."""
+    marker_points = Absent()
+    """None: its ``observe`` is h(x), not the markers' displacements."""
+    target_points = Absent()
+    """None (a pair with ``marker_points``)."""
 
     @property
     def n_state(self) -> int:

@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from idbench.core.capabilities import handles_nan, observation_cov_of, sensitivity_of
 from idbench.core.interfaces import FloatArray, ForwardModel, Observation
-from idbench.core.view import ModelView, lacks
+from idbench.core.view import Absent, ModelView, lacks
 
 BoolArray = NDArray[np.bool_]
 
@@ -82,7 +82,8 @@ class MaskedModel(ModelView):
 
     ``observe`` returns ``h(x)[mask]``, ``sensitivity`` (if the model has it)
     ``J[mask, :]`` and ``observation_cov`` (a corrected model's Sigma, if it
-    has it) ``Sigma[mask][:, mask]``; the rest of the protocol and of the
+    has it) ``Sigma[mask][:, mask]``; it has no ``marker_points`` (nor
+    ``target_points``); the rest of the protocol and of the
     optional members is the model's own (:class:`~idbench.core.view.ModelView`).
 
     Parameters
@@ -105,6 +106,11 @@ class MaskedModel(ModelView):
     def observe(self, state: FloatArray) -> FloatArray:
         """h(x)[mask]: the model's observation of ``state``, visible entries."""
         return np.asarray(self.model.observe(state), dtype=float)[self._mask]
+
+    marker_points = Absent()
+    """None: its ``observe`` holds the visible markers' entries only."""
+    target_points = Absent()
+    """None (a pair with ``marker_points``)."""
 
     @property
     def sensitivity(self) -> Callable[[FloatArray, int, FloatArray], FloatArray]:

@@ -20,12 +20,14 @@ from idbench.core.capabilities import (
     field_model,
     given,
     load_figures_of,
+    marker_points_of,
     member,
     n_nodes_of,
     present,
     probes_of,
     sensitivity_of,
     settings_member,
+    target_points_of,
     volume_of,
 )
 from idbench.core.interfaces import (
@@ -138,6 +140,9 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
     ``surface(state)`` must give finite vertices (V, 3) and triangles (T, 3)
     indexing them; ``reaction(theta, k, state)`` a finite vector;
     ``targets(state)`` finite displacements (T, 3) (T = 0: none);
+    ``marker_points`` finite positions (M, 3), one a marker of
+    ``observe(state)`` (3M values), and ``target_points`` (T, 3), one a
+    target of ``targets(state)``;
     ``load_figures()`` finite numbers >= 0 by name (each a column
     ``load_NAME_ratio``).
     """
@@ -157,6 +162,7 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
             "targets(state) must be displacements (T, 3) (T = 0: none)"
         )
         assert np.all(np.isfinite(moved)), "targets(state) must be finite"
+    check_points(model, state)
     surface = member(model, "surface")
     if surface is not None:
         vertices, triangles = surface(state)
@@ -232,6 +238,32 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
         assert model.parameters.contains(np.asarray(default, dtype=float)), (
             f"parameters.default {default} lies outside the bounds"
         )
+
+
+def check_points(model: ForwardModel, state: FloatArray) -> None:
+    """Check ``marker_points`` and ``target_points``.
+
+    See :class:`~idbench.core.optional.PlacedPointsModel`: finite (M, 3) and
+    (T, 3), M markers in ``observe(state)`` and T targets in
+    ``targets(state)`` (T = 0 without ``targets``).
+    """
+    markers, targets = marker_points_of(model), target_points_of(model)
+    if markers is None or targets is None:
+        return
+    for name in ("marker_points", "target_points"):
+        points = np.asarray(member(model, name), dtype=float)
+        assert points.ndim == 2 and points.shape[1] == 3, f"{name} must be (n, 3)"
+        assert np.all(np.isfinite(points)), f"{name} must be finite"
+    m = np.asarray(model.observe(state)).size
+    assert markers.size == m, (
+        f"marker_points has {len(markers)} points, observe(state) {m} values: "
+        "one point per three values"
+    )
+    moved = member(model, "targets")
+    t = 0 if moved is None else len(np.asarray(moved(state)).reshape(-1, 3))
+    assert len(targets) == t, (
+        f"target_points has {len(targets)} points, targets(state) {t}"
+    )
 
 
 def check_model_settings(cls: type) -> None:

@@ -12,9 +12,14 @@ with u_h the model's displacement (as the run scored it), u* the truth's and
 P(X) the closest point to X on the truth's undeformed surface (the truth's
 displacement there interpolated linearly in its triangle). It is a picture of
 where the shape is wrong, not the scored shape error (that one is measured at
-the body's shape-error points: ``shape_error_mean_final``). Both the
-interactive view (:mod:`idbench.report.view3d`) and the stills
-(:mod:`idbench.report.stills`) draw these scenes.
+the body's shape-error points: ``shape_error_mean_final``). With it, where the
+run stored them, the markers (observed and predicted) and the hidden targets
+(true and predicted, with each one's predicted 95% region at the last step:
+the ellipsoid :math:`e^T C^{-1} e \le \chi^2_3(0.95)`, semi-axes
+:data:`REGION` times the square roots of C's eigenvalues along its
+eigenvectors, :func:`ellipsoid_axes`). Both the interactive view
+(:mod:`idbench.report.view3d`) and the stills (:mod:`idbench.report.stills`)
+draw these scenes.
 """
 
 from __future__ import annotations
@@ -27,11 +32,13 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import scipy.stats
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from idbench.core.interfaces import FloatArray
 from idbench.observe.surface import closest_on_triangles
+from idbench.score.metrics import TARGET_LEVEL
 from idbench.store import surfaces
 
 log = logging.getLogger(__name__)
@@ -41,6 +48,10 @@ MM = 1000.0
 
 CANDIDATES = 8
 """Triangles (nearest centroids) searched for each vertex's closest point."""
+
+REGION = float(np.sqrt(scipy.stats.chi2.ppf(TARGET_LEVEL, 3)))
+"""Radius of the 95% region of N(0, I) in three dimensions (2.7955): a
+target's ellipsoid is it times the square roots of C's eigenvalues."""
 
 
 @dataclass
@@ -171,7 +182,37 @@ def _shown(root: Path, arrays: dict[str, Any], meshes: dict[str, Surface]) -> Sh
             f"stored displacements of shape {moved.shape} do not fit their mesh "
             f"({len(surface.vertices)} vertices) and {len(steps)} steps"
         )
+    for name in surfaces.POINTS:
+        shape = np.shape(arrays.get(name, np.zeros((len(steps), 0, 3))))
+        if len(shape) != 3 or shape[0] != len(steps) or shape[2] != 3:
+            raise surfaces.SurfaceError(
+                f"stored {name} of shape {shape} do not fit {len(steps)} steps"
+            )
+    if "targets_cov" in arrays:
+        targets = np.shape(arrays.get("targets_true", ()))[1:2]
+        if np.shape(arrays["targets_cov"]) != (*targets, 3, 3):
+            raise surfaces.SurfaceError(
+                f"stored targets_cov of shape {np.shape(arrays['targets_cov'])} "
+                "does not fit its targets"
+            )
     return Shown(surface, steps, moved, arrays)
+
+
+def ellipsoid_axes(covariance: Any) -> FloatArray:
+    """Each target's 95% region as a map of the unit sphere (T, 3, 3).
+
+    Column j of ``out[t]`` is the region's semi-axis j: :data:`REGION`
+    sqrt(lambda_j) v_j for the eigenpairs of C_t (negative round-off clipped
+    to 0: a flat region); the points c + A x, |x| = 1, are its surface. NaN
+    where C_t is not finite (no region).
+    """
+    cov = np.asarray(covariance, dtype=float).reshape(-1, 3, 3)
+    out = np.full(cov.shape, np.nan)
+    finite = np.isfinite(cov).all(axis=(1, 2))
+    if finite.any():
+        w, v = np.linalg.eigh(0.5 * (cov[finite] + cov[finite].transpose(0, 2, 1)))
+        out[finite] = v * (REGION * np.sqrt(np.clip(w, 0.0, None)))[:, None, :]
+    return out
 
 
 def _truth(root: Path, key: str, meshes: dict[str, Surface]) -> Shown | None:

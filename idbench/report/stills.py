@@ -4,9 +4,11 @@ The best and the worst run of a comparison (:func:`idbench.report.scene.best_and
 at their last stored step, drawn as the interactive view draws them: the
 model's surface coloured by its displacement error (mm, the same scale for
 both), the truth's surface translucent, a depth camera's cloud with its
-outliers. Rendered with matplotlib's mplot3d (Agg: no display, nothing to
-install beyond idbench's own dependencies); triangles are sorted by depth
-per polygon, which suits the convex bodies of the built-in models.
+outliers, the markers (observed, predicted) and the hidden targets (true,
+predicted, each one's predicted 95% region as a wireframe). Rendered with
+matplotlib's mplot3d (Agg: no display, nothing to install beyond idbench's
+own dependencies); triangles are sorted by depth per polygon, which suits
+the convex bodies of the built-in models.
 """
 
 from __future__ import annotations
@@ -19,8 +21,15 @@ import numpy as np
 import pandas as pd
 
 from idbench.report.figures import plain
-from idbench.report.scene import MM, RunScene, Scenes, best_and_worst, error_range
-from idbench.report.view3d import COLOURS
+from idbench.report.scene import (
+    MM,
+    RunScene,
+    Scenes,
+    best_and_worst,
+    ellipsoid_axes,
+    error_range,
+)
+from idbench.report.view3d import COLOURS, LEGEND
 
 VIEW_FROM = (0.55, -0.75, 0.38)
 """The direction from the body to the camera (the interactive view's start)."""
@@ -65,6 +74,7 @@ def still(scene: RunScene, row: Any, top: float, label: str = "") -> Any:
     tri = shown.surface.triangles
     fig = plt.figure(figsize=(6.4, 4.8))
     ax = fig.add_subplot(projection="3d")
+    ax.computed_zorder = False  # the points over the surface: targets lie inside
     if scene.error_mm is not None:
         face = np.nanmean(scene.error_mm[s][tri], axis=1)
         colours = cmap(norm(np.nan_to_num(face, nan=0.0)))
@@ -91,6 +101,7 @@ def still(scene: RunScene, row: Any, top: float, label: str = "") -> Any:
         out = np.asarray(arrays["cloud_outliers"][s], dtype=bool)
         ax.scatter(*points[~out].T, s=2, c="#1a3399", depthshade=False)
         ax.scatter(*points[out].T, s=6, c="#d91a1a", depthshade=False)
+    extent += _points(ax, arrays, s)
     _frame(ax, np.vstack(extent))
     if scene.error_mm is not None:
         bar = plt.cm.ScalarMappable(norm=norm, cmap=cmap)
@@ -104,6 +115,37 @@ def still(scene: RunScene, row: Any, top: float, label: str = "") -> Any:
         fontsize=9,
     )  # fmt: skip
     return fig
+
+
+def _points(ax: Any, arrays: Any, s: int) -> list[Any]:
+    """The markers and the targets of stored step ``s``, the regions, a legend.
+
+    Returns the positions drawn (to frame them).
+    """
+    sizes = {"markers-observed": 40, "markers-predicted": 14, "targets-true": 50,
+             "targets-predicted": 18}  # fmt: skip
+    drawn = []
+    for key, colour, text in LEGEND:
+        name = key.replace("-", "_")
+        if name not in arrays:
+            continue
+        p = np.asarray(arrays[name][s], dtype=float).reshape(-1, 3)
+        p = p[np.isfinite(p).all(axis=1)]
+        ax.scatter(*p.T, s=sizes[key], c=colour, depthshade=False, label=text,
+                   zorder=5)  # fmt: skip
+        drawn.append(p)
+    if "targets_cov" in arrays and s == len(arrays["steps"]) - 1:
+        u, v = np.meshgrid(np.linspace(0, np.pi, 9), np.linspace(0, 2 * np.pi, 17))
+        unit = np.stack([np.sin(u) * np.cos(v), np.sin(u) * np.sin(v), np.cos(u)])
+        centres = np.asarray(arrays["targets_predicted"][s], dtype=float)
+        for centre, axes in zip(centres, ellipsoid_axes(arrays["targets_cov"]),
+                                strict=True):  # fmt: skip
+            if np.all(np.isfinite(axes)) and np.all(np.isfinite(centre)):
+                x = centre[:, None, None] + np.einsum("ij,jab->iab", axes, unit)
+                ax.plot_wireframe(*x, color=LEGEND[-1][1], linewidth=0.4)
+    if drawn:
+        ax.legend(loc="lower left", fontsize=7, frameon=False)
+    return drawn
 
 
 def _frame(ax: Any, points: Any) -> None:

@@ -10,7 +10,11 @@ JSON block of base64 arrays, compact:
   displacement / 32767: below a micrometre for a centimetre);
 - the displacement error per vertex as uint8 on the common colour scale
   (0 to the largest error of the ok runs; 255: none);
-- a cloud once per data set (uint16 in its bounding box), its outliers as bits.
+- a cloud once per data set (uint16 in its bounding box), its outliers as bits;
+- markers (observed, predicted) and targets (true, predicted) as float32
+  positions per stored step (NaN: not observed), each target's 95% region
+  at the last step as its centre and its semi-axes (a 3 x 3 map of the unit
+  sphere, :func:`idbench.report.scene.ellipsoid_axes`).
 
 Nothing is fetched: it works from a ``file://`` URL and when mailed. Every
 name and message (runs, estimators, errors) is JSON text the script shows with
@@ -29,7 +33,7 @@ import numpy as np
 import pandas as pd
 
 from idbench.core.sanitize import printable
-from idbench.report.scene import MM, Scenes, error_range
+from idbench.report.scene import MM, Scenes, ellipsoid_axes, error_range
 from idbench.report.summary import sweep_axes
 
 COLOURS = [
@@ -53,6 +57,9 @@ STYLE = """
 #view3d .view-ticks { display: flex; justify-content: space-between; width: 320px;
   font-size: 0.8em; }
 #view3d input[type=range] { width: 320px; }
+#view3d .view-swatch { display: inline-block; width: 0.8em; height: 0.8em;
+  margin-right: 0.3em; border: 1px solid #555; vertical-align: middle; }
+#view3d .view-legend { font-size: 0.9em; }
 tr.viewable { cursor: pointer; }
 """
 
@@ -86,6 +93,39 @@ def _level(error: Any, top: float) -> str:
     return _b64(q.astype(np.uint8))
 
 
+LEGEND = (
+    ("markers-observed", "#111111", "markers, observed"),
+    ("markers-predicted", "#d6336c", "markers, predicted"),
+    ("targets-true", "#2b8a3e", "targets, true"),
+    ("targets-predicted", "#f08c00", "targets, predicted (95% region, last step)"),
+)
+"""The point sets the view draws: (key, colour, legend text)."""
+
+
+def _points(arrays: Any, names: tuple[str, str]) -> dict[str, Any] | None:
+    """Two stored position sets (S, n, 3) as float32 (base64), or None."""
+    if not all(name in arrays for name in names):
+        return None
+    found = [np.asarray(arrays[name], dtype="<f4") for name in names]
+    return {"n": int(found[0].shape[1]), **{
+        name.partition("_")[2]: _b64(points) for name, points in zip(names, found,
+                                                                     strict=True)
+    }}  # fmt: skip
+
+
+def _regions(arrays: Any) -> list[dict[str, Any]]:
+    """Each target's 95% region at the last step: centre (3,), axes (9,)."""
+    if "targets_cov" not in arrays:
+        return []
+    centres = np.asarray(arrays["targets_predicted"], dtype=float)[-1]
+    out = []
+    for centre, axes in zip(centres, ellipsoid_axes(arrays["targets_cov"]),
+                            strict=True):  # fmt: skip
+        if np.all(np.isfinite(centre)) and np.all(np.isfinite(axes)):
+            out.append({"centre": centre.tolist(), "axes": axes.ravel().tolist()})
+    return out
+
+
 def _cloud(points: Any) -> dict[str, Any]:
     p = np.asarray(points, dtype=float).reshape(-1, 3)
     lo, hi = p.min(axis=0), p.max(axis=0)
@@ -114,6 +154,7 @@ def payload(scenes: Scenes, runs: pd.DataFrame) -> dict[str, Any]:
     )
     out: dict[str, Any] = {"problem": printable(scenes.problem), "empty": empty,
                            "colours": [list(c) for c in COLOURS], "unit": "mm",
+                           "legend": {key: colour for key, colour, _ in LEGEND},
                            "axes": [], "meshes": [], "truths": [], "clouds": [],
                            "runs": [], "top": 1.0}  # fmt: skip
     if scenes.problem or not scenes.runs:
@@ -177,6 +218,10 @@ def payload(scenes: Scenes, runs: pd.DataFrame) -> dict[str, Any]:
             bits = np.packbits(np.asarray(arrays["cloud_outliers"], dtype=bool))
             entry["outliers"] = _b64(bits)
             entry["camera"] = [float(v) for v in np.asarray(arrays["camera"])]
+        entry["markers"] = _points(arrays, ("markers_observed", "markers_predicted"))
+        entry["targets"] = _points(arrays, ("targets_true", "targets_predicted"))
+        if entry["targets"] is not None:
+            entry["targets"]["regions"] = _regions(arrays)
         out["runs"].append(entry)
     return out
 
@@ -221,8 +266,11 @@ def section(scenes: Scenes, runs: pd.DataFrame) -> str:
         " error against the truth at each vertex (mm; the truth's displacement"
         " at the closest point of its undeformed surface); the truth's surface"
         " translucent; a depth camera's cloud (blue, outliers the gate clips"
-        " red) and frustum. Drag to turn, scroll to zoom, right-drag to pan;"
-        " click a row of the summary to show its runs.</p>",
+        " red) and frustum; the markers (observed and predicted) and the hidden"
+        " targets (true and predicted, with each one's predicted 95% region at"
+        " the last step), drawn through the surface. Drag to turn, scroll to"
+        " zoom, right-drag to pan; click a row of the summary to show its"
+        " runs.</p>",
         '<p class="view-note"></p>',
         '<div class="view-controls view-choices"></div>',
         '<div class="view-controls">',
@@ -231,8 +279,14 @@ def section(scenes: Scenes, runs: pd.DataFrame) -> str:
         '<label><input type="checkbox" id="view3d-truth" checked> truth</label>',
         '<label><input type="checkbox" id="view3d-cloud" checked> cloud</label>',
         '<label><input type="checkbox" id="view3d-camera" checked> camera</label>',
+        '<label><input type="checkbox" id="view3d-markers" checked> markers</label>',
+        '<label><input type="checkbox" id="view3d-targets" checked> targets</label>',
         '<button type="button" id="view3d-reset">reset view</button>',
         "</div>",
+        '<div class="view-controls view-legend">', *(
+            f'<span data-layer="{key}"><span class="view-swatch" style="background:'
+            f' {colour}"></span>{text}</span>' for key, colour, text in LEGEND
+        ), "</div>",
         '<p class="view-info"></p><p class="view-message"></p>',
         '<canvas aria-label="3D view of the selected run"></canvas>',
         '<div class="view-controls"><span>displacement error, mm</span>',

@@ -344,6 +344,7 @@ def _run_on(
         metrics_model, spec.setup.steps, _view_keys(spec),
         session.observation_model(spec),
         session.frames(spec) if spec.observed_otherwise() or spec.setup.data else None,
+        truth.targets if targets.has_targets(metrics_model, truth) else None,
     )  # fmt: skip
     if phase is not None:
         phase("estimator")
@@ -370,12 +371,12 @@ def _run_on(
         if "heldout_points_mm" in traces[-1]:
             row["heldout_points_final_mm"] = traces[-1]["heldout_points_mm"]
     if targets.has_targets(metrics_model, truth):
-        row.update(
-            targets.final_columns(
-                metrics_model, estimator, last, means[-1], stds[-1],
-                truth.targets[-1],  # type: ignore[index]
-            )
+        columns, region = targets.final_scores(
+            metrics_model, estimator, last, means[-1], stds[-1],
+            truth.targets[-1],  # type: ignore[index]
         )  # fmt: skip
+        row.update(columns)
+        recorder.region(region)  # the predicted 95% regions, for the view
     if "calibration_cost" in row:  # corrected: the grid's predictive uncertainty
         row.update(
             targets.grid_columns(metrics_model, estimator, last, means[-1],
@@ -442,7 +443,7 @@ def _estimate(
         else:
             shadow = metrics_model.step(mean, k, shadow)
             state = shadow
-        recorder.step(k, state)
+        recorder.step(k, state, obs)
         innovation = innovation_of(est, estimator)
         trace = rows.step_row(
             spec, k, obs, est, mean, std, metrics_model.grid(state), truth, direct,

@@ -108,15 +108,19 @@ def empty_columns() -> dict[str, Any]:
     }
 
 
-def final_columns(
+def final_scores(
     model: ForwardModel,
     estimator: Any,
     state: FloatArray,
     mean: FloatArray,
     std: FloatArray,
     truth_targets: FloatArray,
-) -> dict[str, Any]:
+) -> tuple[dict[str, Any], FloatArray]:
     """The run row's target columns (see the module) at the last step.
+
+    With them, the predicted covariance C (T, 3, 3) of each target that
+    ``tre_covered_final`` and ``target_std_final_mm`` use (the discrepancy's
+    added under a correction): the run's stored scene draws its 95% region.
 
     Parameters
     ----------
@@ -148,7 +152,7 @@ def final_columns(
         "target_std_final_mm": float(MM * spread.mean()),
         "tre_covered_final": float(np.mean(covered)),
         "target_cov_method": how,
-    }
+    }, cov
 
 
 def grid_columns(
@@ -161,7 +165,7 @@ def grid_columns(
 ) -> dict[str, Any]:
     """The predictive uncertainty of the shape-error grid at the last step.
 
-    Arguments as :func:`final_columns` (``truth_grid``: the truth's grid
+    Arguments as :func:`final_scores` (``truth_grid``: the truth's grid
     displacements (G, d)); the columns are the module's ``grid_*``.
     """
     pred = _grid(model, state)

@@ -21,6 +21,17 @@ of its arrays:
   ``cloud_outliers`` (S, N) bool (the points the gate clips against the
   model's surface at that step) and ``camera`` (8,): position (3), look-at
   point (3), vertical field of view (degrees) and aspect (width / height).
+  Where the model places its points
+  (:class:`~idbench.core.optional.PlacedPointsModel`), positions (the
+  undeformed point plus its displacement), float32: where the run observes
+  markers, ``markers_observed`` (S, M, 3) (plus the step's observed values,
+  NaN where occluded or the step is not observed) and ``markers_predicted``
+  (S, M, 3) (plus ``observe`` at the run's state); where the run scores
+  hidden targets (:mod:`idbench.score.targets`), ``targets_true`` and
+  ``targets_predicted`` (S, T, 3), and, for a run that reached its last
+  step, ``targets_cov`` (T, 3, 3) float64: each target's predicted
+  covariance at that step, as the scores computed it (its 95% region is the
+  ellipsoid ``tre_covered_final`` counts).
 
 Stored steps: every step up to :data:`MAX_STEPS` steps, else every k-th
 (k = ceil(K / MAX_STEPS)) and the last (:func:`stored_steps`). A run's file is
@@ -41,7 +52,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench.core.interfaces import FloatArray, ForwardModel
+from idbench.core.capabilities import marker_points_of, member, target_points_of
+from idbench.core.interfaces import FloatArray, ForwardModel, Observation
 from idbench.observe import kinds
 from idbench.observe.cloud import Cloud
 from idbench.observe.surface import point_to_surface, surface_of
@@ -56,6 +68,11 @@ MAX_STEPS = 50
 ROW_KEY = "_surfaces"
 """Where :func:`idbench.run.harness.execute` hands a run's captured surfaces
 over in its row (popped before the row is stored: not a column)."""
+
+
+POINTS = ("markers_observed", "markers_predicted", "targets_true",
+          "targets_predicted")  # fmt: skip
+"""The positions a run's file may hold per stored step, each (S, n, 3)."""
 
 
 class SurfaceError(ValueError):
@@ -96,7 +113,12 @@ class Recorder:
         ``run_id``, ``mesh_key`` and ``truth_key`` of the run (see the module).
     observation, frames
         The run's observation model and its frames (None: markers only); a
-        depth-camera block's points are kept, with the points its gate clips.
+        depth-camera block's points are kept, with the points its gate clips,
+        and a markers block's values (the observation stream's without
+        frames).
+    truth_targets
+        The truth's target displacements (K, T, 3) where the run scores
+        targets (None: it does not).
     """
 
     def __init__(
@@ -106,6 +128,7 @@ class Recorder:
         keys: Mapping[str, str],
         observation: Any = None,
         frames: Sequence[kinds.Frame] | None = None,
+        truth_targets: Any = None,
     ) -> None:
         self.model = model
         self.keys = dict(keys)
@@ -117,6 +140,8 @@ class Recorder:
         self.camera: FloatArray | None = None
         self.rest: FloatArray | None = None
         self.triangles: NDArray[Any] | None = None
+        self.placed: dict[str, list[FloatArray]] = {}
+        self.covariance: FloatArray | None = None
         try:
             vertices, triangles = surface_of(model, model.reset())
         except ValueError:  # the model has no surface: nothing to show
@@ -125,9 +150,21 @@ class Recorder:
         self.rest = vertices[self.used]
         self.cloud = _cloud_block(observation) if frames else None
         self.frames = frames
+        markers = marker_points_of(model)
+        self.markers = _marker_block(observation) if markers is not None else None
+        self.marker_points = markers
+        self.target_points = target_points_of(model)
+        self.truth_targets = truth_targets
+        if self.target_points is None or not len(self.target_points):
+            self.truth_targets = None
 
-    def step(self, k: int, state: FloatArray) -> None:
-        """Keep step ``k``'s surface (and cloud) if it is a stored step."""
+    def step(
+        self, k: int, state: FloatArray, observation: Observation | None = None
+    ) -> None:
+        """Keep step ``k``'s surface (cloud, markers, targets) if it is stored.
+
+        ``observation``: the run's observation of step ``k`` (None: none).
+        """
         if self.rest is None or k not in self.steps:
             return
         vertices, triangles = surface_of(self.model, state)
@@ -135,6 +172,58 @@ class Recorder:
         self.moved.append(vertices[self.used] - self.rest)
         if self.cloud is not None and self.frames is not None:
             self._cloud(k, vertices, triangles)
+        if self.markers is not None:
+            self._markers(k, state, observation)
+        if self.truth_targets is not None:
+            self._targets(k, state)
+
+    def region(self, covariance: Any) -> None:
+        """Keep the targets' predicted covariance (T, 3, 3) at the last step."""
+        if self.truth_targets is not None and self.kept:
+            self.covariance = np.asarray(covariance, dtype=np.float64)
+
+    def _keep(self, name: str, positions: FloatArray) -> None:
+        self.placed.setdefault(name, []).append(positions.astype(np.float32))
+
+    def _markers(self, k: int, state: FloatArray, observation: Any) -> None:
+        points = self.marker_points
+        assert points is not None and self.markers is not None
+        predicted = np.asarray(self.model.observe(state), dtype=float)
+        seen = np.full(points.shape, np.nan)
+        if observation is not None:
+            name, block = self.markers
+            if self.frames is None:  # plain markers: the stream's values
+                values = np.asarray(observation.values, dtype=float)
+            else:
+                frame = self.frames[k - 1]
+                if name:
+                    frame = kinds.Frame(frame.step, {
+                        key.removeprefix(f"{name}/"): v
+                        for key, v in frame.data.items() if key.startswith(f"{name}/")
+                    })  # fmt: skip
+                values = np.asarray(block.values(frame), dtype=float)
+            if values.size == points.size:
+                seen = points + values.reshape(points.shape)
+        if predicted.size != points.size:  # not the markers': keep none
+            self.markers = None
+            self.placed.pop("markers_observed", None)
+            self.placed.pop("markers_predicted", None)
+            return
+        self._keep("markers_observed", seen)
+        self._keep("markers_predicted", points + predicted.reshape(points.shape))
+
+    def _targets(self, k: int, state: FloatArray) -> None:
+        points = self.target_points
+        assert points is not None and self.truth_targets is not None
+        moved = np.asarray(member(self.model, "targets")(state), dtype=float)
+        true = np.asarray(self.truth_targets[k - 1], dtype=float)
+        if moved.size != points.size or true.size != points.size:  # not these
+            self.truth_targets = None
+            self.placed.pop("targets_true", None)
+            self.placed.pop("targets_predicted", None)
+            return
+        self._keep("targets_true", points + true.reshape(points.shape))
+        self._keep("targets_predicted", points + moved.reshape(points.shape))
 
     def _cloud(self, k: int, vertices: FloatArray, triangles: Any) -> None:
         name, block = self.cloud  # type: ignore[misc]
@@ -167,6 +256,9 @@ class Recorder:
             out["cloud_points"] = np.array(self.points, dtype=np.float32)
             out["cloud_outliers"] = np.array(self.outliers, dtype=bool)
             out["camera"] = self.camera
+        out.update({name: np.array(kept) for name, kept in self.placed.items()})
+        if self.covariance is not None and self.kept[-1] == max(self.steps):
+            out["targets_cov"] = self.covariance
         return out
 
 
@@ -176,6 +268,16 @@ def _cloud_block(observation: Any) -> tuple[str, Cloud] | None:
         return None
     for name, block in kinds.leaves(observation):
         if isinstance(block, Cloud):
+            return name, block
+    return None
+
+
+def _marker_block(observation: Any) -> tuple[str, kinds.Markers] | None:
+    """(block name, settings) of the observation's markers block, or None."""
+    if observation is None:
+        return None
+    for name, block in kinds.leaves(observation):
+        if isinstance(block, kinds.Markers):
             return name, block
     return None
 

@@ -1,10 +1,10 @@
 """report.html's 3D view in a real headless browser (Chromium through Playwright).
 
 The canvas draws something, the step slider and the choice of run change its
-pixels, nothing is fetched, a hostile estimator name and message stay text,
-and a folder whose stored surfaces fail their checks says so instead of
-drawing them. Skipped only where no browser can be driven
-(:mod:`support.browser`).
+pixels, so do the markers' and the targets' layers, nothing is fetched, a
+hostile estimator name and message stay text, and a folder whose stored
+surfaces fail their checks says so instead of drawing them. Skipped only
+where no browser can be driven (:mod:`support.browser`).
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("view") / "out"
     config = CompareConfig(
         truth_mesh="12x3x3", meshes=("4x1x1", "6x2x2"), steps=4, seeds=2,
-        estimators=("rls", HOSTILE, "fails"), observe=("cloud",),
+        estimators=("rls", HOSTILE, "fails"), observe=("markers+cloud",),
         observe_settings={"cloud": {"points": 150, "outliers": 0.1}},
     )  # fmt: skip
     with pytest.MonkeyPatch.context() as mp:
@@ -115,6 +115,41 @@ def test_the_view_draws_and_the_slider_and_the_run_change_it(browser, report):
     assert without_cloud != other
     assert seen["errors"] == []
     assert all(url.startswith("file:") for url in seen["requests"]), seen["requests"]
+
+
+def test_the_markers_and_the_targets_layers_draw(browser, report):
+    """Observed markers and the beam's default target: each layer shows pixels."""
+    page, seen = opened(browser, report / "report.html")
+    page.select_option("#view3d select[data-axis=estimator]", "rls")
+    assert page.locator("#view3d-step").input_value() == "3"  # the last step
+    _, both = page.evaluate(PIXELS)
+    for layer in ("markers", "targets"):
+        box = page.locator(f"#view3d-{layer}")
+        assert box.is_enabled() and box.is_checked()
+        box.uncheck()
+        _, without = page.evaluate(PIXELS)
+        assert without != both, layer
+        box.check()
+        assert page.evaluate(PIXELS)[1] == both, layer
+    legend = page.locator("#view3d .view-legend").text_content()
+    assert "markers, observed" in legend and "targets, true" in legend
+    assert seen["errors"] == []
+
+
+def test_a_region_is_the_targets_95_percent_ellipsoid():
+    from idbench.report.scene import REGION, ellipsoid_axes
+    from idbench.score.metrics import ellipsoid_covers
+
+    assert REGION == pytest.approx(2.7955, abs=1e-4)
+    rng = np.random.default_rng(0)
+    root = rng.normal(size=(3, 3))
+    cov = root @ root.T
+    axes = ellipsoid_axes(cov[None])[0]
+    np.testing.assert_allclose(axes @ axes.T, REGION**2 * cov, rtol=1e-9)
+    for j in range(3):  # each semi-axis ends on the region's boundary
+        assert ellipsoid_covers(0.999 * axes[:, j], cov) == 1.0
+        assert ellipsoid_covers(1.001 * axes[:, j], cov) == 0.0
+    assert np.isnan(ellipsoid_axes(np.full((1, 3, 3), np.nan))).all()
 
 
 def test_a_summary_row_and_a_run_id_choose_the_run(browser, report):

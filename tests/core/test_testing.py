@@ -228,3 +228,28 @@ def test_a_view_passes_exactly_the_wrapped_models_members():
     np.testing.assert_array_equal(looped.observe(u), model.observe(u))
     assert looped.describe() == model.describe() and looped.n_steps == model.n_steps
     check_model(looped, np.array([2.0]))
+
+
+def test_placed_points_are_one_a_marker_and_one_a_target(registry):
+    from idbench.core import capabilities as cap
+    from idbench.registry.testing import check_optional_members
+
+    spec = idbench.ModelSpec(mesh="4x1x1", scenario=registry.scenario("bend-y"),
+                             n_steps=2, markers=3)  # fmt: skip
+    beam = registry.model("svk-beam")(spec)
+    assert isinstance(beam, idbench.PlacedPointsModel)
+    assert cap.marker_points_of(beam).shape == (3, 3)
+    assert cap.target_points_of(beam).shape == (1, 3)  # the beam's default target
+    model = LinearToy(p=1)  # observe: 3 values, two points would need 6
+    state = model.step(np.array([2.0]), 1, model.reset())
+    model.marker_points = np.zeros((2, 3))
+    with pytest.raises(AssertionError, match="lacks target_points"):
+        check_optional_members(model, state)
+    model.target_points = np.zeros((0, 3))
+    with pytest.raises(AssertionError, match="one point per three values"):
+        check_optional_members(model, state)
+    model.H = np.ones((6, model.A.shape[0]))  # two markers
+    check_optional_members(model, state)
+    model.target_points = np.zeros((1, 3))  # a target it does not move
+    with pytest.raises(AssertionError, match=r"targets\(state\) 0"):
+        check_optional_members(model, state)

@@ -86,3 +86,27 @@ def test_over_seeds_means_spreads_constants_and_counts(study):
     unsorted = _cli.over_seeds(runs, ["mesh"], sort=False, E="E_final")
     assert unsorted["mesh"].tolist() == ["b", "a"]
     assert list(unsorted.columns) == ["mesh", "E"]  # no spread unless asked
+
+
+ORGAN_STUDIES = ("organ_discretization", "point_clouds", "realtime_frontier",
+                 "physical_stiffness")  # fmt: skip
+
+
+def test_a_full_organ_study_writes_its_report_with_the_view(study, tmp_path):
+    from pathlib import Path
+
+    from support.helpers import tiny
+
+    from idbench.run.compare import compare
+
+    cli = study("_cli")
+    out = tmp_path / "out"
+    compare(tiny(), out)
+    cli.report(out, quick=True)  # a quick run: no report
+    cli.report(None, quick=False)  # no folder: none
+    assert not (out / "report.html").exists()
+    cli.report(out, quick=False)
+    assert 'id="view3d-data"' in (out / "report.html").read_text()
+    studies = Path(__file__).resolve().parents[2] / "studies"
+    for name in ORGAN_STUDIES:  # each where it runs compare into a folder
+        assert "_cli.report(" in (studies / f"{name}.py").read_text(), name

@@ -1,6 +1,8 @@
 // report.html's 3D view: each run's surface per stored step, coloured by its
 // displacement error against the truth (idbench/report/scene.py), the truth's
-// surface translucent, the depth camera's cloud and frustum. Data come from the
+// surface translucent, the depth camera's cloud and frustum, the markers
+// (observed, predicted) and the hidden targets (true, predicted, and each
+// one's predicted 95% region at the last step). Data come from the
 // JSON block #view3d-data (idbench/report/view3d.py); every name or message it
 // holds is shown as text (textContent, option.text), never as markup.
 (function () {
@@ -91,6 +93,45 @@
     size: 4, sizeAttenuation: false, vertexColors: true }));
   var frustum = new THREE.LineSegments(new THREE.BufferGeometry(), new THREE.LineBasicMaterial({ color: 0x222222 }));
   [model, truth, points, frustum].forEach(function (o) { scene.add(o); });
+  // markers and targets: drawn through the surface (targets lie inside the body)
+  var legend = data.legend;
+  function dots(key, size, order) {
+    var o = new THREE.Points(new THREE.BufferGeometry(), new THREE.PointsMaterial({
+      color: new THREE.Color(legend[key]), size: size, sizeAttenuation: false,
+      transparent: true, depthTest: false, depthWrite: false }));
+    o.renderOrder = order;  // a prediction drawn over its (larger) truth
+    o.visible = false;
+    scene.add(o);
+    return o;
+  }
+  var sets = {
+    "markers-observed": dots("markers-observed", 10, 2),
+    "markers-predicted": dots("markers-predicted", 6, 3),
+    "targets-true": dots("targets-true", 11, 2),
+    "targets-predicted": dots("targets-predicted", 7, 3),
+  };
+  var regions = new THREE.Mesh(new THREE.BufferGeometry(), new THREE.MeshBasicMaterial({
+    color: new THREE.Color(legend["targets-predicted"]), transparent: true, opacity: 0.3,
+    depthTest: false, depthWrite: false, side: THREE.DoubleSide }));
+  regions.renderOrder = 1;
+  regions.visible = false;
+  scene.add(regions);
+  var sphere = (function () {  // the unit sphere, latitude by longitude
+    var rows = 12, cols = 24, v = [], t = [], i, j;
+    for (i = 0; i <= rows; i++) {
+      for (j = 0; j <= cols; j++) {
+        var th = Math.PI * i / rows, ph = 2 * Math.PI * j / cols;
+        v.push(Math.sin(th) * Math.cos(ph), Math.sin(th) * Math.sin(ph), Math.cos(th));
+      }
+    }
+    for (i = 0; i < rows; i++) {
+      for (j = 0; j < cols; j++) {
+        var a = i * (cols + 1) + j, b = a + cols + 1;
+        t.push(a, b, a + 1, b, b + 1, a + 1);
+      }
+    }
+    return { v: v, t: t };
+  })();
 
   function deformed(rest, disp, at, n) {
     var out = new Float32Array(n * 3);
@@ -107,6 +148,45 @@
     return g;
   }
 
+  // the positions of step s (n points a step), those not NaN (not observed)
+  function setDots(object, all, s, n) {
+    var out = [];
+    for (var i = 0; i < n; i++) {
+      var a = (s * n + i) * 3;
+      if (isFinite(all[a]) && isFinite(all[a + 1]) && isFinite(all[a + 2])) {
+        out.push(all[a], all[a + 1], all[a + 2]);
+      }
+    }
+    var g = new THREE.BufferGeometry();
+    g.setAttribute("position", new THREE.BufferAttribute(new Float32Array(out), 3));
+    object.geometry.dispose();
+    object.geometry = g;
+    object.visible = out.length > 0;
+  }
+  // each region: its centre plus its axes (row-major 3 x 3) times the unit sphere
+  function setRegions(list) {
+    var nv = sphere.v.length / 3, pos = new Float32Array(list.length * nv * 3), idx = [];
+    list.forEach(function (r, k) {
+      var c = r.centre, A = r.axes;
+      for (var i = 0; i < nv; i++) {
+        var x = sphere.v[3 * i], y = sphere.v[3 * i + 1], z = sphere.v[3 * i + 2];
+        for (var d = 0; d < 3; d++) {
+          pos[3 * (k * nv + i) + d] = c[d] + A[3 * d] * x + A[3 * d + 1] * y + A[3 * d + 2] * z;
+        }
+      }
+      sphere.t.forEach(function (v) { idx.push(k * nv + v); });
+    });
+    var g = new THREE.BufferGeometry();
+    g.setAttribute("position", new THREE.BufferAttribute(pos, 3));
+    g.setIndex(idx);
+    regions.geometry.dispose();
+    regions.geometry = g;
+    regions.visible = list.length > 0;
+  }
+  function positions(run, kind, key) {
+    return decoded(kind + key, state.run, function () { return new Float32Array(bytes(run[kind][key])); });
+  }
+
   var state = { run: 0, step: 0, framed: false };
   var selects = {}, slider = root.querySelector("#view3d-step");
   var stepLabel = root.querySelector(".view-step"), info = root.querySelector(".view-info");
@@ -115,6 +195,8 @@
     truth: root.querySelector("#view3d-truth"),
     cloud: root.querySelector("#view3d-cloud"),
     camera: root.querySelector("#view3d-camera"),
+    markers: root.querySelector("#view3d-markers"),
+    targets: root.querySelector("#view3d-targets"),
   };
 
   function show() {
@@ -154,6 +236,23 @@
     }
     frustum.visible = false;
     if (run.camera && layers.camera.checked) { drawFrustum(run.camera); frustum.visible = true; }
+    layers.markers.disabled = !run.markers;
+    layers.targets.disabled = !run.targets;
+    Object.keys(sets).forEach(function (key) { sets[key].visible = false; });
+    regions.visible = false;
+    if (run.markers && layers.markers.checked) {
+      setDots(sets["markers-observed"], positions(run, "markers", "observed"), s, run.markers.n);
+      setDots(sets["markers-predicted"], positions(run, "markers", "predicted"), s, run.markers.n);
+    }
+    if (run.targets && layers.targets.checked) {
+      setDots(sets["targets-true"], positions(run, "targets", "true"), s, run.targets.n);
+      setDots(sets["targets-predicted"], positions(run, "targets", "predicted"), s, run.targets.n);
+      if (s === run.steps.length - 1) { setRegions(run.targets.regions); }
+    }
+    Array.prototype.forEach.call(root.querySelectorAll(".view-legend [data-layer]"), function (item) {
+      var kind = item.getAttribute("data-layer").split("-")[0];
+      item.style.opacity = run[kind] ? "1" : "0.35";
+    });
     slider.max = String(run.steps.length - 1);
     slider.value = String(s);
     stepLabel.textContent = "step " + k + " of " + run.total;

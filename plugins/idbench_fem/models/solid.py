@@ -120,6 +120,13 @@ class SolidModel(DrivenGrasp, Supported, Observables, BatchedSteps):
     absolute_atol
         Newton's absolute floor in N (None: ``settings.atol`` or 1e-12 times
         the end force).
+
+    Attributes
+    ----------
+    marker_points, target_points
+        The markers' (M, 3) and the targets' (T, 3) undeformed positions, in
+        the order of :meth:`observe` and :meth:`targets`
+        (:class:`idbench.PlacedPointsModel`: where a report draws them).
     """
 
     def __init__(
