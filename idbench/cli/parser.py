@@ -16,15 +16,21 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from idbench.cli import view
+from idbench.cli.values import (
+    UsageError,
+    add_option_argument,
+    assignments,
+    names,
+    number,
+    numbers,
+    path,
+    toml_value,
+)
 from idbench.core.sanitize import printable
 from idbench.plan.config import ConfigError
 from idbench.registry.registry import cached_registry as registry
 
 log = logging.getLogger("idbench")
-
-
-class UsageError(Exception):
-    """Bad command-line input; printed as one line, exit status 2."""
 
 
 class _HelpFormatter(argparse.HelpFormatter):
@@ -122,108 +128,6 @@ def _config_default(name: str, config: Any = None) -> str:
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 
-def _value(text: str) -> Any:
-    """A setting's value as TOML would read it (number, bool, list), else the text."""
-    import tomllib
-
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-
-
-def _assignments(name: str) -> Any:
-    """Parse ``KEY=VALUE[,KEY=VALUE...]`` into a dict (values as TOML reads them)."""
-
-    def parse(text: str) -> dict[str, Any]:
-        out: dict[str, Any] = {}
-        for part in _split_top_level(text):
-            key, sep, value = part.partition("=")
-            if not sep or not key.strip() or not value.strip():
-                raise UsageError(f"--{name} {text!r}: need NAME=VALUE[,NAME=VALUE]")
-            out[key.strip()] = _value(value.strip())
-        return out
-
-    return parse
-
-
-def _add_option_argument(parser: argparse.ArgumentParser, what: str, help: str) -> None:
-    """``--WHAT-option NAME=VALUE[,...]``, repeatable, into ``WHAT_options``."""
-    parser.add_argument(
-        f"--{what}-option",
-        dest=f"{what}_options",
-        type=_assignments(f"{what}-option"),
-        action="append",
-        help=help,
-    )
-
-
-def _split_top_level(text: str) -> list[str]:
-    """Split at commas that are not inside brackets (``grid=[20,4,4],nu=0.3``)."""
-    parts, depth, cur = [], 0, ""
-    for ch in text:
-        depth += (ch in "[{(" and 1) or 0
-        depth -= (ch in "]})" and 1) or 0
-        if ch == "," and depth == 0:
-            parts.append(cur)
-            cur = ""
-        else:
-            cur += ch
-    return [p for p in [*parts, cur] if p.strip()]
-
-
-def _numbers(name: str, kind: type = float) -> Any:
-    """Parser of ``--name`` as comma-separated ``kind`` values (at least one)."""
-    what = "whole number" if kind is int else "number"
-
-    def parse(text: str) -> tuple[Any, ...]:
-        try:
-            values = tuple(kind(v) for v in text.split(",") if v.strip())
-        except ValueError:
-            raise UsageError(
-                f"--{name} {text!r}: need comma-separated {what}s"
-            ) from None
-        if not values:
-            raise UsageError(f"--{name} {text!r}: need at least one {what}")
-        return values
-
-    return parse
-
-
-def _names(text: str) -> tuple[str, ...]:
-    return tuple(v.strip() for v in text.split(",") if v.strip())
-
-
-def _number(name: str, kind: type = float) -> Any:
-    def parse(text: str) -> Any:
-        try:
-            return kind(text)
-        except ValueError:
-            what = "a whole number" if kind is int else "a number"
-            raise UsageError(f"--{name} {text!r}: need {what}") from None
-
-    return parse
-
-
-def _path(name: str) -> Any:
-    def parse(text: str) -> Path:
-        if not text.strip():
-            raise UsageError(f"--{name} {text!r}: need a path")
-        return Path(text)
-
-    return parse
-
-
-def raw_option(argv: list[str], name: str) -> str | None:
-    """The text given for option ``name`` (for error messages)."""
-    for i, arg in enumerate(argv):
-        if arg == name and i + 1 < len(argv):
-            return argv[i + 1]
-        if arg.startswith(name + "="):
-            return arg.split("=", 1)[1]
-    return None
-
-
 def build_parser(defaults: Any = None) -> argparse.ArgumentParser:
     """The argument parser of every subcommand.
 
@@ -270,12 +174,12 @@ def build_parser(defaults: Any = None) -> argparse.ArgumentParser:
     )
     c.add_argument(
         "--estimators",
-        type=_names,
+        type=names,
         help="comma list of estimators (default: all registered: %(estimators)s)",
     )
     c.add_argument(
         "--meshes",
-        type=_names,
+        type=names,
         help="model mesh specs, comma list: NXxNYxNZ, node count, or mesh file "
         f"(default: {d('meshes')})",
     )
@@ -289,33 +193,33 @@ def build_parser(defaults: Any = None) -> argparse.ArgumentParser:
     )
     c.add_argument(
         "--scenarios",
-        type=_names,
+        type=names,
         help=f"comma list of %(scenarios)s (default: {d('scenarios')})",
     )
     c.add_argument(
         "--obs-every",
-        type=_numbers("obs-every", int),
+        type=numbers("obs-every", int),
         help=f"observe every k-th step, comma list (default: {d('obs_every')})",
     )
     c.add_argument(
         "--obs-points",
-        type=_numbers("obs-points", int),
+        type=numbers("obs-points", int),
         help=f"marker counts M, comma list (default: {d('obs_points')})",
     )
     c.add_argument(
         "--noise",
-        type=_numbers("noise"),
+        type=numbers("noise"),
         help="noise sigma(s) in the model's length unit (metres for the built-in "
         f"models), comma list (default: {d('noise')})",
     )
     c.add_argument(
         "--observe",
-        type=_names,
+        type=names,
         help="observation models, comma list (a sweep axis): markers, cloud, force, "
         "a [observe.NAME] table's NAME, or blocks joined by + (cloud+force) "
         f"(default: {d('observe')})",
     )
-    _add_option_argument(
+    add_option_argument(
         c,
         "observe",
         "a setting of an observation model, NAME.SETTING=VALUE (repeatable; "
@@ -323,7 +227,7 @@ def build_parser(defaults: Any = None) -> argparse.ArgumentParser:
     )
     c.add_argument(
         "--seeds",
-        type=_number("seeds", int),
+        type=number("seeds", int),
         help=f"number of noise seeds (default: {d('seeds')}; --quick: 1). Each"
         " summary mean carries a 95%% interval over the seeds (none with one); its"
         " half-width h shrinks as 1/sqrt(n): a seed-to-seed spread s needs"
@@ -332,19 +236,19 @@ def build_parser(defaults: Any = None) -> argparse.ArgumentParser:
     )
     c.add_argument(
         "--steps",
-        type=_number("steps", int),
+        type=number("steps", int),
         help=f"load steps K (default: {d('steps')})",
     )
     _add_model_arguments(c, defaults)
     _add_shorthands(c)
     c.add_argument(
         "--prior",
-        type=_numbers("prior"),
+        type=numbers("prior"),
         help=f"prior MEAN,STD of each parameter (default: {d('prior')})",
     )
     c.add_argument(
         "--timeout",
-        type=_number("timeout"),
+        type=number("timeout"),
         help="seconds per run before it is recorded as failed (default: none)",
     )
     c.add_argument(
@@ -357,12 +261,12 @@ def build_parser(defaults: Any = None) -> argparse.ArgumentParser:
     )
     c.add_argument(
         "--out",
-        type=_path("out"),
+        type=path("out"),
         help="results directory (default ./idbench-out; with --quick "
         "./idbench-out-quick)",
     )
     c.add_argument(
-        "--jobs", type=_number("jobs", int), default=1, help="local worker processes"
+        "--jobs", type=number("jobs", int), default=1, help="local worker processes"
     )
     c.add_argument(
         "--wait",
@@ -451,11 +355,11 @@ def build_parser(defaults: Any = None) -> argparse.ArgumentParser:
     s.add_argument("--scenario", required=True, help="one of %(scenarios)s")
     _add_model_arguments(s)
     _add_shorthands(s)
-    s.add_argument("--steps", type=_number("steps", int), default=20, help="load steps")
-    s.add_argument("--out", type=_path("out"), help="output .xdmf file")
+    s.add_argument("--steps", type=number("steps", int), default=20, help="load steps")
+    s.add_argument("--out", type=path("out"), help="output .xdmf file")
     s.add_argument(
         "--record",
-        type=_path("record"),
+        type=path("record"),
         metavar="DIR",
         help="write a recording folder (recording.toml + frames.npz) of what the "
         "observation model sees, noise included, for compare --data",
@@ -463,17 +367,17 @@ def build_parser(defaults: Any = None) -> argparse.ArgumentParser:
     s.add_argument(
         "--observe", help="observation model of the recording (default: markers)"
     )
-    _add_option_argument(
+    add_option_argument(
         s,
         "observe",
         "a setting of the observation model, NAME.SETTING=VALUE (repeatable)",
     )
     s.add_argument(
-        "--noise", type=_number("noise"), help="the markers' noise sigma (m)"
+        "--noise", type=number("noise"), help="the markers' noise sigma (m)"
     )
-    s.add_argument("--obs-points", type=_number("obs-points", int), help="markers M")
+    s.add_argument("--obs-points", type=number("obs-points", int), help="markers M")
     s.add_argument(
-        "--seed", type=_number("seed", int), default=0, help="noise seed (default 0)"
+        "--seed", type=number("seed", int), default=0, help="noise seed (default 0)"
     )
     view.add_parser(sub)
     _add_plugin_commands(sub)
@@ -513,7 +417,7 @@ def _add_model_arguments(parser: argparse.ArgumentParser, defaults: Any = None) 
         help="registered model, one of %(models)s "
         f"(default: {_config_default('model', defaults)})",
     )
-    _add_option_argument(
+    add_option_argument(
         parser,
         "model",
         "a setting of the model, NAME=VALUE (repeatable; 'idbench info MODEL' "
@@ -521,7 +425,7 @@ def _add_model_arguments(parser: argparse.ArgumentParser, defaults: Any = None) 
     )
     parser.add_argument(
         "--true",
-        type=_assignments("true"),
+        type=assignments("true"),
         help="true parameter values, NAME=VALUE[,...] (default: the model's)",
     )
 
@@ -557,7 +461,7 @@ def _shorthand(
         f"--{option}",
         dest=f"shorthand:{setting}",
         metavar="VALUE",
-        type=_value,
+        type=toml_value,
         help=meaning,
     )
 
