@@ -6,6 +6,13 @@ The public API is what this module exports; plugins import only from here.
 from __future__ import annotations
 
 from idbench.calibrate.effective import effective_path
+from idbench.core.capabilities import (
+    adjoint_of,
+    observation_jacobian_of,
+    observation_points_of,
+    parameter_field_of,
+)
+from idbench.core.field import ParameterField
 from idbench.core.interfaces import (
     Cost,
     Diverged,
@@ -22,17 +29,23 @@ from idbench.core.interfaces import (
 )
 from idbench.core.observation_model import ObservationModel
 from idbench.core.optional import (
+    AdjointModel,
     BatchModel,
     BoundingBoxModel,
     CellDataModel,
     DiscrepancyModel,
     FieldModel,
+    LinearObservationModel,
     LoadScalingModel,
     NodeCountModel,
     ObservationNeedsModel,
+    ObservationPointsModel,
+    ParameterFieldModel,
     ProbedModel,
+    ReactionJacobianModel,
     ReactionModel,
     SensitiveModel,
+    SurfaceJacobianModel,
     SurfaceModel,
     TargetModel,
     VolumeModel,
@@ -41,6 +54,7 @@ from idbench.core.scenario import Scenario, Sparsity
 from idbench.core.version import __version__
 from idbench.estimate.filter import Analysis, Filter, noise_matrix
 from idbench.estimate.lowrank import LowRankCovariance
+from idbench.estimate.prior import FieldPrior
 from idbench.estimate.transforms import TRANSFORMS, IdentityTransform, LogTransform
 from idbench.observe.occlusion import MaskedModel
 from idbench.observe.surface import closest_on_triangles
@@ -59,6 +73,7 @@ from idbench.truth.simulate import simulate_path, simulate_truth
 
 __all__ = [
     "TRANSFORMS",
+    "AdjointModel",
     "Analysis",
     "BatchModel",
     "BoundingBoxModel",
@@ -72,9 +87,11 @@ __all__ = [
     "Estimate",
     "Estimator",
     "FieldModel",
+    "FieldPrior",
     "Filter",
     "ForwardModel",
     "IdentityTransform",
+    "LinearObservationModel",
     "LoadScalingModel",
     "LogTransform",
     "LowRankCovariance",
@@ -86,25 +103,34 @@ __all__ = [
     "Observation",
     "ObservationModel",
     "ObservationNeedsModel",
+    "ObservationPointsModel",
+    "ParameterField",
+    "ParameterFieldModel",
     "ParameterSpec",
     "PluginError",
     "Prior",
     "ProbedModel",
     "Registry",
     "Scenario",
+    "ReactionJacobianModel",
     "ReactionModel",
     "SensitiveModel",
     "Skipped",
+    "SurfaceJacobianModel",
     "SurfaceModel",
     "TargetModel",
     "Sparsity",
     "VolumeModel",
     "__version__",
+    "adjoint_of",
     "build_registry",
     "closest_on_triangles",
     "compare",
     "effective_path",
     "noise_matrix",
+    "observation_jacobian_of",
+    "observation_points_of",
+    "parameter_field_of",
     "get_plugin_manager",
     "hookimpl",
     "shape_error",

@@ -24,19 +24,26 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, cast
 
+from idbench.core.field import ParameterField
 from idbench.core.interfaces import FloatArray
 from idbench.core.optional import (
+    AdjointModel,
     BatchModel,
     BoundingBoxModel,
     CellDataModel,
     DiscrepancyModel,
     FieldModel,
+    LinearObservationModel,
     LoadScalingModel,
     NodeCountModel,
     ObservationNeedsModel,
+    ObservationPointsModel,
+    ParameterFieldModel,
     ProbedModel,
+    ReactionJacobianModel,
     ReactionModel,
     SensitiveModel,
+    SurfaceJacobianModel,
     SurfaceModel,
     TargetModel,
     VolumeModel,
@@ -63,6 +70,13 @@ OPTIONAL: dict[str, type] = {
     "targets_cov": DiscrepancyModel,
     "extrapolated": DiscrepancyModel,
     "load_scaling": LoadScalingModel,
+    "parameter_field": ParameterFieldModel,
+    "equilibrium_jvp": AdjointModel,
+    "equilibrium_vjp": AdjointModel,
+    "observation_jacobian": LinearObservationModel,
+    "surface_jacobian": SurfaceJacobianModel,
+    "reaction_jacobian": ReactionJacobianModel,
+    "observation_points": ObservationPointsModel,
 }
 """Each optional member of a forward model and the protocol that declares it."""
 
@@ -80,6 +94,12 @@ METHODS = frozenset(
         "observation_cov",
         "grid_cov",
         "targets_cov",
+        "equilibrium_jvp",
+        "equilibrium_vjp",
+        "observation_jacobian",
+        "surface_jacobian",
+        "reaction_jacobian",
+        "observation_points",
     }
 )
 """The optional members that are methods (the others are values)."""
@@ -187,6 +207,38 @@ def cell_data_of(model: Any) -> Callable[[], dict[str, FloatArray]] | None:
     return value
 
 
+def parameter_field_of(model: Any) -> ParameterField | None:
+    """The model's ``parameter_field``, None where its parameters are no field.
+
+    See :class:`~idbench.core.optional.ParameterFieldModel`.
+    """
+    value: ParameterField | None = member(model, "parameter_field")
+    return value
+
+
+def adjoint_of(model: Any) -> AdjointModel | None:
+    """``model`` if it has ``equilibrium_jvp`` and ``equilibrium_vjp``, else None.
+
+    See :class:`~idbench.core.optional.AdjointModel`.
+    """
+    both = ("equilibrium_jvp", "equilibrium_vjp")
+    if any(member(model, name) is None for name in both):
+        return None
+    return cast(AdjointModel, model)
+
+
+def observation_jacobian_of(model: Any) -> Callable[..., Any] | None:
+    """The model's ``observation_jacobian`` (:class:`LinearObservationModel`)."""
+    return cast("Callable[..., Any] | None", member(model, "observation_jacobian"))
+
+
+def observation_points_of(model: Any) -> Callable[[int], FloatArray] | None:
+    """The model's ``observation_points`` (:class:`ObservationPointsModel`)."""
+    return cast(
+        "Callable[[int], FloatArray] | None", member(model, "observation_points")
+    )
+
+
 def observation_cov_of(model: Any) -> Callable[[FloatArray], FloatArray] | None:
     """The corrected model's ``observation_cov`` (:class:`DiscrepancyModel`)."""
     value: Callable[[FloatArray], FloatArray] | None = member(model, "observation_cov")
@@ -246,6 +298,11 @@ ESTIMATOR_OPTIONAL: dict[str, Member] = {
         "that run's reference value (E_ref); one registered estimator has it "
         "(idbench.registry.registry.Registry.reference_estimator)",
     ),
+    "by_default": Member(
+        True,
+        "class attribute: False leaves the estimator out of a comparison that "
+        "names none (e.g. estimators meant for parameter fields only)",
+    ),
     "handles_nan": Member(
         False,
         "class attribute: True when the estimator takes observations with NaN "
@@ -302,6 +359,19 @@ OBSERVATION_OPTIONAL: dict[str, Member] = {
         "class attribute: True when predict() uses theta itself, not only the "
         "state (force): the prediction is carried in the estimators' state "
         "(idbench.observe.observed_model)",
+    ),
+    "linearize": Member(
+        None,
+        "linearize(model, frame, theta, k, state) -> (H_u, H_theta): dh/du "
+        "(m, n) and dh/dtheta (m, p) of predict at the state, for adjoint "
+        "gradients (idbench.observe.observed_model.ObservedModel)",
+        method=True,
+    ),
+    "positions": Member(
+        None,
+        "positions(model, frame, k) -> (m, d): where each predicted value is "
+        "(NaN rows: nowhere in particular), for localized estimators",
+        method=True,
     ),
 }
 """Each optional member of an observation model.
@@ -391,6 +461,11 @@ def settings_member(settings: Any, name: str) -> Any:
     Its default where it lacks it.
     """
     return _optional(settings, name, SETTINGS_OPTIONAL, "settings")
+
+
+def by_default(estimator: Any) -> bool:
+    """Whether a comparison that names no estimators runs this one."""
+    return bool(estimator_member(estimator, "by_default"))
 
 
 def is_reference(estimator: Any) -> bool:

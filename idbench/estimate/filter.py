@@ -104,6 +104,7 @@ class _Conventions:
 
     abstract: ClassVar[bool] = False
     reference: ClassVar[bool] = False
+    by_default: ClassVar[bool] = True
     handles_nan: ClassVar[bool] = False
     seed: int | None = None
     innovation: tuple[FloatArray, FloatArray] | None = None
@@ -156,6 +157,9 @@ class Filter(_Conventions):
         Class attribute, default False: True marks the estimator whose fit on
         a run's data is that run's reference value (``E_ref``); one
         registered estimator has it.
+    by_default
+        Class attribute, default True: False leaves the estimator out of a
+        comparison that names none (the estimators of parameter fields).
     seed
         Default None: the estimator draws no random numbers. One that does
         declares a field ``seed: int = 0``; the harness then gives each run
