@@ -101,6 +101,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from idbench_fem.bodies.field import FieldSpec, parse_field
 from idbench_fem.bodies.reader import TableReader, table
 from idbench_fem.bodies.regions import SELECTORS, Region
 from idbench_fem.fem.materials import LAWS, lame, make_material
@@ -239,6 +240,8 @@ class Body:
     ...); none: the largest nodal displacement ``u_max``."""
     targets: tuple[tuple[str, Vec], ...] = ()
     """Hidden target points (name, point); ``name[i]`` for a list's i-th."""
+    modulus_field: FieldSpec | None = field(default=None, repr=False)
+    """``[field]``: E per cell of a partition (:mod:`idbench_fem.bodies.field`)."""
 
     def manipulation(self, name: str) -> Manipulation:
         """The manipulation called ``name``."""
@@ -302,6 +305,7 @@ def parse_body(
         "parameters",
         "probe",
         "targets",
+        "field",
     )
     TableReader(source, "body").keys(raw, top)
 
@@ -433,6 +437,9 @@ def parse_body(
         if not lo < hi:
             raise c.error(f"bounds = {bounds!r}: need lower < upper")
         bounds = (lo, hi)
+    modulus_field = parse_field(raw.get("field"), source)
+    if modulus_field is not None and parameter_regions:
+        raise c.error("regions and a [field] exclude each other: give one of them")
     return Body(
         source,
         meshes,
@@ -445,6 +452,7 @@ def parse_body(
         bounds,
         _probes(raw.get("probe", []), source),
         _targets(table(raw, "targets", source), source),
+        modulus_field,
     )
 
 

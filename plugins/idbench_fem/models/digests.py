@@ -34,6 +34,8 @@ def body_digest(body: Body) -> str:
     text = repr(states) + "".join(  # a driven grasp's displacement is no repr
         f"|{m.name}:{m.displacement}" for m in body.manipulations if m.driven
     )
+    if body.modulus_field is not None:  # no repr either
+        text += f"|field:{body.modulus_field!r}"
     return hashlib.sha256(text.encode()).hexdigest()
 
 

@@ -59,7 +59,7 @@ from typing import Any, cast
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench import ConfigError, ModelSpec, ParameterSpec, Scenario
+from idbench import ConfigError, ModelSpec, Scenario
 from idbench_fem.bodies import resolve
 from idbench_fem.bodies.catalog import body_path, get_body, get_mesh, mesh_file
 from idbench_fem.bodies.description import Body
@@ -73,7 +73,9 @@ from idbench_fem.fem.prescribed import PrescribedAssembler
 from idbench_fem.fem.solver import resolve_backend
 from idbench_fem.fem.svk_assembly import Assembler
 from idbench_fem.models.digests import body_digest, mesh_digest
+from idbench_fem.models.field_members import FieldMembers
 from idbench_fem.models.observables import Observables
+from idbench_fem.models.parameterisation import parameterise
 from idbench_fem.models.points import place_points
 from idbench_fem.models.solid_settings import DEFAULT_BODY, SolidSettings
 
@@ -90,11 +92,9 @@ one reuses its factorization, from a secant prediction (same tolerance)."""
 RTOL = 1e-8
 ATOL = 1e-12
 MAX_ITERATIONS = 25
-_BOUNDS = (1e-3, 1e3)
-"""Parameter bounds as multiples of the body's E."""
 
 
-class SolidModel(Observables, BatchedSteps):
+class SolidModel(Observables, FieldMembers, BatchedSteps):
     """A body under one manipulation, on one mesh, stepped by Newton.
 
     Parameters
@@ -154,7 +154,6 @@ class SolidModel(Observables, BatchedSteps):
             ),
         )  # fmt: skip
         self.nu = float(body.material.nu if s.nu is None else s.nu)
-        E = float(body.material.E)
 
         fixed = resolve.fixed_nodes(body, mesh)
         free = np.ones(len(mesh.points), dtype=bool)
@@ -173,17 +172,11 @@ class SolidModel(Observables, BatchedSteps):
         if self.manipulation.driven:  # the state keeps them, Newton does not
             self._init_driven(body, mesh, float(s.load_scale))
 
-        # parameters: E per region; c_e = true modulus / its region's true value
-        self.element_regions = resolve.element_regions(body, mesh)
-        moduli = resolve.element_moduli(body, mesh)
-        names = body.parameter_names
-        true = np.array(body.parameter_values)
-        self._factors = moduli / true[self.element_regions]
-        lo, hi = body.parameter_bounds or (_BOUNDS[0] * E, _BOUNDS[1] * E)
-        self.parameters = ParameterSpec(
-            names, tuple(lo for _ in names), tuple(hi for _ in names),
-            default=tuple(float(v) for v in true),
-        )  # fmt: skip
+        # parameters: E, E per region or per field cell (E_e = theta_r(e) c_e)
+        params = parameterise(body, mesh, reference, s)
+        self.element_regions, self._factors = params.regions, params.factors
+        self.parameters, self.parameter_field = params.spec, params.field
+        self._described = params.describe or {}
 
         f1 = nodal_forces(
             self.manipulation, mesh, body.material.density, t=float(s.load_scale)
@@ -408,7 +401,7 @@ class SolidModel(Observables, BatchedSteps):
                 out[name] = getattr(self.settings, name)
         if m.displacement is not None:
             out["scenario"]["displacement"] = list(m.displacement)
-        return out
+        return {**out, **self._described}
 
     # -- extras: idbench simulate, tests ------------------------------------------
 
