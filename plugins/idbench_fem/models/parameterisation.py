@@ -16,7 +16,8 @@ linear in theta (:mod:`idbench_fem.models.solid`).
   each cell (the truth at the true values is the truth field exactly); on a
   model mesh c_e = 1: a model knows nothing finer than its cells.
   ``cells = "known"``: two parameters, ``E_background`` and ``E_inclusion``,
-  the truth's inclusion known exactly.
+  the truth's inclusion known exactly (no neighbours: independent in a
+  smoothness prior).
 """
 
 from __future__ import annotations
@@ -145,9 +146,12 @@ def _field(
         inside = inside / geometry.volumes
         x = tet_centroids(reference.points, reference.tets)
         centre = (x[mask] * vol[mask, None]).sum(axis=0) / vol[mask].sum()
+    edges, areas = geometry.edges, geometry.areas
+    if spec.known:  # two regions told apart: independent in the prior
+        edges, areas = edges[:0], areas[:0]
     field = ParameterField(
-        geometry.centroids, geometry.volumes, geometry.edges, geometry.areas,
-        spec.length, spec.std, inside, centre,
+        geometry.centroids, geometry.volumes, edges, areas, spec.length, spec.std,
+        inside, centre,
     )  # fmt: skip
     if _same_mesh(mesh, reference):
         moduli = resolve.element_moduli(body, mesh) * truth_factors(

@@ -1,0 +1,304 @@
+"""Reproduces the stiffness-maps table: where the tissue is stiffer, and who finds it.
+
+A stiff spherical inclusion in the kidney (its tumour's place, 8 mm under the
+anterior surface) and in the liver's right lobe, identified as a modulus
+field of k-means cells with a smoothness prior (:mod:`idbench.estimate.prior`:
+correlation length :data:`LENGTH`, std :data:`STD` of ln E), seen by
+markers, by a depth-camera cloud (both under the body's force-controlled
+grasp) and by the cloud plus the force of a displacement-controlled probe
+pressing 4 mm over the inclusion. Compared on the same data (common random
+numbers): MAP + Laplace (``map-laplace``: adjoint Gauss-Newton, low-rank
+Laplace posterior), the localized ETKF (``local-etkf``) and per-region
+estimation with the inclusion's region known (``field_cells = "known"``: two
+cells, the background and the inclusion, each with its own prior, by the
+same MAP + Laplace). Each run's map is scored by :mod:`idbench.score.maps`
+(field error, the inclusion's centroid distance and Dice, coverage of the 95%
+band) with its cost. One control case solves on the truth's own mesh (no
+discretization error) to separate what the data and prior allow from what
+the coarse mesh does.
+
+The cases are :data:`CASES` (not a full grid: the observation comparison at
+contrast 3, radius 12 mm; contrasts and radii for MAP + Laplace on the
+cloud + force; the liver; the control). Run ``python studies/stiffness_maps.py
+[--quick] [--out DIR]``; ``--quick``: the kidney on 500 nodes against a
+2,000-node truth, 40 cells, 4 steps, the cloud + force: MAP + Laplace, the
+known region, and MAP + Laplace on the truth's mesh (the control). A full
+run writes the table to ``docs/results/data/stiffness_maps.csv`` and the
+maps to ``<out>/maps.png`` (the results page's figure).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import _cli
+import numpy as np
+import pandas as pd
+
+from idbench.plan.config import CompareConfig
+from idbench.run.compare import compare
+from idbench.score.maps import cells_of
+from idbench_fem.bodies.catalog import body_path
+
+BODIES: dict[str, dict[str, Any]] = {
+    "kidney": {
+        "E": 6000.0,
+        "centre": (0.02, 0.003, 0.0),  # the body's tumour
+        "palpate": "grasp-pole",  # force-controlled: markers, cloud
+        "probe": {"point": (0.02, 0.003, 0.02), "radius": 0.012,
+                  "displacement": (0.0, 0.0, -0.004)},
+        "camera": {"position": (0.02, 0.0, 0.2), "look_at": (0.02, 0.0, 0.0)},
+    },
+    "liver": {
+        "E": 4000.0,
+        "centre": (0.05, 0.02, 0.0),  # in the right lobe, 2 cm under its front
+        "palpate": "grasp-lift",
+        "probe": {"point": (0.05, 0.05, 0.0), "radius": 0.012,
+                  "displacement": (0.0, -0.004, 0.0)},
+        "camera": {"position": (0.05, 0.25, 0.0), "look_at": (0.05, 0.0, 0.0)},
+    },
+}  # fmt: skip
+"""Per body: its E, the inclusion's centre, the palpation (force-controlled),
+the probe over the inclusion (displacement-controlled, its force observed)
+and the camera."""
+MESHES = {"kidney": "2000", "liver": "1000"}
+TRUTH = {"kidney": "8000", "liver": "4000"}
+CELLS = 200
+LENGTH = 0.015  # m: the prior's correlation length
+STD = 0.5  # the prior's std of ln E
+STEPS = 10
+MARKERS = 20
+MARKER_NOISE = 1e-4  # m
+CLOUD = {"kind": "cloud", "points": 400, "noise": 2e-4, "holes": 0.1}
+FORCE_NOISE = 1e-2  # N
+LOCALIZATION = 0.04  # m: the localized ETKF's taper support
+MEMBERS = 40
+SEEDS = 1
+ESTIMATORS = ("map-laplace", "local-etkf", "known-region")
+
+
+def _case(body: str, contrast: float, radius: float, observe: str, estimator: str,
+          control: bool = False) -> dict[str, Any]:  # fmt: skip
+    return {"body": body, "contrast": contrast, "radius": radius,
+            "observe": observe, "estimator": estimator, "control": control}  # fmt: skip
+
+
+CASES = [
+    *(_case("kidney", 3.0, 0.012, o, e)
+      for o in ("markers", "cloud", "cloud+force") for e in ESTIMATORS),
+    *(_case("kidney", c, 0.012, "cloud+force", "map-laplace") for c in (2.0, 5.0)),
+    _case("kidney", 3.0, 0.008, "cloud+force", "map-laplace"),
+    *(_case("kidney", 3.0, 0.012, "cloud+force", e, control=True)
+      for e in ("map-laplace", "local-etkf")),
+    *(_case("liver", 3.0, 0.012, "cloud+force", e) for e in ESTIMATORS),
+]  # fmt: skip
+"""The study's runs (each one comparison, one seed)."""
+
+QUICK: dict[str, Any] = {
+    "cases": [_case("kidney", 3.0, 0.012, "cloud+force", "map-laplace"),
+              _case("kidney", 3.0, 0.012, "cloud+force", "known-region"),
+              _case("kidney", 3.0, 0.012, "cloud+force", "map-laplace", True)],
+    "meshes": {"kidney": "500"},
+    "truth": {"kidney": "2000"},
+    "cells": 40,
+    "steps": 4,
+}  # fmt: skip
+
+
+def write_body(
+    folder: Path, body: str, contrast: float, radius: float, cells: int
+) -> Path:
+    """The shipped ``body`` with an inclusion field and the probe, in ``folder``.
+
+    The body's own regions' moduli and parameters are dropped (the truth is
+    E times ``contrast`` in a sphere of ``radius`` at the body's inclusion
+    centre), a displacement-controlled ``probe-indent`` over the inclusion is
+    added, and its meshes are those of the shipped body (generated on use).
+    """
+    spec = BODIES[body]
+    source = body_path(body)
+    text = source.read_text()
+    text = re.sub(r"(?m)^E_regions.*\n", "", text)
+    text = re.sub(r"(?ms)^\[parameters\].*?(?=^\[|\Z)", "", text)
+    base = source.parent
+    text = re.sub(r'"(meshes/[^"]+)"', lambda m: f'"{(base / m[1]).as_posix()}"', text)
+    probe = spec["probe"]
+    manipulation = (
+        '\n[[manipulation]]\nname = "probe-indent"\nkind = "grasp"\n'
+        f"point = {list(probe['point'])}\nradius = {probe['radius']}\n"
+        f"displacement = {list(probe['displacement'])}\n"
+    )
+    text = text.replace("\n[markers]", manipulation + "\n[markers]", 1)
+    sphere = f"{{ centre = {list(spec['centre'])}, radius = {radius} }}"
+    text += (f"\n[field]\ncells = {cells}\nlength = {LENGTH}\nstd = {STD}\n"
+             f"[[field.inclusion]]\nregion = {{ sphere = {sphere} }}\n"
+             f"contrast = {contrast}\n")
+    out = folder / f"{body}-c{contrast:g}-r{1000 * radius:g}mm.toml"
+    folder.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    return out
+
+
+def config(case: dict[str, Any], body_file: Path, q: dict[str, Any]) -> CompareConfig:
+    """The comparison of one case: one estimator, one observation, one scenario."""
+    body, estimator, observe = case["body"], case["estimator"], case["observe"]
+    spec = BODIES[body]
+    truth = q.get("truth", TRUTH)[body]
+    mesh = truth if case["control"] else q.get("meshes", MESHES)[body]
+    settings: dict[str, Any] = {"body": str(body_file), "reference": truth}
+    est_settings: dict[str, Any] = {}
+    name = estimator
+    if estimator == "known-region":  # two cells, independent priors
+        settings["field_cells"] = "known"
+        name = "map-laplace"
+    elif estimator == "local-etkf":
+        est_settings = {"localization": LOCALIZATION, "members": MEMBERS,
+                        "init": "random"}  # fmt: skip
+    return CompareConfig(
+        model="solid",
+        model_settings={"solid": settings},
+        scenarios=("probe-indent" if "force" in observe else spec["palpate"],),
+        meshes=(mesh,),
+        truth_mesh=truth,
+        estimators=(name,),
+        estimator_settings={name: est_settings} if est_settings else {},
+        reference="map-laplace",
+        seeds=q.get("seeds", SEEDS),
+        steps=q.get("steps", STEPS),
+        obs_every=(1,),
+        obs_points=(MARKERS,),
+        noise=(MARKER_NOISE,),
+        observe=(observe,),
+        observe_settings={
+            "cloud": {**CLOUD, **spec["camera"]}, "force": {"noise": FORCE_NOISE}
+        },
+        prior=(spec["E"], spec["E"] / 2),
+    )
+
+
+def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
+    """One row per case and seed: the map's scores, its cost, the map itself."""
+    q = QUICK if quick else {}
+    folder = Path(out) if out is not None else Path("results/stiffness_maps")
+    cells = q.get("cells", CELLS)
+    rows = []
+    for case in q.get("cases", CASES):
+        body_file = write_body(folder / "bodies", case["body"], case["contrast"],
+                               case["radius"], cells)  # fmt: skip
+        where = folder / body_file.stem / case["observe"] / (
+            case["estimator"] + ("-control" if case["control"] else ""))
+        runs, _ = compare(config(case, body_file, q), where)
+        rows += [row(r, case) for _, r in runs.iterrows()]
+    return pd.DataFrame(rows)
+
+
+def row(r: pd.Series, case: dict[str, Any]) -> dict[str, Any]:
+    """The table's row of one run (``map``: JSON of its cells, for the figure)."""
+    out: dict[str, Any] = {
+        "body": case["body"], "contrast": case["contrast"],
+        "radius_mm": 1000 * case["radius"], "observe": case["observe"],
+        "estimator": case["estimator"],
+        "mesh": "truth's" if case["control"] else str(r["mesh"]),
+        "seed": int(r["seed"]), "status": r["status"],
+    }  # fmt: skip
+    names = sorted(c[: -len("_final")] for c in r.index
+                   if c.startswith("E_") and c.endswith("_final")
+                   and not c.endswith("_std_final"))  # fmt: skip
+    est = np.array([r[f"{n}_final"] for n in names], dtype=float)
+    true = np.array([r[f"{n}_true"] for n in names], dtype=float)
+    x, inside = cells_of(r["field_cells"]) if isinstance(
+        r.get("field_cells"), str) else (None, None)
+    out["cells"] = len(names)
+    out["found_contrast"] = np.nan
+    if inside is not None and np.all(np.isfinite(est)):
+        w = inside > 0.5
+        background = np.exp(np.sum(np.log(est) * (1 - inside)) / np.sum(1 - inside))
+        if w.any():
+            out["found_contrast"] = np.exp(np.mean(np.log(est[w]))) / background
+    for name in ("field_error", "inclusion_centroid_mm", "inclusion_dice",
+                 "field_cover95", "n_solves"):  # fmt: skip
+        out[name] = r.get(name, np.nan)
+    out["wall_s"] = r.get("wall_s_step", np.nan) * r.get("steps", np.nan)
+    out["map"] = json.dumps({
+        "x": None if x is None else x.tolist(), "inside": None if inside is None
+        else inside.tolist(), "est": est.tolist(), "true": true.tolist(),
+    })  # fmt: skip
+    return out
+
+
+def markdown(table: pd.DataFrame) -> str:
+    """The results page's table (one line per case)."""
+    head = ("| body | contrast | radius (mm) | observed | estimator | mesh | "
+            "found contrast | field error | centroid off (mm) | Dice | "
+            "cells in 95% band | wall (s) |")  # fmt: skip
+    lines = [head, "|" + "---|" * 12]
+    for _, t in table.iterrows():
+        lines.append(
+            f"| {t['body']} | {t['contrast']:g} | {t['radius_mm']:g} | "
+            f"{t['observe']} | {t['estimator']} | {t['mesh']} | "
+            f"{_num(t['found_contrast'], '.2f')} | {_num(t['field_error'], '.2f')} | "
+            f"{_num(t['inclusion_centroid_mm'], '.1f')} | "
+            f"{_num(t['inclusion_dice'], '.2f')} | "
+            f"{_num(100 * t['field_cover95'], '.0f')}% | {_num(t['wall_s'], '.1f')} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def _num(value: Any, fmt: str) -> str:
+    return "-" if value is None or not np.isfinite(value) else format(value, fmt)
+
+
+def plot(table: pd.DataFrame, path: Path) -> None:
+    """Truth and maps of the kidney at contrast 3, 12 mm, cloud + force.
+
+    Cells in the slab through the inclusion normal to z (the kidney's
+    thinnest axis), coloured by log10(E / E); ringed: mostly inside the
+    true inclusion.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pick = table[(table["observe"] == "cloud+force") & (table["contrast"] == 3.0)
+                 & (table["radius_mm"] == 12.0) & (table["cells"] > 2)]  # fmt: skip
+    panels = [("truth", pick.iloc[0], "true")] if len(pick) else []
+    panels += [(f"{t['estimator']} ({t['body']}, {t['mesh']} mesh)", t, "est")
+               for _, t in pick.iterrows()]  # fmt: skip
+    if not panels:
+        return
+    fig, axs = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 3.0),
+                            squeeze=False, layout="constrained")  # fmt: skip
+    sc = None
+    for ax, (title, t, which) in zip(axs[0], panels, strict=True):
+        data = json.loads(t["map"])
+        x, inside = np.array(data["x"]), np.array(data["inside"])
+        c = np.array(BODIES[t["body"]]["centre"])
+        keep = np.abs(x[:, 2] - c[2]) <= 0.006
+        v = np.log10(np.array(data[which])[keep] / BODIES[t["body"]]["E"])
+        sc = ax.scatter(1000 * x[keep, 0], 1000 * x[keep, 1], c=v, s=28,
+                        cmap="RdBu_r", vmin=-0.5, vmax=0.5)  # fmt: skip
+        ring = keep & (inside > 0.5)
+        ax.scatter(1000 * x[ring, 0], 1000 * x[ring, 1], s=60, facecolors="none",
+                   edgecolors="k", linewidths=0.7)  # fmt: skip
+        ax.set_title(title, fontsize=8)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (mm)", fontsize=8)
+    axs[0][0].set_ylabel("y (mm)", fontsize=8)
+    if sc is not None:
+        fig.colorbar(sc, ax=axs[0].tolist(), shrink=0.8, label="log10(E / E_tissue)")
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    args = _cli.parser(__doc__, "results/stiffness_maps").parse_args()
+    result = compute(quick=args.quick, out=args.out)
+    print(markdown(result))
+    args.out.mkdir(parents=True, exist_ok=True)
+    plot(result, args.out / "maps.png")
+    if not args.quick:
+        _cli.docs_data("stiffness_maps", result.drop(columns=["map"]))
