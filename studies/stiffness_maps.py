@@ -251,45 +251,66 @@ def _num(value: Any, fmt: str) -> str:
     return "-" if value is None or not np.isfinite(value) else format(value, fmt)
 
 
-def plot(table: pd.DataFrame, path: Path) -> None:
-    """Truth and maps of the kidney at contrast 3, 12 mm, cloud + force.
+def section(x: np.ndarray, values: np.ndarray, z: float, n: int = 120):
+    """The cells' values on the plane at height ``z``: an image by nearest cell.
 
-    Cells in the slab through the inclusion normal to z (the kidney's
-    thinnest axis), coloured by log10(E / E); ringed: mostly inside the
-    true inclusion.
+    Returns the grid's x and y (mm) and the image, NaN farther from every
+    cell centroid than the centroids' median nearest-neighbour distance
+    (outside the body, roughly).
+    """
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(x)
+    spacing = float(np.median(tree.query(x, k=2)[0][:, 1]))
+    gx = np.linspace(x[:, 0].min() - spacing, x[:, 0].max() + spacing, n)
+    gy = np.linspace(x[:, 1].min() - spacing, x[:, 1].max() + spacing, n // 2)
+    X, Y = np.meshgrid(gx, gy)
+    points = np.stack([X.ravel(), Y.ravel(), np.full(X.size, z)], axis=1)
+    dist, cell = tree.query(points)
+    image = np.where(dist <= spacing, values[cell], np.nan).reshape(X.shape)
+    return 1000 * gx, 1000 * gy, image
+
+
+def plot(table: pd.DataFrame, path: Path) -> None:
+    """The kidney at contrast 3, 12 mm, cloud + force: truth and maps.
+
+    Each panel is the section z = the inclusion's centre (the kidney's
+    thinnest axis), every point coloured by its cell's log10(E / E_tissue);
+    the circle is the true inclusion.
     """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    pick = table[(table["observe"] == "cloud+force") & (table["contrast"] == 3.0)
-                 & (table["radius_mm"] == 12.0) & (table["cells"] > 2)]  # fmt: skip
-    panels = [("truth", pick.iloc[0], "true")] if len(pick) else []
-    panels += [(f"{t['estimator']} ({t['body']}, {t['mesh']} mesh)", t, "est")
-               for _, t in pick.iterrows()]  # fmt: skip
-    if not panels:
+    pick = table[(table["body"] == "kidney") & (table["observe"] == "cloud+force")
+                 & (table["contrast"] == 3.0) & (table["radius_mm"] == 12.0)
+                 & (table["cells"] > 2)]  # fmt: skip
+    if pick.empty:
         return
-    fig, axs = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 3.0),
+    panels = [("truth (its cells)", pick.iloc[0], "true")]
+    panels += [(f"{t['estimator']}, {t['mesh']} mesh", t, "est")
+               for _, t in pick.iterrows()]  # fmt: skip
+    fig, axs = plt.subplots(len(panels), 1, figsize=(5.2, 2.1 * len(panels)),
                             squeeze=False, layout="constrained")  # fmt: skip
-    sc = None
-    for ax, (title, t, which) in zip(axs[0], panels, strict=True):
+    image = None
+    centre = np.array(BODIES["kidney"]["centre"])
+    for ax, (title, t, which) in zip(axs[:, 0], panels, strict=True):
         data = json.loads(t["map"])
-        x, inside = np.array(data["x"]), np.array(data["inside"])
-        c = np.array(BODIES[t["body"]]["centre"])
-        keep = np.abs(x[:, 2] - c[2]) <= 0.006
-        v = np.log10(np.array(data[which])[keep] / BODIES[t["body"]]["E"])
-        sc = ax.scatter(1000 * x[keep, 0], 1000 * x[keep, 1], c=v, s=28,
-                        cmap="RdBu_r", vmin=-0.5, vmax=0.5)  # fmt: skip
-        ring = keep & (inside > 0.5)
-        ax.scatter(1000 * x[ring, 0], 1000 * x[ring, 1], s=60, facecolors="none",
-                   edgecolors="k", linewidths=0.7)  # fmt: skip
+        x = np.array(data["x"])
+        v = np.log10(np.array(data[which]) / BODIES["kidney"]["E"])
+        gx, gy, im = section(x, v, centre[2])
+        image = ax.pcolormesh(gx, gy, im, cmap="RdBu_r", vmin=-0.5, vmax=0.5,
+                              shading="auto")  # fmt: skip
+        ax.add_patch(plt.Circle(1000 * centre[:2], 1000 * t["radius_mm"] / 1000,
+                                fill=False, color="k", lw=0.8))  # fmt: skip
         ax.set_title(title, fontsize=8)
         ax.set_aspect("equal")
-        ax.set_xlabel("x (mm)", fontsize=8)
-    axs[0][0].set_ylabel("y (mm)", fontsize=8)
-    if sc is not None:
-        fig.colorbar(sc, ax=axs[0].tolist(), shrink=0.8, label="log10(E / E_tissue)")
+        ax.set_ylabel("y (mm)", fontsize=8)
+    axs[-1, 0].set_xlabel("x (mm)", fontsize=8)
+    if image is not None:
+        fig.colorbar(image, ax=axs[:, 0].tolist(), shrink=0.7,
+                     label="log10(E / E_tissue)")  # fmt: skip
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
