@@ -195,6 +195,77 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def limits(folder: Path, body: str = "kidney", meshes: tuple[str, ...] = ("1000",
+           "2000", "8000"), truth: str = "8000") -> pd.DataFrame:  # fmt: skip
+    """What the data hold of the inclusion, against what a coarse mesh gets wrong.
+
+    The probe's last step (contrast 3, 12 mm), noise-free: on each model
+    mesh, the cloud's RMS distance (mm) and the probe's force (N) predicted at
+    the true cell values, against the truth's (the mesh's own error), and at
+    a uniform E (on the truth's mesh: the inclusion's whole signal).
+    """
+    import idbench
+    from idbench import ModelSpec, Scenario
+    from idbench.core.observation_model import Frame
+    from idbench.observe.cloud import Cloud
+    from idbench.observe.kinds import Combined, Force
+    from idbench.observe.observed_model import ObservedModel
+
+    body_file = write_body(folder / "bodies", body, 3.0, 0.012, CELLS)
+    load = {"body": str(body_file), "manipulation": "probe-indent"}
+
+    def model(mesh: str) -> Any:
+        spec = ModelSpec(mesh=mesh, scenario=Scenario("probe-indent", load),
+                         n_steps=STEPS, settings={"body": str(body_file),
+                                                  "reference": truth})  # fmt: skip
+        return idbench.build_registry().model("solid")(spec)
+
+    fine = model(truth)
+    true = np.array(fine.parameters.default)
+    cam = BODIES[body]["camera"]
+    cloud = Cloud(points=CLOUD["points"], noise=0.0, **cam)
+    obs = Combined((("cloud", cloud), ("force", Force(noise=FORCE_NOISE))))
+    u = fine.reset()
+    for k in range(1, STEPS + 1):
+        u = fine.step(true, k, u)
+    rng = np.random.default_rng(0)
+    data = Combined.merge([
+        ("cloud", cloud.measure([cloud.sense(fine, true, STEPS, u)], rng, 0.0)[0]),
+        ("force", {"force": fine.reaction(true, STEPS, u)}),
+    ])  # fmt: skip
+    frame = Frame(STEPS, data)
+    y = obs.values(frame)
+    rows = []
+    for mesh in meshes:
+        seen = ObservedModel(model(mesh), obs, [frame] * STEPS)
+        for name, theta in (("true cells", true),
+                            ("uniform E", np.full_like(true, BODIES[body]["E"]))):
+            x = seen.reset()
+            for k in range(1, STEPS + 1):
+                x = seen.step(theta, k, x)
+            r = y - seen.observe(x)
+            force = float(np.linalg.norm(y[-3:]))
+            rows.append({
+                "body": body, "mesh": mesh, "values": name,
+                "cloud_rms_mm": 1000 * float(np.sqrt(np.mean(r[:-3] ** 2))),
+                "force_error_N": float(np.linalg.norm(r[-3:])),
+                "force_error_pct": 100 * float(np.linalg.norm(r[-3:])) / force,
+            })  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def limits_markdown(table: pd.DataFrame) -> str:
+    """The results page's table of :func:`limits`."""
+    lines = ["| model mesh (nodes) | E per cell | cloud RMS (mm) | force error (N) | "
+             "force error |", "|---|---|---|---|---|"]  # fmt: skip
+    for _, t in table.iterrows():
+        lines.append(
+            f"| {t['mesh']} | {t['values']} | {t['cloud_rms_mm']:.3f} | "
+            f"{t['force_error_N']:.3f} | {t['force_error_pct']:.1f}% |"
+        )
+    return "\n".join(lines) + "\n"
+
+
 def row(r: pd.Series, case: dict[str, Any]) -> dict[str, Any]:
     """The table's row of one run (``map``: JSON of its cells, for the figure)."""
     out: dict[str, Any] = {
@@ -323,3 +394,6 @@ if __name__ == "__main__":
     plot(result, args.out / "maps.png")
     if not args.quick:
         _cli.docs_data("stiffness_maps", result.drop(columns=["map"]))
+        bounds = limits(args.out)
+        print(limits_markdown(bounds))
+        _cli.docs_data("stiffness_maps_limits", bounds)
