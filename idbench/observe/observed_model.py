@@ -69,6 +69,9 @@ class ObservedModel(ModelView):
         ]
         self._c = sum(n for n, c in zip(self._sizes, self._carried, strict=True) if c)
         self._size = sum(self._sizes)
+        self.offsets: list[FloatArray] | None = None
+        """Added to step k's h(x) when set: mu_k (m,) each, a mean approximation
+        error (:mod:`idbench.calibrate.prior_mean`); None: no offset."""
 
     sensitivity = Absent()
     """None: estimators that need one use finite differences."""
@@ -127,7 +130,8 @@ class ObservedModel(ModelView):
                 out.append(
                     np.asarray(block.predict(self.model, frame, nan, k, u), float)
                 )
-        return np.concatenate(out) if out else np.zeros(0)
+        h = np.concatenate(out) if out else np.zeros(0)
+        return h if self.offsets is None else h + self.offsets[k - 1]
 
     def _parts(self, frame: Any) -> list[Any]:
         """The frame of each block."""

@@ -130,7 +130,7 @@ class _Localized:
                 "localization needs a model with a parameter_field and "
                 "observation_points; set localization = none for this model"
             )
-        if getattr(self, "correction", "none") != "none":
+        if getattr(self, "correction", "none") == "approximation-error":
             raise Skipped("localization has no approximation-error correction")
 
     def _points(self, k: int, m: int, model: ForwardModel) -> FloatArray:

@@ -158,7 +158,7 @@ class MapLaplace(Filter):
                 "map-laplace needs a model with equilibrium_jvp, equilibrium_vjp "
                 "and observation_jacobian (adjoint gradients)"
             )
-        if self.correction != "none":
+        if self.correction == "approximation-error":
             raise Skipped("map-laplace has no approximation-error correction")
         mu, cov = self.prior_xi(prior)
         field = parameter_field_of(model)

@@ -73,3 +73,34 @@ def test_the_report_of_a_field_draws_maps_and_lists_map_metrics(runs, capsys):
     assert 'id="fig-maps"' in text
     assert "inclusion Dice" in text
     assert "E_cell003" not in text.split("<h2>Manifest")[0]
+
+
+def _corrected(tmp, mesh: str, calibration: str):
+    path = tmp / "beam-12x3x3-svk.toml"
+    config = CompareConfig(
+        model="solid", model_settings={"solid": {"body": str(path)}},
+        scenarios=("end",), meshes=(mesh,), truth_mesh="truth",
+        estimators=("map-laplace",),
+        estimator_settings={"map-laplace": {"correction": "prior-mean"}},
+        calibration={"mesh": calibration}, reference="map-laplace", steps=3,
+        seeds=1, obs_points=(6,), prior=(5000.0, 2500.0),
+    )  # fmt: skip
+    table, _ = compare(config, None)
+    return table.iloc[0]
+
+
+def test_the_prior_mean_correction_adds_the_finer_mesh_offsets(runs):
+    table, out = runs
+    tmp = out.parent
+    coarse = str(tmp / "beam-6x2x2.vtu")
+    same = _corrected(tmp, coarse, coarse)  # offsets zero: the plain run
+    plain = table.loc["map-laplace"]
+    cells = [c for c in table.columns if c.startswith("E_cell") and
+             c.endswith("_final") and "_std" not in c]  # fmt: skip
+    assert same["status"] == "ok"
+    np.testing.assert_allclose(same[cells].astype(float),
+                               plain[cells].astype(float), rtol=1e-8)  # fmt: skip
+    fine = _corrected(tmp, coarse, "truth")  # the 12x3x3 mesh's offsets
+    assert fine["status"] == "ok"
+    # the coarse mesh is too stiff (locking): corrected, it finds stiffer cells
+    assert np.mean(np.log(fine[cells].astype(float) / plain[cells].astype(float))) > 0
