@@ -15,7 +15,10 @@ same MAP + Laplace). Each run's map is scored by :mod:`idbench.score.maps`
 (field error, the inclusion's centroid distance and Dice, coverage of the 95%
 band) with its cost. One control case solves on the truth's own mesh (no
 discretization error) to separate what the data and prior allow from what
-the coarse mesh does.
+the coarse mesh does; the *corrected* cases add to each predicted value the
+mean approximation error at the prior mean (``correction = "prior-mean"``,
+:mod:`idbench.calibrate.prior_mean`: one path on a finer mesh that is not the
+truth's, :data:`CALIBRATION`), and :func:`limits` measures why.
 
 The cases are :data:`CASES` (not a full grid: the observation comparison at
 contrast 3, radius 12 mm; contrasts and radii for MAP + Laplace on the
@@ -66,6 +69,8 @@ the probe over the inclusion (displacement-controlled, its force observed)
 and the camera."""
 MESHES = {"kidney": "2000", "liver": "1000"}
 TRUTH = {"kidney": "8000", "liver": "4000"}
+CALIBRATION = {"kidney": "4000", "liver": "2000"}
+"""The finer mesh (not the truth's) of the prior-mean correction's one path."""
 CELLS = 200
 LENGTH = 0.015  # m: the prior's correlation length
 STD = 0.5  # the prior's std of ln E
@@ -80,10 +85,13 @@ SEEDS = 1
 ESTIMATORS = ("map-laplace", "local-etkf", "known-region")
 
 
-def _case(body: str, contrast: float, radius: float, observe: str, estimator: str,
-          control: bool = False) -> dict[str, Any]:  # fmt: skip
+def _case(
+    body: str, contrast: float, radius: float, observe: str, estimator: str,
+    control: bool = False, corrected: bool = False,
+) -> dict[str, Any]:  # fmt: skip
     return {"body": body, "contrast": contrast, "radius": radius,
-            "observe": observe, "estimator": estimator, "control": control}  # fmt: skip
+            "observe": observe, "estimator": estimator, "control": control,
+            "corrected": corrected}  # fmt: skip
 
 
 CASES = [
@@ -94,13 +102,24 @@ CASES = [
     *(_case("kidney", 3.0, 0.012, "cloud+force", e, control=True)
       for e in ("map-laplace", "local-etkf")),
     *(_case("liver", 3.0, 0.012, "cloud+force", e) for e in ESTIMATORS),
+    *(_case("kidney", 3.0, 0.012, "cloud+force", e, corrected=True)
+      for e in ESTIMATORS),
+    _case("kidney", 3.0, 0.012, "cloud", "map-laplace", corrected=True),
+    *(_case("kidney", c, 0.012, "cloud+force", "map-laplace", corrected=True)
+      for c in (2.0, 5.0)),
+    _case("kidney", 3.0, 0.008, "cloud+force", "map-laplace", corrected=True),
+    *(_case("liver", 3.0, 0.012, "cloud+force", e, corrected=True)
+      for e in ("map-laplace", "local-etkf")),
 ]  # fmt: skip
 """The study's runs (each one comparison, one seed)."""
 
 QUICK: dict[str, Any] = {
     "cases": [_case("kidney", 3.0, 0.012, "cloud+force", "map-laplace"),
               _case("kidney", 3.0, 0.012, "cloud+force", "known-region"),
-              _case("kidney", 3.0, 0.012, "cloud+force", "map-laplace", True)],
+              _case("kidney", 3.0, 0.012, "cloud+force", "map-laplace", True),
+              _case("kidney", 3.0, 0.012, "cloud+force", "map-laplace",
+                    corrected=True)],
+    "calibration": {"kidney": "1000"},
     "meshes": {"kidney": "500"},
     "truth": {"kidney": "2000"},
     "cells": 40,
@@ -157,7 +176,12 @@ def config(case: dict[str, Any], body_file: Path, q: dict[str, Any]) -> CompareC
     elif estimator == "local-etkf":
         est_settings = {"localization": LOCALIZATION, "members": MEMBERS,
                         "init": "random"}  # fmt: skip
+    calibration: dict[str, Any] = {}
+    if case["corrected"]:  # + the mean approximation error at the prior mean
+        est_settings["correction"] = "prior-mean"
+        calibration = {"mesh": q.get("calibration", CALIBRATION)[body]}
     return CompareConfig(
+        calibration=calibration,
         model="solid",
         model_settings={"solid": settings},
         scenarios=("probe-indent" if "force" in observe else spec["palpate"],),
@@ -189,7 +213,8 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
         body_file = write_body(folder / "bodies", case["body"], case["contrast"],
                                case["radius"], cells)  # fmt: skip
         where = folder / body_file.stem / case["observe"] / (
-            case["estimator"] + ("-control" if case["control"] else ""))
+            case["estimator"] + ("-control" if case["control"] else "")
+            + ("-prior-mean" if case["corrected"] else ""))
         runs, _ = compare(config(case, body_file, q), where)
         rows += [row(r, case) for _, r in runs.iterrows()]
     return pd.DataFrame(rows)
@@ -273,6 +298,7 @@ def row(r: pd.Series, case: dict[str, Any]) -> dict[str, Any]:
         "radius_mm": 1000 * case["radius"], "observe": case["observe"],
         "estimator": case["estimator"],
         "mesh": "truth's" if case["control"] else str(r["mesh"]),
+        "corrected": bool(case["corrected"]),
         "seed": int(r["seed"]), "status": r["status"],
     }  # fmt: skip
     names = sorted(c[: -len("_final")] for c in r.index
@@ -303,13 +329,14 @@ def row(r: pd.Series, case: dict[str, Any]) -> dict[str, Any]:
 def markdown(table: pd.DataFrame) -> str:
     """The results page's table (one line per case)."""
     head = ("| body | contrast | radius (mm) | observed | estimator | mesh | "
-            "found contrast | field error | centroid off (mm) | Dice | "
+            "corrected | found contrast | field error | centroid off (mm) | Dice | "
             "cells in 95% band | wall (s) |")  # fmt: skip
-    lines = [head, "|" + "---|" * 12]
+    lines = [head, "|" + "---|" * 13]
     for _, t in table.iterrows():
         lines.append(
             f"| {t['body']} | {t['contrast']:g} | {t['radius_mm']:g} | "
             f"{t['observe']} | {t['estimator']} | {t['mesh']} | "
+            f"{'prior mean' if t['corrected'] else '-'} | "
             f"{_num(t['found_contrast'], '.2f')} | {_num(t['field_error'], '.2f')} | "
             f"{_num(t['inclusion_centroid_mm'], '.1f')} | "
             f"{_num(t['inclusion_dice'], '.2f')} | "
@@ -360,7 +387,8 @@ def plot(table: pd.DataFrame, path: Path) -> None:
     if pick.empty:
         return
     panels = [("truth (its cells)", pick.iloc[0], "true")]
-    panels += [(f"{t['estimator']}, {t['mesh']} mesh", t, "est")
+    panels += [(f"{t['estimator']}, {t['mesh']} mesh"
+                + (", corrected at the prior mean" if t["corrected"] else ""), t, "est")
                for _, t in pick.iterrows()]  # fmt: skip
     fig, axs = plt.subplots(len(panels), 1, figsize=(5.2, 2.1 * len(panels)),
                             squeeze=False, layout="constrained")  # fmt: skip
