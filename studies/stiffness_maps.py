@@ -75,7 +75,9 @@ CELLS = 200
 LENGTH = 0.015  # m: the prior's correlation length
 STD = 0.5  # the prior's std of ln E
 STEPS = 10
-MARKERS = 20
+MARKERS = {"kidney": 20, "liver": 8}
+"""Markers observed (the liver's body lists 8 points; the kidney's anterior
+face's nodes give 20 spread ones)."""
 MARKER_NOISE = 1e-4  # m
 CLOUD = {"kind": "cloud", "points": 400, "noise": 2e-4, "holes": 0.1}
 FORCE_NOISE = 1e-2  # N
@@ -193,7 +195,7 @@ def config(case: dict[str, Any], body_file: Path, q: dict[str, Any]) -> CompareC
         seeds=q.get("seeds", SEEDS),
         steps=q.get("steps", STEPS),
         obs_every=(1,),
-        obs_points=(MARKERS,),
+        obs_points=(MARKERS[body],),
         noise=(MARKER_NOISE,),
         observe=(observe,),
         observe_settings={

@@ -28,10 +28,9 @@ times dtheta/dx for x.
 
 **Gauss-Newton.** In whitened coordinates x = mu + F z the GN system is
 (I + A^T A) dz = -grad_z, A the stacked R^{-1/2} J_k F, J_k = dh_k/dx
-formed per observed step (or ``hessian_steps`` of them) by p forward
-products (one multi-column solve with the step's factorization) or, when
-the step has fewer values m_k than p, by m_k adjoint products
-(``jacobian``); a backtracking (Armijo) line search,
+formed per observed step by p forward products (one multi-column solve with
+the step's factorization) or, when the step has fewer values m_k than p, by
+m_k adjoint products (``jacobian``); a backtracking (Armijo) line search,
 stopping when the step's largest whitened component is below ``tol`` (prior
 standard deviations) or after ``max_iterations``.
 
@@ -106,12 +105,6 @@ class MapLaplace(Filter):
     jacobian
         ``"forward"`` (p products a step), ``"adjoint"`` (m products a step)
         or ``"auto"`` (the fewer).
-    hessian_steps
-        The Gauss-Newton Hessian (and the Laplace posterior) from this many
-        observed steps, evenly spaced and ending at the last, each weighted
-        by observed / used (an approximation: successive steps' Jacobians
-        are alike); None: every observed step (exact GN). The gradient
-        always uses every step.
     seed
         Of the randomized eigensolver.
     """
@@ -124,7 +117,6 @@ class MapLaplace(Filter):
     tol: float = 1e-2
     rank: int | None = None
     jacobian: str = "auto"
-    hessian_steps: int | None = None
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -133,7 +125,7 @@ class MapLaplace(Filter):
             if getattr(self, name) is not None:
                 check_positive(name, getattr(self, name))
         check_positive("tol", self.tol)
-        for name in ("max_iterations", "rank", "hessian_steps"):
+        for name in ("max_iterations", "rank"):
             n = getattr(self, name)
             if n is not None and (isinstance(n, bool) or not isinstance(n, int)
                                   or n < 1):  # fmt: skip
@@ -201,7 +193,6 @@ class MapLaplace(Filter):
         assert adjoint is not None
         u = np.asarray(model.reset(), dtype=float)
         cost, grad, rows = 0.0, np.zeros(xi.size), []
-        weights = self._hessian_weights()
         for k in range(1, max(self._obs) + 1):
             u = advance(model, theta, k, u)
             if k not in self._obs:
@@ -216,27 +207,14 @@ class MapLaplace(Filter):
             w = rinv * r
             dh_w = adjoint.equilibrium_vjp(theta, k, u, hu.T @ w) + ht.T @ w
             grad -= dh_w * scale
-            if k in weights:
-                J = self._dh_dtheta(adjoint, theta, k, u, hu, ht) * scale
-                rows.append(np.sqrt(weights[k] * rinv)[:, None] * J)
+            J = self._dh_dtheta(adjoint, theta, k, u, hu, ht) * scale
+            rows.append(np.sqrt(rinv)[:, None] * J)
         cost += self.field_prior.energy(xi)
         if not jacobian:
             return Evaluation(cost, None, None, u)
         grad += self.field_prior.gradient(xi)
         A = np.vstack(rows) @ self.field_prior.factor
         return Evaluation(cost, grad, A, u)
-
-    def _hessian_weights(self) -> dict[int, float]:
-        """The observed steps whose Jacobian enters the Hessian, and their weights.
-
-        All (weight 1) unless ``hessian_steps`` is set: then that many, evenly
-        spaced and ending at the last, each weighted by observed / used.
-        """
-        steps = sorted(self._obs)
-        n = len(steps) if self.hessian_steps is None else min(self.hessian_steps,
-                                                              len(steps))  # fmt: skip
-        chosen = [steps[round(i)] for i in np.linspace(len(steps) - 1, 0, n)[::-1]]
-        return dict.fromkeys(chosen, len(steps) / n)
 
     def _dh_dtheta(
         self, adjoint: Any, theta: FloatArray, k: int, u: FloatArray, hu: Any,
