@@ -26,8 +26,9 @@ cloud + force; the liver; the control). Run ``python studies/stiffness_maps.py
 [--quick] [--out DIR]``; ``--quick``: the kidney on 500 nodes against a
 2,000-node truth, 40 cells, 4 steps, the cloud + force: MAP + Laplace, the
 known region, and MAP + Laplace on the truth's mesh (the control). A full
-run writes the table to ``docs/results/data/stiffness_maps.csv`` and the
-maps to ``<out>/maps.png`` (the results page's figure).
+run writes the table to ``docs/results/data/stiffness_maps.csv``, the
+limits to ``docs/results/data/stiffness_maps_limits.csv`` and the maps to
+``docs/figures/stiffness_maps.png`` (the results page's).
 """
 
 from __future__ import annotations
@@ -89,11 +90,14 @@ ESTIMATORS = ("map-laplace", "local-etkf", "known-region")
 
 def _case(
     body: str, contrast: float, radius: float, observe: str, estimator: str,
-    control: bool = False, corrected: bool = False,
+    control: bool = False, corrected: bool = False, seeds: int = SEEDS,
+    length: float | None = None, cloud_noise: float | None = None,
+    mesh: str | None = None,
 ) -> dict[str, Any]:  # fmt: skip
     return {"body": body, "contrast": contrast, "radius": radius,
             "observe": observe, "estimator": estimator, "control": control,
-            "corrected": corrected}  # fmt: skip
+            "corrected": corrected, "seeds": seeds, "length": length,
+            "cloud_noise": cloud_noise, "mesh": mesh}  # fmt: skip
 
 
 CASES = [
@@ -104,7 +108,8 @@ CASES = [
     *(_case("kidney", 3.0, 0.012, "cloud+force", e, control=True)
       for e in ("map-laplace", "local-etkf")),
     *(_case("liver", 3.0, 0.012, "cloud+force", e) for e in ESTIMATORS),
-    *(_case("kidney", 3.0, 0.012, "cloud+force", e, corrected=True)
+    *(_case("kidney", 3.0, 0.012, "cloud+force", e, corrected=True,
+            seeds=3 if e == "map-laplace" else SEEDS)
       for e in ESTIMATORS),
     _case("kidney", 3.0, 0.012, "cloud", "map-laplace", corrected=True),
     *(_case("kidney", c, 0.012, "cloud+force", "map-laplace", corrected=True)
@@ -112,6 +117,11 @@ CASES = [
     _case("kidney", 3.0, 0.008, "cloud+force", "map-laplace", corrected=True),
     *(_case("liver", 3.0, 0.012, "cloud+force", e, corrected=True)
       for e in ("map-laplace", "local-etkf")),
+    *(_case("kidney", 3.0, 0.012, "cloud+force", "map-laplace", corrected=True,
+            length=rho) for rho in (0.008, 0.03)),
+    _case("kidney", 3.0, 0.012, "cloud+force", "map-laplace", corrected=True,
+          cloud_noise=5e-5),
+    _case("kidney", 3.0, 0.012, "cloud+force", "map-laplace", mesh="4000"),
 ]  # fmt: skip
 """The study's runs (each one comparison, one seed)."""
 
@@ -168,8 +178,10 @@ def config(case: dict[str, Any], body_file: Path, q: dict[str, Any]) -> CompareC
     body, estimator, observe = case["body"], case["estimator"], case["observe"]
     spec = BODIES[body]
     truth = q.get("truth", TRUTH)[body]
-    mesh = truth if case["control"] else q.get("meshes", MESHES)[body]
+    mesh = truth if case["control"] else case["mesh"] or q.get("meshes", MESHES)[body]
     settings: dict[str, Any] = {"body": str(body_file), "reference": truth}
+    if case["length"] is not None:  # the prior's correlation length, varied
+        settings["field_length"] = case["length"]
     est_settings: dict[str, Any] = {}
     name = estimator
     if estimator == "known-region":  # two cells, independent priors
@@ -192,14 +204,16 @@ def config(case: dict[str, Any], body_file: Path, q: dict[str, Any]) -> CompareC
         estimators=(name,),
         estimator_settings={name: est_settings} if est_settings else {},
         reference="map-laplace",
-        seeds=q.get("seeds", SEEDS),
+        seeds=case["seeds"],
         steps=q.get("steps", STEPS),
         obs_every=(1,),
         obs_points=(MARKERS[body],),
         noise=(MARKER_NOISE,),
         observe=(observe,),
         observe_settings={
-            "cloud": {**CLOUD, **spec["camera"]}, "force": {"noise": FORCE_NOISE}
+            "cloud": {**CLOUD, **spec["camera"], **(
+                {} if case["cloud_noise"] is None else {"noise": case["cloud_noise"]})},
+            "force": {"noise": FORCE_NOISE},
         },
         prior=(spec["E"], spec["E"] / 2),
     )
@@ -216,20 +230,28 @@ def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
                                case["radius"], cells)  # fmt: skip
         where = folder / body_file.stem / case["observe"] / (
             case["estimator"] + ("-control" if case["control"] else "")
-            + ("-prior-mean" if case["corrected"] else ""))
+            + ("-prior-mean" if case["corrected"] else "")
+            + ("" if case["length"] is None else f"-length{1000 * case['length']:g}")
+            + ("" if case["cloud_noise"] is None else f"-noise{case['cloud_noise']:g}")
+            + ("" if case["mesh"] is None else f"-mesh{case['mesh']}"))
         runs, _ = compare(config(case, body_file, q), where)
         rows += [row(r, case) for _, r in runs.iterrows()]
     return pd.DataFrame(rows)
 
 
 def limits(folder: Path, body: str = "kidney", meshes: tuple[str, ...] = ("1000",
-           "2000", "8000"), truth: str = "8000") -> pd.DataFrame:  # fmt: skip
+           "2000", "4000", "8000"), truth: str = "8000") -> pd.DataFrame:  # fmt: skip
     """What the data hold of the inclusion, against what a coarse mesh gets wrong.
 
-    The probe's last step (contrast 3, 12 mm), noise-free: on each model
-    mesh, the cloud's RMS distance (mm) and the probe's force (N) predicted at
-    the true cell values, against the truth's (the mesh's own error), and at
-    a uniform E (on the truth's mesh: the inclusion's whole signal).
+    The probe's last step (contrast 3, 12 mm), noise-free, the cloud's RMS
+    (mm) and the force (N) of: each model mesh's prediction at the true cell
+    values against the truth's data (the mesh's own error); the part of it
+    that changes with the field, (h(true) - h(uniform E)) minus the truth
+    mesh's (what a correction at the prior mean cannot remove, and what can
+    look like an inclusion); what the study's correction leaves (its
+    :data:`CALIBRATION` mesh's prediction minus this mesh's, at the uniform
+    E, added); and the inclusion's whole signal, the truth mesh's
+    h(true) - h(uniform E).
     """
     import idbench
     from idbench import ModelSpec, Scenario
@@ -262,34 +284,54 @@ def limits(folder: Path, body: str = "kidney", meshes: tuple[str, ...] = ("1000"
     ])  # fmt: skip
     frame = Frame(STEPS, data)
     y = obs.values(frame)
+    uniform = np.full_like(true, BODIES[body]["E"])
+
+    def last(mesh: str, theta: np.ndarray) -> np.ndarray:
+        seen = ObservedModel(model(mesh), obs, [frame] * STEPS)
+        x = seen.reset()
+        for k in range(1, STEPS + 1):
+            x = seen.step(theta, k, x)
+        return np.asarray(seen.observe(x))
+
+    def rms(r: np.ndarray) -> tuple[float, float]:
+        """The cloud's RMS (mm) and the force's norm (N) of a residual."""
+        cloud = 1000 * float(np.sqrt(np.mean(r[:-3] ** 2)))
+        return cloud, float(np.linalg.norm(r[-3:]))
+
+    signal = last(truth, true) - last(truth, uniform)
+    calibrated = last(CALIBRATION[body], uniform)
     rows = []
     for mesh in meshes:
-        seen = ObservedModel(model(mesh), obs, [frame] * STEPS)
-        for name, theta in (("true cells", true),
-                            ("uniform E", np.full_like(true, BODIES[body]["E"]))):
-            x = seen.reset()
-            for k in range(1, STEPS + 1):
-                x = seen.step(theta, k, x)
-            r = y - seen.observe(x)
-            force = float(np.linalg.norm(y[-3:]))
-            rows.append({
-                "body": body, "mesh": mesh, "values": name,
-                "cloud_rms_mm": 1000 * float(np.sqrt(np.mean(r[:-3] ** 2))),
-                "force_error_N": float(np.linalg.norm(r[-3:])),
-                "force_error_pct": 100 * float(np.linalg.norm(r[-3:])) / force,
-            })  # fmt: skip
+        at_true, at_uniform = last(mesh, true), last(mesh, uniform)
+        row: dict[str, Any] = {"body": body, "mesh": mesh}
+        for name, r in (
+            ("error", y - at_true),  # the mesh's own error at the true field
+            ("field_part", (at_true - at_uniform) - signal),  # what changes with it
+            ("corrected", y - at_true - (calibrated - at_uniform)),  # the study's
+        ):
+            row[f"{name}_cloud_mm"], row[f"{name}_force_N"] = rms(r)
+        rows.append(row)
+    cloud, force = rms(signal)
+    rows.append({"body": body, "mesh": "signal", "error_cloud_mm": cloud,
+                 "error_force_N": force})  # fmt: skip
     return pd.DataFrame(rows)
 
 
 def limits_markdown(table: pd.DataFrame) -> str:
-    """The results page's table of :func:`limits`."""
-    lines = ["| model mesh (nodes) | E per cell | cloud RMS (mm) | force error (N) | "
-             "force error |", "|---|---|---|---|---|"]  # fmt: skip
+    """The results page's table of :func:`limits` (the signal's row last)."""
+    lines = ["| model mesh (nodes) | error at the true cells: cloud (mm), force (N) "
+             "| of which changes with the field | left by the study's correction |",
+             "|---|---|---|---|"]  # fmt: skip
     for _, t in table.iterrows():
-        lines.append(
-            f"| {t['mesh']} | {t['values']} | {t['cloud_rms_mm']:.3f} | "
-            f"{t['force_error_N']:.3f} | {t['force_error_pct']:.1f}% |"
-        )
+        if t["mesh"] == "signal":
+            lines.append(
+                f"| the inclusion's whole signal | {t['error_cloud_mm']:.3f}, "
+                f"{t['error_force_N']:.3f} | | |"
+            )
+            continue
+        cells = [f"{t[f'{n}_cloud_mm']:.3f}, {t[f'{n}_force_N']:.3f}"
+                 for n in ("error", "field_part", "corrected")]  # fmt: skip
+        lines.append(f"| {t['mesh']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -301,6 +343,9 @@ def row(r: pd.Series, case: dict[str, Any]) -> dict[str, Any]:
         "estimator": case["estimator"],
         "mesh": "truth's" if case["control"] else str(r["mesh"]),
         "corrected": bool(case["corrected"]),
+        "length_mm": 1000 * (LENGTH if case["length"] is None else case["length"]),
+        "cloud_noise_mm": 1000 * (CLOUD["noise"] if case["cloud_noise"] is None
+                                  else case["cloud_noise"]),
         "seed": int(r["seed"]), "status": r["status"],
     }  # fmt: skip
     names = sorted(c[: -len("_final")] for c in r.index
@@ -331,14 +376,15 @@ def row(r: pd.Series, case: dict[str, Any]) -> dict[str, Any]:
 def markdown(table: pd.DataFrame) -> str:
     """The results page's table (one line per case)."""
     head = ("| body | contrast | radius (mm) | observed | estimator | mesh | "
-            "corrected | found contrast | field error | centroid off (mm) | Dice | "
-            "cells in 95% band | wall (s) |")  # fmt: skip
-    lines = [head, "|" + "---|" * 13]
+            "corrected | rho (mm) | cloud noise (mm) | seed | found contrast | "
+            "field error | centroid off (mm) | Dice | cells in 95% band | wall (s) |")
+    lines = [head, "|" + "---|" * 16]
     for _, t in table.iterrows():
         lines.append(
             f"| {t['body']} | {t['contrast']:g} | {t['radius_mm']:g} | "
             f"{t['observe']} | {t['estimator']} | {t['mesh']} | "
-            f"{'prior mean' if t['corrected'] else '-'} | "
+            f"{'prior mean' if t['corrected'] else '-'} | {t['length_mm']:g} | "
+            f"{t['cloud_noise_mm']:g} | {t['seed']} | "
             f"{_num(t['found_contrast'], '.2f')} | {_num(t['field_error'], '.2f')} | "
             f"{_num(t['inclusion_centroid_mm'], '.1f')} | "
             f"{_num(t['inclusion_dice'], '.2f')} | "
@@ -385,18 +431,23 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
     pick = table[(table["body"] == "kidney") & (table["observe"] == "cloud+force")
                  & (table["contrast"] == 3.0) & (table["radius_mm"] == 12.0)
-                 & (table["cells"] > 2)]  # fmt: skip
+                 & (table["cells"] > 2) & (table["seed"] == 0)
+                 & (table["length_mm"] == 1000 * LENGTH)
+                 & (table["cloud_noise_mm"] == 1000 * CLOUD["noise"])]  # fmt: skip
     if pick.empty:
         return
     panels = [("truth (its cells)", pick.iloc[0], "true")]
     panels += [(f"{t['estimator']}, {t['mesh']} mesh"
-                + (", corrected at the prior mean" if t["corrected"] else ""), t, "est")
+                + (", corrected" if t["corrected"] else ""), t, "est")
                for _, t in pick.iterrows()]  # fmt: skip
-    fig, axs = plt.subplots(len(panels), 1, figsize=(5.2, 2.1 * len(panels)),
-                            squeeze=False, layout="constrained")  # fmt: skip
+    rows = (len(panels) + 1) // 2
+    fig, axs = plt.subplots(rows, 2, figsize=(9.0, 2.2 * rows), squeeze=False,
+                            layout="constrained")  # fmt: skip
     image = None
     centre = np.array(BODIES["kidney"]["centre"])
-    for ax, (title, t, which) in zip(axs[:, 0], panels, strict=True):
+    for ax in axs.ravel()[len(panels):]:
+        ax.set_visible(False)
+    for ax, (title, t, which) in zip(axs.ravel(), panels, strict=False):
         data = json.loads(t["map"])
         x = np.array(data["x"])
         v = np.log10(np.array(data[which]) / BODIES["kidney"]["E"])
@@ -407,10 +458,13 @@ def plot(table: pd.DataFrame, path: Path) -> None:
                                 fill=False, color="k", lw=0.8))  # fmt: skip
         ax.set_title(title, fontsize=8)
         ax.set_aspect("equal")
+        ax.tick_params(labelsize=7)
+    for ax in axs[:, 0]:
         ax.set_ylabel("y (mm)", fontsize=8)
-    axs[-1, 0].set_xlabel("x (mm)", fontsize=8)
+    for ax in axs[-1, :]:
+        ax.set_xlabel("x (mm)", fontsize=8)
     if image is not None:
-        fig.colorbar(image, ax=axs[:, 0].tolist(), shrink=0.7,
+        fig.colorbar(image, ax=axs.ravel().tolist(), shrink=0.6,
                      label="log10(E / E_tissue)")  # fmt: skip
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -424,6 +478,7 @@ if __name__ == "__main__":
     plot(result, args.out / "maps.png")
     if not args.quick:
         _cli.docs_data("stiffness_maps", result.drop(columns=["map"]))
+        plot(result, _cli.DOCS_DATA.parent.parent / "figures" / "stiffness_maps.png")
         bounds = limits(args.out)
         print(limits_markdown(bounds))
         _cli.docs_data("stiffness_maps_limits", bounds)
