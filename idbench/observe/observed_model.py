@@ -71,7 +71,7 @@ class ObservedModel(ModelView):
         self._size = sum(self._sizes)
         self.offsets: list[FloatArray] | None = None
         """Added to step k's h(x) when set: mu_k (m,) each, a mean approximation
-        error (:mod:`idbench.calibrate.prior_mean`); None: no offset."""
+        error (the prior-mean correction of a run); None: no offset."""
 
     sensitivity = Absent()
     """None: estimators that need one use finite differences."""
