@@ -6,6 +6,13 @@ The public API is what this module exports; plugins import only from here.
 from __future__ import annotations
 
 from idbench.calibrate.effective import effective_path
+from idbench.core.capabilities import (
+    adjoint_of,
+    observation_jacobian_of,
+    observation_points_of,
+    parameter_field_of,
+)
+from idbench.core.field import ParameterField
 from idbench.core.interfaces import (
     Cost,
     Diverged,
@@ -23,19 +30,25 @@ from idbench.core.interfaces import (
 from idbench.core.observation_model import ObservationModel
 from idbench.core.optional import (
     LOAD_FIGURES,
+    AdjointModel,
     BatchModel,
     BoundingBoxModel,
     CellDataModel,
     DiscrepancyModel,
     FieldModel,
+    LinearObservationModel,
     LoadFiguresModel,
     LoadScalingModel,
     NodeCountModel,
     ObservationNeedsModel,
+    ObservationPointsModel,
+    ParameterFieldModel,
     PlacedPointsModel,
     ProbedModel,
+    ReactionJacobianModel,
     ReactionModel,
     SensitiveModel,
+    SurfaceJacobianModel,
     SurfaceModel,
     TargetModel,
     VolumeModel,
@@ -44,6 +57,7 @@ from idbench.core.scenario import Scenario, Sparsity
 from idbench.core.version import __version__
 from idbench.estimate.filter import Analysis, Filter, noise_matrix
 from idbench.estimate.lowrank import LowRankCovariance
+from idbench.estimate.prior import FieldPrior
 from idbench.estimate.transforms import TRANSFORMS, IdentityTransform, LogTransform
 from idbench.observe.occlusion import MaskedModel
 from idbench.observe.surface import closest_on_triangles
@@ -63,6 +77,7 @@ from idbench.truth.simulate import simulate_path, simulate_truth
 __all__ = [
     "LOAD_FIGURES",
     "TRANSFORMS",
+    "AdjointModel",
     "Analysis",
     "BatchModel",
     "BoundingBoxModel",
@@ -76,10 +91,12 @@ __all__ = [
     "Estimate",
     "Estimator",
     "FieldModel",
+    "FieldPrior",
     "Filter",
     "ForwardModel",
     "LoadFiguresModel",
     "IdentityTransform",
+    "LinearObservationModel",
     "LoadScalingModel",
     "LogTransform",
     "LowRankCovariance",
@@ -91,6 +108,9 @@ __all__ = [
     "Observation",
     "ObservationModel",
     "ObservationNeedsModel",
+    "ObservationPointsModel",
+    "ParameterField",
+    "ParameterFieldModel",
     "ParameterSpec",
     "PlacedPointsModel",
     "PluginError",
@@ -98,19 +118,25 @@ __all__ = [
     "ProbedModel",
     "Registry",
     "Scenario",
+    "ReactionJacobianModel",
     "ReactionModel",
     "SensitiveModel",
     "Skipped",
+    "SurfaceJacobianModel",
     "SurfaceModel",
     "TargetModel",
     "Sparsity",
     "VolumeModel",
     "__version__",
+    "adjoint_of",
     "build_registry",
     "closest_on_triangles",
     "compare",
     "effective_path",
     "noise_matrix",
+    "observation_jacobian_of",
+    "observation_points_of",
+    "parameter_field_of",
     "get_plugin_manager",
     "hookimpl",
     "shape_error",

@@ -1,13 +1,13 @@
-"""Which optional members an object has: declared here, looked up here, only here.
+"""Which optional members an object has: looked up here, and only here.
 
 The core's protocols have optional members: a forward model's, an
 estimator's (and the answer it returns), an observation model's, a model
-settings class's, a plugin's, a progress callback's. Each is declared once,
-in a table of this module: a forward model's as a protocol of
-:mod:`idbench.core.interfaces` (:data:`OPTIONAL`), the others with their
-default and meaning (:data:`ESTIMATOR_OPTIONAL`, :data:`ESTIMATE_OPTIONAL`,
-:data:`OBSERVATION_OPTIONAL`, :data:`SETTINGS_OPTIONAL`,
-:data:`PLUGIN_OPTIONAL`, :data:`PROGRESS_OPTIONAL`). The core asks this module
+settings class's, a plugin's, a progress callback's. Each is declared once:
+a forward model's as a protocol of :mod:`idbench.core.optional`, mapped here
+(:data:`OPTIONAL`), the others with their default and meaning in
+:mod:`idbench.core.members` (``ESTIMATOR_OPTIONAL``, ``ESTIMATE_OPTIONAL``,
+``OBSERVATION_OPTIONAL``, ``SETTINGS_OPTIONAL``, ``PLUGIN_OPTIONAL``,
+``PROGRESS_OPTIONAL``). The core asks this module
 instead of looking members up by name: each function gives the member, typed,
 or None (a forward model's) or the declared default (the others') when the
 object lacks it; a method that is not callable counts as lacking. A member is
@@ -21,26 +21,41 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any, cast
 
 import numpy as np
 
+from idbench.core.field import ParameterField
 from idbench.core.interfaces import FloatArray
+from idbench.core.members import (
+    ESTIMATE_OPTIONAL,
+    ESTIMATOR_OPTIONAL,
+    OBSERVATION_OPTIONAL,
+    PLUGIN_OPTIONAL,
+    PROGRESS_OPTIONAL,
+    SETTINGS_OPTIONAL,
+    Member,
+)
 from idbench.core.optional import (
+    AdjointModel,
     BatchModel,
     BoundingBoxModel,
     CellDataModel,
     DiscrepancyModel,
     FieldModel,
+    LinearObservationModel,
     LoadFiguresModel,
     LoadScalingModel,
     NodeCountModel,
     ObservationNeedsModel,
+    ObservationPointsModel,
+    ParameterFieldModel,
     PlacedPointsModel,
     ProbedModel,
+    ReactionJacobianModel,
     ReactionModel,
     SensitiveModel,
+    SurfaceJacobianModel,
     SurfaceModel,
     TargetModel,
     VolumeModel,
@@ -70,6 +85,13 @@ OPTIONAL: dict[str, type] = {
     "extrapolated": DiscrepancyModel,
     "load_scaling": LoadScalingModel,
     "load_figures": LoadFiguresModel,
+    "parameter_field": ParameterFieldModel,
+    "equilibrium_jvp": AdjointModel,
+    "equilibrium_vjp": AdjointModel,
+    "observation_jacobian": LinearObservationModel,
+    "surface_jacobian": SurfaceJacobianModel,
+    "reaction_jacobian": ReactionJacobianModel,
+    "observation_points": ObservationPointsModel,
 }
 """Each optional member of a forward model and the protocol that declares it."""
 
@@ -88,6 +110,12 @@ METHODS = frozenset(
         "grid_cov",
         "targets_cov",
         "load_figures",
+        "equilibrium_jvp",
+        "equilibrium_vjp",
+        "observation_jacobian",
+        "surface_jacobian",
+        "reaction_jacobian",
+        "observation_points",
     }
 )
 """The optional members that are methods (the others are values)."""
@@ -195,6 +223,38 @@ def cell_data_of(model: Any) -> Callable[[], dict[str, FloatArray]] | None:
     return value
 
 
+def parameter_field_of(model: Any) -> ParameterField | None:
+    """The model's ``parameter_field``, None where its parameters are no field.
+
+    See :class:`~idbench.core.optional.ParameterFieldModel`.
+    """
+    value: ParameterField | None = member(model, "parameter_field")
+    return value
+
+
+def adjoint_of(model: Any) -> AdjointModel | None:
+    """``model`` if it has ``equilibrium_jvp`` and ``equilibrium_vjp``, else None.
+
+    See :class:`~idbench.core.optional.AdjointModel`.
+    """
+    both = ("equilibrium_jvp", "equilibrium_vjp")
+    if any(member(model, name) is None for name in both):
+        return None
+    return cast(AdjointModel, model)
+
+
+def observation_jacobian_of(model: Any) -> Callable[..., Any] | None:
+    """The model's ``observation_jacobian`` (:class:`LinearObservationModel`)."""
+    return cast("Callable[..., Any] | None", member(model, "observation_jacobian"))
+
+
+def observation_points_of(model: Any) -> Callable[[int], FloatArray] | None:
+    """The model's ``observation_points`` (:class:`ObservationPointsModel`)."""
+    return cast(
+        "Callable[[int], FloatArray] | None", member(model, "observation_points")
+    )
+
+
 def observation_cov_of(model: Any) -> Callable[[FloatArray], FloatArray] | None:
     """The corrected model's ``observation_cov`` (:class:`DiscrepancyModel`)."""
     value: Callable[[FloatArray], FloatArray] | None = member(model, "observation_cov")
@@ -238,146 +298,7 @@ def requirement_met(model: Any, name: str) -> bool:
     return callable(getattr(model, name, None))
 
 
-# --- the other objects: a default and a meaning for each member -----------------
-
-
-@dataclass(frozen=True)
-class Member:
-    """One optional member of an estimator, observation model, settings class, ...
-
-    Attributes
-    ----------
-    default
-        What the core takes when the object lacks it (or has None).
-    meaning
-        What it says, and who reads it.
-    method
-        Whether it is a method (a value that is not callable counts as lacking).
-    """
-
-    default: Any
-    meaning: str
-    method: bool = False
-
-
-ESTIMATOR_OPTIONAL: dict[str, Member] = {
-    "abstract": Member(
-        False,
-        "class attribute (idbench.Filter's class keyword abstract=True): a base "
-        "for other estimators, not one itself; it cannot be registered",
-    ),
-    "reference": Member(
-        False,
-        "class attribute: True marks the estimator whose fit on a run's data is "
-        "that run's reference value (E_ref); one registered estimator has it "
-        "(idbench.registry.registry.Registry.reference_estimator)",
-    ),
-    "handles_nan": Member(
-        False,
-        "class attribute: True when the estimator takes observations with NaN "
-        "(occluded) entries; otherwise such a run is refused in one line "
-        "(idbench.observe.occlusion.refusal); idbench.Filter masks them",
-    ),
-    "seed": Member(
-        None,
-        "a setting (field) seeding the estimator's own draws; the harness gives "
-        "each run its seed unless the user set one",
-    ),
-    "innovation": Member(
-        None,
-        "(v, S) after an observed step: the innovation v (m,) of the forecast "
-        "and its covariance S (m, m); the traces' nis column is v^T S^-1 v "
-        "(an Estimate's own innovation, if it has one, is read first)",
-    ),
-    "estimate_solves": Member(
-        None,
-        "estimate_solves(n_state, p, steps) -> int: the forward steps a run is "
-        "expected to take (0 for a run start() would skip), for --dry-run and "
-        "to start the costliest runs first; default 2 a step",
-        method=True,
-    ),
-    "correction": Member(
-        "none",
-        'a setting: "approximation-error" hands the estimator the model '
-        "corrected by its calibration (an idbench.DiscrepancyModel)",
-    ),
-    "ensemble": Member(
-        None,
-        "after the last step: the members (N, n), rows [u (model state), ...]; "
-        "the targets' and the grid's predicted covariance is then the "
-        "ensemble's (idbench.score.targets)",
-    ),
-}
-"""Each optional member of an estimator (:class:`~idbench.core.interfaces.Estimator`).
-
-:class:`idbench.Filter` gives each its default as a class attribute."""
-
-ESTIMATE_OPTIONAL: dict[str, Member] = {
-    "state": Member(
-        None,
-        "the estimator's own model state at the step, for the shape error "
-        "(else one forward solve with the estimate)",
-    ),
-    "innovation": Member(None, "as the estimator's innovation, for this step"),
-}
-"""Each optional member of an estimator's answer (an :class:`~idbench.Estimate`)."""
-
-OBSERVATION_OPTIONAL: dict[str, Member] = {
-    "needs_theta": Member(
-        False,
-        "class attribute: True when predict() uses theta itself, not only the "
-        "state (force): the prediction is carried in the estimators' state "
-        "(idbench.observe.observed_model)",
-    ),
-}
-"""Each optional member of an observation model.
-
-See :class:`~idbench.core.observation_model.ObservationModel`."""
-
-SETTINGS_OPTIONAL: dict[str, Member] = {
-    "EXECUTION": Member(
-        (),
-        "class attribute: names of the settings that change where or how fast "
-        "work runs, not its results (idbench.core.settings.execution_names)",
-    ),
-    "identity": Member(
-        None,
-        "identity() -> sequence: what of the settings identifies the data "
-        "(default: every setting)",
-        method=True,
-    ),
-    "proposed_defaults": Member(
-        None,
-        "proposed_defaults() -> idbench.ModelDefaults | None: the comparison "
-        "these settings propose (idbench.core.settings.proposed_defaults)",
-        method=True,
-    ),
-    "proposed_scenarios": Member(
-        None,
-        "proposed_scenarios() -> scenarios these settings bring "
-        "(idbench.core.settings.proposed_scenarios)",
-        method=True,
-    ),
-}
-"""Each optional member of a model's settings class (or of an instance of it)."""
-
-PLUGIN_OPTIONAL: dict[str, Member] = {
-    "__version__": Member(
-        "",
-        "the plugin module's version, where its distribution does not say one",
-    ),
-}
-"""Each optional member of a plugin object (the module an entry point names)."""
-
-PROGRESS_OPTIONAL: dict[str, Member] = {
-    "tick": Member(
-        None,
-        "tick(): called about once a second while workers run, so a display "
-        "can move without news",
-        method=True,
-    ),
-}
-"""Each optional member of a comparison's ``progress`` callback."""
+# --- the other objects: their members declared in idbench.core.members -------
 
 
 def _optional(obj: Any, name: str, table: dict[str, Member], kind: str) -> Any:
@@ -417,6 +338,11 @@ def settings_member(settings: Any, name: str) -> Any:
     Its default where it lacks it.
     """
     return _optional(settings, name, SETTINGS_OPTIONAL, "settings")
+
+
+def by_default(estimator: Any) -> bool:
+    """Whether a comparison that names no estimators runs this one."""
+    return bool(estimator_member(estimator, "by_default"))
 
 
 def is_reference(estimator: Any) -> bool:

@@ -49,7 +49,7 @@ class ObservationModel(Protocol):
     (``register_observations``), which is checked against this protocol
     then. Optional: a class attribute ``needs_theta`` (default False), True
     when ``predict`` uses theta itself, not only the state (``force``); see
-    :data:`idbench.core.capabilities.OBSERVATION_OPTIONAL`.
+    :data:`idbench.core.members.OBSERVATION_OPTIONAL`.
     """
 
     requires: tuple[str, ...]

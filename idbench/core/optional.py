@@ -9,11 +9,12 @@ by name.
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
+from idbench.core.field import ParameterField
 from idbench.core.interfaces import FloatArray, ForwardModel
 
 
@@ -299,4 +300,95 @@ class LoadFiguresModel(ForwardModel, Protocol):
         Of the whole load path's end load, in model units (SI for the
         built-ins); they do not depend on the parameters or the state.
         """
+        ...
+
+
+@runtime_checkable
+class ParameterFieldModel(ForwardModel, Protocol):
+    """A forward model whose parameters are one field's values on cells.
+
+    Optional: field-aware estimators put a smoothness prior on the cells
+    (:mod:`idbench.estimate.prior`) and localize by distance between cell
+    centroids and observation points; the scores draw and measure the map
+    (:mod:`idbench.score.maps`).
+    """
+
+    @property
+    def parameter_field(self) -> ParameterField:
+        """The cells (parameter j is the value on cell j) and the prior's settings."""
+        ...
+
+
+@runtime_checkable
+class AdjointModel(ForwardModel, Protocol):
+    """A forward model that gives products with its state's parameter derivative.
+
+    Optional: at the converged state u_k of step k (equilibrium r(u, theta) =
+    0, K = dr/du, G = dr/dtheta), du_k/dtheta = -K^-1 G. Where each step's
+    equilibrium does not depend on the path to it, u_k depends on theta only
+    through step k's equilibrium, so these are the derivatives of the whole
+    path's state at step k. Each costs one solve with K (or K^T) per column.
+    """
+
+    def equilibrium_jvp(
+        self, theta: FloatArray, k: int, state: FloatArray, v: FloatArray
+    ) -> FloatArray:
+        """(du/dtheta) v: v (p,) -> (n,), or (p, q) -> (n, q)."""
+        ...
+
+    def equilibrium_vjp(
+        self, theta: FloatArray, k: int, state: FloatArray, w: FloatArray
+    ) -> FloatArray:
+        """w^T (du/dtheta), the adjoint: w (n,) -> (p,), or (n, q) -> (p, q).
+
+        lambda = K^-T w, result -G^T lambda: one transposed solve a column.
+        """
+        ...
+
+
+@runtime_checkable
+class LinearObservationModel(ForwardModel, Protocol):
+    """A forward model whose observation it can linearize at a state.
+
+    Optional: h(u, theta) of step k, linearized as (H_u, H_theta), so that
+    d h / d theta = H_u du/dtheta + H_theta (with :class:`AdjointModel`).
+    """
+
+    def observation_jacobian(
+        self, theta: FloatArray, k: int, state: FloatArray
+    ) -> tuple[Any, FloatArray]:
+        """(H_u, H_theta): dh/du (m, n), sparse or dense, and dh/dtheta (m, p)."""
+        ...
+
+
+@runtime_checkable
+class SurfaceJacobianModel(ForwardModel, Protocol):
+    """A forward model that says how its surface vertices move with its state."""
+
+    def surface_jacobian(self, state: FloatArray) -> Any:
+        """D vec(vertices) / d state, (3V, n) sparse.
+
+        Rows [v0x, v0y, v0z, v1x, ...] of :meth:`SurfaceModel.surface`'s
+        vertices.
+        """
+        ...
+
+
+@runtime_checkable
+class ReactionJacobianModel(ForwardModel, Protocol):
+    """A forward model that linearizes its reaction force (``force`` observations)."""
+
+    def reaction_jacobian(
+        self, theta: FloatArray, k: int, state: FloatArray
+    ) -> tuple[Any, FloatArray]:
+        """(d reaction / d state (c, n), d reaction / d theta (c, p))."""
+        ...
+
+
+@runtime_checkable
+class ObservationPointsModel(ForwardModel, Protocol):
+    """A forward model that says where its observed values are (localization)."""
+
+    def observation_points(self, k: int) -> FloatArray:
+        """(m, d): each observed value's position at step k; NaN rows: not local."""
         ...

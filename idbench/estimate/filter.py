@@ -48,7 +48,7 @@ from idbench.estimate.transforms import TRANSFORMS, IdentityTransform
 from idbench.observe.occlusion import BoolArray, MaskedModel, restrict
 from idbench.observe.occlusion import visible as visible_mask
 
-CORRECTIONS = ("none", "approximation-error")
+CORRECTIONS = ("none", "approximation-error", "prior-mean")
 """Values of the ``correction`` setting."""
 
 
@@ -97,13 +97,14 @@ class _Conventions:
     """The optional members the core looks for on an estimator, with defaults.
 
     Declared, with the defaults the core takes without them, in
-    :data:`idbench.core.capabilities.ESTIMATOR_OPTIONAL`; given here as class
+    :data:`idbench.core.members.ESTIMATOR_OPTIONAL`; given here as class
     attributes outside the dataclass, so that none of them is a setting; see
     :class:`Filter` for their meaning.
     """
 
     abstract: ClassVar[bool] = False
     reference: ClassVar[bool] = False
+    by_default: ClassVar[bool] = True
     handles_nan: ClassVar[bool] = False
     seed: int | None = None
     innovation: tuple[FloatArray, FloatArray] | None = None
@@ -156,6 +157,9 @@ class Filter(_Conventions):
         Class attribute, default False: True marks the estimator whose fit on
         a run's data is that run's reference value (``E_ref``); one
         registered estimator has it.
+    by_default
+        Class attribute, default True: False leaves the estimator out of a
+        comparison that names none (the estimators of parameter fields).
     seed
         Default None: the estimator draws no random numbers. One that does
         declares a field ``seed: int = 0``; the harness then gives each run
@@ -190,7 +194,10 @@ class Filter(_Conventions):
         ``observation_cov(state)`` is its covariance Sigma: the observation
         model is y = h(x) + mu + e, e ~ N(0, R + Sigma), and the estimate is
         the physical (tissue's) parameter. A filter reads R + Sigma from
-        :meth:`noise_cov`.
+        :meth:`noise_cov`. ``"prior-mean"``: the model's h(x) carries
+        the mean approximation error at the prior mean, frame by frame, from
+        one path on a finer mesh (:mod:`idbench.calibrate.prior_mean`); the
+        filter changes nothing.
     """
 
     handles_nan: ClassVar[bool] = True
@@ -259,7 +266,8 @@ class Filter(_Conventions):
 
     def start(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run on ``model`` from ``prior`` (cost counted from here)."""
-        if self.correction != "none" and observation_cov_of(model) is None:
+        corrected = self.correction == "approximation-error"
+        if corrected and observation_cov_of(model) is None:
             raise ValueError(
                 f"correction = {self.correction!r} needs a corrected model (one "
                 "with observation_cov); idbench compare provides it"
@@ -380,10 +388,10 @@ class Filter(_Conventions):
     def extra_cov(self, state: FloatArray) -> FloatArray | None:
         """Sigma (m, m) of the corrected model at ``state``; None uncorrected.
 
-        None unless ``correction`` is on (the model then has
-        ``observation_cov``, see :meth:`start`).
+        None unless ``correction`` is ``"approximation-error"`` (the model
+        then has ``observation_cov``, see :meth:`start`).
         """
-        if self.correction == "none":
+        if self.correction != "approximation-error":
             return None
         cov = observation_cov_of(self.model)
         if cov is None:  # start() refuses such a model

@@ -37,9 +37,15 @@ from typing import Any
 
 import numpy as np
 
+from idbench.core.capabilities import member
 from idbench.core.interfaces import FloatArray, ForwardModel
 from idbench.observe.camera import render
-from idbench.observe.surface import CANDIDATES, point_to_surface, surface_of
+from idbench.observe.surface import (
+    CANDIDATES,
+    point_to_surface,
+    point_to_surface_jacobian,
+    surface_of,
+)
 
 
 @dataclass(frozen=True)
@@ -211,6 +217,36 @@ class Cloud:
             frame.data["points"], vertices, triangles, gate=g,
             candidates=self.candidates,
         )  # fmt: skip
+
+    def linearize(
+        self, model: ForwardModel, frame: Any, theta: FloatArray, k: int,
+        state: FloatArray,
+    ) -> tuple[Any, FloatArray]:  # fmt: skip
+        """(dh/du (N, n), dh/dtheta = 0): the gated distances' derivative.
+
+        Point-to-plane (``candidates = 1``) through the model's
+        ``surface_jacobian`` (:func:`point_to_surface_jacobian`).
+
+        Raises
+        ------
+        ValueError
+            With ``candidates`` > 1, or a model without ``surface_jacobian``.
+        """
+        jac = member(model, "surface_jacobian")
+        if self.candidates != 1 or jac is None:
+            raise ValueError(
+                "observe cloud: a linearization needs candidates = 1 and a model "
+                "with surface_jacobian"
+            )
+        vertices, triangles = surface_of(model, state)
+        g = max(self.gate * self.noise_std(frame, 0.0), self.gate_min)
+        dv = point_to_surface_jacobian(frame.data["points"], vertices, triangles, g)
+        p = np.size(theta)
+        return dv @ jac(state), np.zeros((dv.shape[0], p))
+
+    def positions(self, model: ForwardModel, frame: Any, k: int) -> FloatArray:
+        """Where each point is: the frame's points (N, 3), as measured."""
+        return np.asarray(frame.data["points"], dtype=float)
 
     def identity(self) -> list[Any]:
         """Every setting but the noise sigma (it scales common draws)."""

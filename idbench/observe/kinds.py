@@ -125,6 +125,17 @@ class Markers:
         """``model.observe(state)``."""
         return np.asarray(model.observe(state), dtype=float)
 
+    def linearize(
+        self, model: ForwardModel, frame: Frame, theta: FloatArray, k: int,
+        state: FloatArray,
+    ) -> tuple[Any, FloatArray]:  # fmt: skip
+        """The model's own ``observation_jacobian`` (its ``observe`` is this)."""
+        return _needed(model, "observation_jacobian", "markers")(theta, k, state)
+
+    def positions(self, model: ForwardModel, frame: Frame, k: int) -> FloatArray:
+        """The model's ``observation_points`` of step k."""
+        return np.asarray(_needed(model, "observation_points", "markers")(k), float)
+
     def identity(self) -> list[Any]:
         """Nothing: the markers' draws keep today's seed (the run's noise key)."""
         return []
@@ -181,9 +192,31 @@ class Force:
         """``model.reaction(theta, k, state)``."""
         return _reaction(model, theta, k, state)
 
+    def linearize(
+        self, model: ForwardModel, frame: Frame, theta: FloatArray, k: int,
+        state: FloatArray,
+    ) -> tuple[Any, FloatArray]:  # fmt: skip
+        """The model's ``reaction_jacobian``: (d/du (c, n), d/dtheta (c, p))."""
+        return _needed(model, "reaction_jacobian", "force")(theta, k, state)
+
+    def positions(self, model: ForwardModel, frame: Frame, k: int) -> FloatArray:
+        """NaN (c, 3): a resultant force is nowhere in particular."""
+        return np.full((len(self.values(frame)), 3), np.nan)
+
     def identity(self) -> list[Any]:
         """The kind only (the sigma scales common draws)."""
         return ["force"]
+
+
+def _needed(model: ForwardModel, name: str, block: str) -> Any:
+    """The model's optional member ``name``; ValueError naming it if absent."""
+    found = member(model, name)
+    if found is None:
+        raise ValueError(
+            f"observe {block}: model {type(model).__name__} has no {name} (needed "
+            "to linearize the observation)"
+        )
+    return found
 
 
 def _reaction(

@@ -24,9 +24,14 @@ from typing import Any
 
 import numpy as np
 
-from idbench.core.capabilities import needs_theta_of, step_many_of
+from idbench.core.capabilities import (
+    adjoint_of,
+    needs_theta_of,
+    observation_member,
+    step_many_of,
+)
 from idbench.core.interfaces import FloatArray, ForwardModel
-from idbench.core.view import Absent, ModelView
+from idbench.core.view import Absent, ModelView, lacks
 from idbench.observe import kinds as observe
 
 
@@ -65,6 +70,9 @@ class ObservedModel(ModelView):
         ]
         self._c = sum(n for n, c in zip(self._sizes, self._carried, strict=True) if c)
         self._size = sum(self._sizes)
+        self.offsets: list[FloatArray] | None = None
+        """Added to step k's h(x) when set: mu_k (m,) each, a mean approximation
+        error (the prior-mean correction of a run); None: no offset."""
 
     sensitivity = Absent()
     """None: estimators that need one use finite differences."""
@@ -127,7 +135,8 @@ class ObservedModel(ModelView):
                 out.append(
                     np.asarray(block.predict(self.model, frame, nan, k, u), float)
                 )
-        return np.concatenate(out) if out else np.zeros(0)
+        h = np.concatenate(out) if out else np.zeros(0)
+        return h if self.offsets is None else h + self.offsets[k - 1]
 
     def _parts(self, frame: Any) -> list[Any]:
         """The frame of each block."""
@@ -143,6 +152,80 @@ class ObservedModel(ModelView):
             for b, f, c in zip(self._blocks, parts, self._carried, strict=True)
             if c
         ])  # fmt: skip
+
+    def observation_jacobian(
+        self, theta: FloatArray, k: int, state: FloatArray
+    ) -> tuple[Any, FloatArray]:
+        """(H_u, H_theta) of step k's prediction at ``state``, rows block by block.
+
+        H_u (m, n) is in the model's own state u (``state``'s first n
+        entries, not the carried ones): each block's ``linearize``
+        (:data:`idbench.core.members.OBSERVATION_OPTIONAL`).
+
+        Raises
+        ------
+        ValueError
+            A block that cannot linearize (naming it).
+        """
+        import scipy.sparse as sp
+
+        u = np.asarray(state, dtype=float)[: self._n]
+        th = np.asarray(theta, dtype=float)
+        hu, ht = [], []
+        parts = self._parts(self.frames[k - 1])
+        for block, frame in zip(self._blocks, parts, strict=True):
+            linearize = observation_member(block, "linearize")
+            if linearize is None:
+                raise ValueError(
+                    f"observation {type(block).__name__} cannot be linearized"
+                )
+            a, b = linearize(self.model, frame, th, k, u)
+            hu.append(sp.csr_matrix(a))
+            ht.append(np.asarray(b, dtype=float).reshape(a.shape[0], th.size))
+        return sp.vstack(hu).tocsr(), np.vstack(ht)
+
+    def observation_points(self, k: int) -> FloatArray:
+        """(m, d): where each value of step k is (the blocks' ``positions``).
+
+        A block without ``positions`` gives NaN rows (not local).
+        """
+        out = []
+        parts = self._parts(self.frames[k - 1])
+        for block, frame, n in zip(self._blocks, parts, self._sizes, strict=True):
+            positions = observation_member(block, "positions")
+            if positions is None:
+                out.append(np.full((n, 3), np.nan))
+            else:
+                out.append(np.asarray(positions(self.model, frame, k), dtype=float))
+        return np.vstack(out)
+
+    @property
+    def equilibrium_jvp(self) -> Any:
+        """The model's (du/dtheta) v at a state's u (absent if the model has none)."""
+        adjoint, n = self._adjoint("equilibrium_jvp"), self._n
+
+        def jvp(theta: FloatArray, k: int, state: FloatArray, v: FloatArray) -> Any:
+            """(du/dtheta) v, in the model's own state u."""
+            return adjoint.equilibrium_jvp(theta, k, np.asarray(state)[:n], v)
+
+        return jvp
+
+    @property
+    def equilibrium_vjp(self) -> Any:
+        """The model's w^T (du/dtheta) at a state's u (absent if it has none)."""
+        adjoint, n = self._adjoint("equilibrium_vjp"), self._n
+
+        def vjp(theta: FloatArray, k: int, state: FloatArray, w: FloatArray) -> Any:
+            """w^T (du/dtheta), w in the model's own state u."""
+            return adjoint.equilibrium_vjp(theta, k, np.asarray(state)[:n], w)
+
+        return vjp
+
+    def _adjoint(self, name: str) -> Any:
+        found = adjoint_of(self.model)
+        if found is None:
+            raise lacks(self, name)
+        return found
 
     def grid(self, state: FloatArray) -> FloatArray:
         """The model's shape-error points at ``state``'s u."""

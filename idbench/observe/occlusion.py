@@ -26,7 +26,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench.core.capabilities import handles_nan, observation_cov_of, sensitivity_of
+from idbench.core.capabilities import (
+    handles_nan,
+    observation_cov_of,
+    observation_jacobian_of,
+    observation_points_of,
+    sensitivity_of,
+)
 from idbench.core.interfaces import FloatArray, ForwardModel, Observation
 from idbench.core.view import Absent, ModelView, lacks
 
@@ -123,6 +129,35 @@ class MaskedModel(ModelView):
         def rows(theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
             """The model's sensitivity (m, p), rows of the visible entries."""
             return np.asarray(sensitivity(theta, k, state), dtype=float)[mask]
+
+        return rows
+
+    @property
+    def observation_jacobian(self) -> Callable[..., tuple[Any, FloatArray]]:
+        """The model's (H_u, H_theta), rows of the visible entries."""
+        jacobian = observation_jacobian_of(self.model)
+        if jacobian is None:
+            raise lacks(self, "observation_jacobian")
+        mask = self._mask
+
+        def rows(theta: FloatArray, k: int, state: FloatArray) -> Any:
+            """The model's (H_u, H_theta), rows of the visible entries."""
+            hu, ht = jacobian(theta, k, state)
+            return hu[mask], np.asarray(ht)[mask]
+
+        return rows
+
+    @property
+    def observation_points(self) -> Callable[[int], FloatArray]:
+        """The model's observation points, rows of the visible entries."""
+        points = observation_points_of(self.model)
+        if points is None:
+            raise lacks(self, "observation_points")
+        mask = self._mask
+
+        def rows(k: int) -> FloatArray:
+            """The model's observation points, rows of the visible entries."""
+            return np.asarray(points(k), dtype=float)[mask]
 
         return rows
 

@@ -166,6 +166,59 @@ def point_to_surface(
     return np.clip(sign * dist[rows, best], -gate, gate)
 
 
+def point_to_surface_jacobian(
+    points: FloatArray,
+    vertices: FloatArray,
+    triangles: NDArray[np.int64],
+    gate: float = np.inf,
+) -> Any:
+    r"""D :func:`point_to_surface` (point-to-plane) / d vertices, sparse (N, 3V).
+
+    Point i's distance is to the plane of its nearest-centroid triangle
+    (a, b, c), d = (p - a) . n. Moving the vertices by delta changes it, to
+    first order, by
+
+    .. math::
+
+        \delta d = -n \cdot (\beta_a \delta_a + \beta_b \delta_b
+        + \beta_c \delta_c),
+
+    beta the barycentric coordinates (in the triangle's plane, possibly
+    outside [0, 1]) of the foot q = p - d n: the normal's rotation
+    contributes through beta (n' . (x' - a') = 0 for every vertex). A point
+    whose distance the ``gate`` clips has a zero row. Columns are
+    ``3 v + c`` for vertex v, component c; the same triangles as
+    :func:`point_to_surface` with ``candidates = 1``.
+    """
+    import scipy.sparse as sp
+
+    p0 = vertices[triangles[:, 0]]
+    p1 = vertices[triangles[:, 1]]
+    p2 = vertices[triangles[:, 2]]
+    centroids = (p0 + p1 + p2) / 3
+    j = association(points, triangles).nearest(centroids)
+    a, e1, e2 = p0[j], p1[j] - p0[j], p2[j] - p0[j]
+    normal = np.cross(e1, e2)
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    d = _dot(points - a, normal)
+    q = points - d[:, None] * normal - a
+    g11, g12, g22 = _dot(e1, e1), _dot(e1, e2), _dot(e2, e2)
+    r1, r2 = _dot(q, e1), _dot(q, e2)
+    det = g11 * g22 - g12 * g12
+    beta_b = (g22 * r1 - g12 * r2) / det
+    beta_c = (g11 * r2 - g12 * r1) / det
+    beta = np.stack([1.0 - beta_b - beta_c, beta_b, beta_c], axis=1)  # (N, 3)
+    live = np.abs(d) < gate
+    values = -(beta[:, :, None] * normal[:, None, :])  # (N, 3 vertices, 3)
+    values[~live] = 0.0
+    cols = 3 * triangles[j][:, :, None] + np.arange(3)
+    rows = np.broadcast_to(np.arange(len(points))[:, None, None], cols.shape)
+    return sp.csr_matrix(
+        (values.ravel(), (rows.ravel(), cols.ravel())),
+        shape=(len(points), 3 * len(vertices)),
+    )
+
+
 def _tree(centroids: FloatArray) -> cKDTree:
     return cKDTree(centroids, balanced_tree=False, compact_nodes=False)
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from idbench.core.capabilities import settings_member
+from idbench.core.capabilities import by_default, settings_member
 from idbench.core.interfaces import ConfigError, ModelDefaults
 from idbench.core.scenario import Sparsity
 from idbench.core.settings import build_settings, proposed_defaults, suggest
@@ -268,7 +268,9 @@ class CompareConfig:
             fill["meshes"] = tuple(quick.get("meshes", defaults.meshes))
             fill["scenarios"] = tuple(quick.get("scenarios", defaults.scenarios))
             fill["prior"] = tuple(defaults.prior)
-        fill["estimators"] = tuple(registry.estimators)
+        fill["estimators"] = tuple(
+            n for n, e in registry.estimators.items() if by_default(e.obj)
+        )
         if self.reference is None:
             try:
                 fill["reference"] = registry.reference_estimator()

@@ -56,6 +56,11 @@ def headers(summary: pd.DataFrame, short: bool = False) -> dict[str, str]:
         "nees_true": ("NEES vs true (mean)", "NEES t"),
         "nees_ref": ("NEES vs ref (mean)", "NEES r"),
         "w1_posterior": ("W1 to posterior", "W1 post"),
+        "field_error": ("field error (rel. L2, log E)", "map err"),
+        "field_rms_log": ("field RMS error (log E)", "map rms"),
+        "inclusion_centroid_mm": ("inclusion centroid off (mm)", "incl mm"),
+        "inclusion_dice": ("inclusion Dice", "Dice"),
+        "field_cover95": ("cells in 95% band", "cells c95"),
         "n_solves": ("forward solves", "solves"),
         "wall_s_step": ("wall time (s/step)", "s/step"),
     }

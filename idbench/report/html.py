@@ -45,6 +45,9 @@ CAPTIONS = {
     "uncertainty": "Reported uncertainty: share of seeds whose 95% interval"
     " holds the true value (filled) and the reference value (hollow), and the"
     " mean NEES against the true value (calibrated: p).",
+    "maps": "Maps of a field (first seed of each run): each cell at its centroid"
+    " in the slab through the truth's inclusion, coloured by log10(E / the"
+    " truth's median); ringed: cells mostly inside the true inclusion.",
     "realtime_frontier": "Real-time frontier: shape error against wall time"
     " per step on this machine; the line is the Pareto front.",
 }

@@ -18,6 +18,8 @@ import numpy as np
 import pandas as pd
 
 from idbench.report.intervals import interval
+from idbench.report.maps import is_field
+from idbench.score.maps import COLUMNS
 
 SEED_COLUMNS = ("run_id", "seed", "model_nodes", "truth_nodes")
 """Description columns that never make a summary row of their own."""
@@ -62,7 +64,9 @@ def sweep_axes(runs: pd.DataFrame) -> list[str]:
         return []
     cols = list(runs.columns)
     described = cols[: cols.index("status")]
-    described += [f"{n}_true" for n in parameter_names(runs) if f"{n}_true" in cols]
+    names = parameter_names(runs)
+    if not is_field(runs, names):  # a field's true values are no axis
+        described += [f"{n}_true" for n in names if f"{n}_true" in cols]
     keys = [k for k in ROW_KEYS if k in cols and k != "model_nodes"]
     axes = []
     for col in described:
@@ -165,6 +169,9 @@ def with_metrics(runs: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
     """
     df = runs.copy()
     names = parameter_names(df)
+    field = is_field(df, names)
+    if field:  # a map: its metrics, not one column per cell (report/maps.py)
+        names = []
     for n in names:
         if f"{n}_true" in df:
             df[f"{n}_ratio"] = df[f"{n}_final"] / df[f"{n}_true"]
@@ -174,6 +181,8 @@ def with_metrics(runs: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
         metrics += [f"{n}_final", f"{n}_ratio", f"{n}_ref"]
     for n in names:
         metrics += [f"{n}_cover{c}" for c in COVERAGE]
+    if field:
+        metrics += [c for c in COLUMNS if c != "field_cells"]
     metrics += ["nees_true", "nees_ref", "w1_posterior"]
     metrics += ["settling_step", "shape_error_mm", "direct_mm", "transfer_mm"]
     metrics += ["tre_final_mm", "target_std_final_mm", "tre_covered_final"]

@@ -15,6 +15,7 @@ import pandas as pd
 
 from idbench.core.sanitize import markdown_cell
 from idbench.report.columns import headers, legend, seeds_note
+from idbench.report.maps import is_field, map_figure
 from idbench.report.paired import Paired, paired_markdown
 from idbench.report.summary import parameter_names, summarise, sweep_axes
 from idbench.report.text import (
@@ -185,6 +186,9 @@ def figures(
     ok = runs[runs["status"] == "ok"] if "status" in runs else runs
     names = parameter_names(runs)
     axes = [a for a in sweep_axes(runs) if a in ok.columns]
+    if not ok.empty and is_field(ok, names):  # maps, not a panel per cell
+        figs["maps"] = map_figure(ok, names)
+        names = []
     if not ok.empty and names:
         figs["stiffness_vs_resolution"] = fg.parameters_vs_resolution(
             ok, names, axes, study

@@ -329,7 +329,7 @@ def _run_on(
             raise ConfigError(
                 f"estimator {spec.estimator!r}: {exc}; allowed settings: {allowed}"
             ) from None
-    if correction_of(estimator) != "none":
+    if correction_of(estimator) == "approximation-error":
         # the physical parameter: the coarse model corrected by its calibration
         model = session.corrected(spec, model)
         metrics_model = session.corrected(spec, metrics_model)
@@ -352,6 +352,8 @@ def _run_on(
         t_start = time.perf_counter()
         with _blame(who, "start()"):
             seen = session.estimator_model(spec, model)  # h(x) of the run's
+            if correction_of(estimator) == "prior-mean":  # + mu_k, a fine mesh's
+                seen = session.mean_corrected(spec, seen)
             estimator.start(seen, session.prior(master, spec))  # observation model
         est, means, stds, last = _estimate(
             spec, estimator, who, stream, truth, direct, traces,

@@ -14,11 +14,11 @@ from typing import Any
 
 import numpy as np
 
-from idbench.core.capabilities import load_figures_of
+from idbench.core.capabilities import load_figures_of, parameter_field_of
 from idbench.core.interfaces import Estimate, FloatArray, ForwardModel, Observation
 from idbench.plan.runspec import RunSpec
 from idbench.run.session import Session
-from idbench.score import metrics
+from idbench.score import maps, metrics
 from idbench.truth.simulate import Truth, simulate_path
 
 log = logging.getLogger(__name__)
@@ -230,6 +230,9 @@ def final_columns(
         direct[-1], truth.grid[-1]
     )
     out.update(transfer(spec, session, means[-1]))
+    field = parameter_field_of(session.model(spec, spec.mesh))
+    if field is not None:  # a map: its own metrics (idbench.score.maps)
+        out.update(maps.map_columns(field, means[-1], stds[-1], true))
     out["n_solves"] = estimate.cost.forward_solves
     out["newton_its"] = estimate.cost.newton_its
     out["wall_s_step"] = float(np.mean([t["wall_s"] for t in traces]))

@@ -18,6 +18,7 @@ from idbench.calibrate.corrected import CorrectedModel
 from idbench.calibrate.design import CalibrationSettings
 from idbench.calibrate.discrepancy import Discrepancy
 from idbench.calibrate.fit import fit_discrepancy
+from idbench.calibrate.prior_mean import prior_mean_offsets
 from idbench.core.interfaces import (
     ConfigError,
     FloatArray,
@@ -62,6 +63,7 @@ class Session:
         self._frames: dict[str, list[kinds.Frame]] = {}
         self._own: dict[Any, dict[str, Scenario]] = {}
         self._discrepancies: dict[str, Discrepancy] = {}
+        self._offsets: dict[str, list[FloatArray]] = {}
 
     def scenario(self, spec: RunSpec, name: str) -> Scenario:
         """The scenario ``name`` of ``spec``'s comparison.
@@ -366,6 +368,33 @@ class Session:
         wrapped: Any = ObservedModel(
             model, self.observation_model(spec), self.frames(spec)
         )
+        return typing.cast(ForwardModel, wrapped)
+
+    def mean_corrected(self, spec: RunSpec, seen: ForwardModel) -> ForwardModel:
+        """The run's estimator model with the prior-mean approximation error added.
+
+        ``correction = "prior-mean"`` (:mod:`idbench.calibrate.prior_mean`):
+        step k's h(x) plus mu_k, the calibration mesh's prediction minus the
+        run's mesh's at the prior mean (one path on each, kept per data, mesh
+        and prior).
+        """
+        if spec.calibration is None:
+            raise ConfigError(f"run {spec.run_id} has no calibration settings")
+        fine_mesh = str(dict(spec.calibration)["mesh"])
+        key = stable_hash([spec.reference_key(), fine_mesh, list(spec.setup.prior)])
+        wrapped = seen if isinstance(seen, ObservedModel) else ObservedModel(
+            seen, self.observation_model(spec), self.frames(spec)
+        )  # plain markers: their h is the model's observe
+        if key not in self._offsets:
+            coarse = self.model(spec, spec.mesh, role="calibration")
+            fine = self.model(spec, fine_mesh, role="calibration")
+            observe, frames = self.observation_model(spec), self.frames(spec)
+            theta0 = np.asarray(self.prior(coarse, spec).mean, dtype=float)
+            self._offsets[key] = prior_mean_offsets(
+                ObservedModel(fine, observe, frames),
+                ObservedModel(coarse, observe, frames), theta0,
+            )  # fmt: skip
+        wrapped.offsets = self._offsets[key]
         return typing.cast(ForwardModel, wrapped)
 
     def prior(self, model: ForwardModel, spec: RunSpec) -> Prior:

@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from idbench.core.capabilities import ensemble_of, member
+from idbench.core.capabilities import adjoint_of, ensemble_of, member
 from idbench.core.interfaces import FloatArray, ForwardModel, ModelFailure
 from idbench.score import metrics
 from idbench.truth.simulate import Truth, simulate_path
@@ -219,15 +219,37 @@ def covariance(
         return np.full((shape[0], shape[1], shape[1]), np.nan), "jacobian"
 
 
+ADJOINT_FROM = 8
+"""Parameters from which a model's ``equilibrium_jvp`` gives the points' Jacobian
+(one path and one multi-column solve) instead of p + 1 perturbed paths."""
+
+
 def _jacobian_covariance(
     model: ForwardModel, mean: FloatArray, std: FloatArray,
     at: Callable[[Any, FloatArray], FloatArray],
 ) -> FloatArray:
-    """J diag(std^2) J^T (P, d, d), J by forward differences of the point map."""
+    """J diag(std^2) J^T (P, d, d), J by forward differences of the point map.
+
+    From :data:`ADJOINT_FROM` parameters on, a model with an adjoint
+    (:class:`~idbench.core.optional.AdjointModel`) differences the point map
+    along its state's derivative du/dtheta_j at the final state instead.
+    """
 
     def points_at(theta: FloatArray) -> FloatArray:
         return at(model, simulate_path(model, theta)[-1])
 
+    adjoint = adjoint_of(model) if mean.size >= ADJOINT_FROM else None
+    if adjoint is not None:  # a field: one path and one solve, not p + 1 paths
+        states = simulate_path(model, mean)
+        u = states[-1]
+        du = adjoint.equilibrium_jvp(mean, len(states), u, np.eye(mean.size))
+        if np.shape(du) == (u.size, mean.size):
+            base = at(model, u)
+            jac = np.empty((*base.shape, mean.size))
+            for j in range(mean.size):
+                h = FD_STEP * max(abs(float(mean[j])), float(std[j]), 1e-300)
+                jac[:, :, j] = (at(model, u + h * du[:, j]) - base) / h
+            return np.asarray(np.einsum("tjp,p,tkp->tjk", jac, std**2, jac))
     base = points_at(mean)
     t, dim = base.shape
     jac = np.empty((t, dim, mean.size))

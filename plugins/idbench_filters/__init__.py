@@ -1,4 +1,7 @@
-"""Built-in estimator plugin: RO-UKF, full UKF, EnKF, ETKF, RLS, LMS, batch LS."""
+"""Built-in estimator plugin: RO-UKF, UKF, EnKF, ETKF, RLS, LMS, batch LS, fields.
+
+For parameter fields: MAP + Laplace and the localized EnKF and ETKF.
+"""
 
 from __future__ import annotations
 
@@ -10,6 +13,8 @@ from idbench_filters.batch_ls import BatchLs
 from idbench_filters.enkf import Enkf
 from idbench_filters.etkf import Etkf
 from idbench_filters.lms import Lms
+from idbench_filters.localized import LocalizedEnkf, LocalizedEtkf
+from idbench_filters.map_laplace import MapLaplace
 from idbench_filters.rls import Rls
 from idbench_filters.ro_ukf import RoUkf
 from idbench_filters.ukf import Ukf
@@ -19,6 +24,9 @@ __all__ = [
     "Enkf",
     "Etkf",
     "Lms",
+    "LocalizedEnkf",
+    "LocalizedEtkf",
+    "MapLaplace",
     "RoUkf",
     "Rls",
     "Ukf",
@@ -29,7 +37,7 @@ __all__ = [
 
 @idbench.hookimpl
 def register_estimators(register: Callable[[str, type], None]) -> None:
-    """Register the seven estimators (``ro-ukf``, ``enkf``, ``batch-ls``, ...)."""
+    """Register the ten estimators (``ro-ukf``, ``enkf``, ``map-laplace``, ...)."""
     register("ro-ukf", RoUkf)
     register("ukf", Ukf)
     register("enkf", Enkf)
@@ -37,6 +45,9 @@ def register_estimators(register: Callable[[str, type], None]) -> None:
     register("rls", Rls)
     register("lms", Lms)
     register("batch-ls", BatchLs)
+    register("map-laplace", MapLaplace)
+    register("local-enkf", LocalizedEnkf)
+    register("local-etkf", LocalizedEtkf)
 
 
 @idbench.hookimpl

@@ -113,6 +113,10 @@ class Ukf(Filter):
         :class:`idbench.Skipped` when 2n + 1 exceeds it (default 1500: the
         240-node beam, 1,347 solves a step, runs; the 525-node one, 3,003,
         does not).
+    max_parameters
+        :meth:`start` raises :class:`idbench.Skipped` for more parameters
+        (a field of cells: its 2n + 1 sigma points and dense covariance grow
+        with them; use map-laplace or a localized ensemble filter).
     alpha, beta, kappa
         filterpy's scaled sigma point parameters (Van der Merwe): spread
         alpha sqrt(n + kappa) standard deviations; beta = 2 is optimal for
@@ -121,12 +125,18 @@ class Ukf(Filter):
     """
 
     max_solves: int = 1500
+    max_parameters: int = 20
     alpha: float = 0.1
     beta: float = 2.0
     kappa: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if not (isinstance(self.max_parameters, int) and self.max_parameters >= 1):
+            raise ValueError(
+                f"max_parameters = {self.max_parameters!r} is not allowed; "
+                "it must be an integer >= 1"
+            )
         if not (isinstance(self.max_solves, int) and self.max_solves >= 1):
             raise ValueError(
                 f"max_solves = {self.max_solves!r} is not allowed; "
@@ -146,7 +156,8 @@ class Ukf(Filter):
     def estimate_solves(self, n_state: int, p: int, steps: int) -> int:
         """2n + 1 forward steps a load step (n = n_state + p); 0 if skipped."""
         per_step = 2 * (n_state + p) + 1
-        return per_step * steps if per_step <= self.max_solves else 0
+        affordable = per_step <= self.max_solves and p <= self.max_parameters
+        return per_step * steps if affordable else 0
 
     def begin(self, model: ForwardModel, prior: Prior) -> None:
         """Begin a run; raise Skipped if 2n + 1 solves a step exceed ``max_solves``."""
@@ -154,6 +165,11 @@ class Ukf(Filter):
         mu, p_xi = self.prior_xi(prior)
         u0 = np.asarray(model.reset(), dtype=float)
         n = u0.size + p
+        if p > self.max_parameters:
+            raise Skipped(
+                f"full UKF skips a field of {p} parameters (over max_parameters = "
+                f"{self.max_parameters}); use map-laplace or local-etkf"
+            )
         if 2 * n + 1 > self.max_solves:
             raise Skipped(
                 f"full UKF needs 2n+1 = {2 * n + 1} forward solves a step "

@@ -19,6 +19,7 @@ import pytest
 import idbench
 import idbench.run.compare
 from idbench.cli.commands import main
+from idbench.core.capabilities import by_default
 from idbench.plan.config import CompareConfig, ConfigError
 from idbench.run.compare import compare
 from idbench.run.compare import runs_of as expand
@@ -169,7 +170,9 @@ def test_cli_prints_summary(cli_run, capsys, tmp_path):
 def test_quick_dry_run_prints_run_count(capsys):
     assert main(["compare", "--quick", "--dry-run"]) == 0
     out = capsys.readouterr().out
-    n = 2 * len(idbench.build_registry().estimators)  # quick: 2 meshes, 1 seed
+    registered = idbench.build_registry().estimators.values()
+    # quick: 2 meshes, 1 seed; the estimators a comparison runs unnamed
+    n = 2 * sum(by_default(e.obj) for e in registered)
     assert out.startswith(f"{n} runs;"), out
     assert "forward solves" in out
 

@@ -401,7 +401,8 @@ def test_a_base_that_is_no_dataclass_fails_its_subclasses_and_registration() -> 
 
 
 def test_the_conventions_defaults_are_the_declared_ones() -> None:
-    from idbench.core.capabilities import ESTIMATOR_OPTIONAL, estimator_member
+    from idbench.core.capabilities import estimator_member
+    from idbench.core.members import ESTIMATOR_OPTIONAL
 
     for name, declared in ESTIMATOR_OPTIONAL.items():
         assert estimator_member(PriorOnly(), name) == declared.default, name

@@ -155,3 +155,43 @@ class BatchedToy(LinearToy):
         for i in self.fail_rows:
             out[i] = np.nan
         return out
+
+
+class LinearFieldToy(LinearToy):
+    """LinearToy whose p parameters are a field on a chain of cells along x.
+
+    It has the members field estimators need: ``parameter_field`` (cells of
+    unit volume at x = 0, 1, ..., p - 1, neighbours sharing unit area),
+    ``equilibrium_jvp`` / ``equilibrium_vjp`` (du_k/dtheta = (k/K) A),
+    ``observation_jacobian`` (H, 0) and ``observation_points`` (the m values
+    spread along the chain).
+    """
+
+    def __init__(self, p: int = 12, length: float = 3.0, **kw: Any) -> None:
+        super().__init__(p=p, **kw)
+        from idbench import ParameterField
+
+        x = np.arange(p, dtype=float)
+        self.parameter_field = ParameterField(
+            np.stack([x, 0 * x, 0 * x], axis=1), np.ones(p),
+            np.stack([np.arange(p - 1), np.arange(1, p)], axis=1), np.ones(p - 1),
+            length,
+        )  # fmt: skip
+        m = self.H.shape[0]
+        self._points = np.stack(
+            [np.linspace(0, p - 1, m), np.zeros(m), np.zeros(m)], axis=1
+        )
+
+    def equilibrium_jvp(self, theta, k, state, v):
+        self._lin += 1
+        return (k / self.n_steps) * self.A @ np.asarray(v, dtype=float)
+
+    def equilibrium_vjp(self, theta, k, state, w):
+        self._lin += 1
+        return (k / self.n_steps) * self.A.T @ np.asarray(w, dtype=float)
+
+    def observation_jacobian(self, theta, k, state):
+        return self.H, np.zeros((self.H.shape[0], len(theta)))
+
+    def observation_points(self, k):
+        return self._points

@@ -108,6 +108,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from idbench_fem.bodies.field import FieldSpec, parse_field
 from idbench_fem.bodies.manipulations import Manipulation, parse_manipulation
 from idbench_fem.bodies.reader import TableReader, table
 from idbench_fem.bodies.reference import ImagedShape, parse_reference
@@ -209,6 +210,8 @@ class Body:
     the repr, which keys the truths of bodies built in memory."""
     reference: ImagedShape | None = field(default=None, repr=False)
     """The meshes are the shape imaged under a manipulation (``[reference]``)."""
+    modulus_field: FieldSpec | None = field(default=None, repr=False)
+    """``[field]``: E per cell of a partition (:mod:`idbench_fem.bodies.field`)."""
 
     def manipulation(self, name: str) -> Manipulation:
         """The manipulation called ``name``."""
@@ -274,6 +277,7 @@ def parse_body(
         "targets",
         "support",
         "reference",
+        "field",
     )
     TableReader(source, "body").keys(raw, top)
 
@@ -410,6 +414,9 @@ def parse_body(
         if not lo < hi:
             raise c.error(f"bounds = {bounds!r}: need lower < upper")
         bounds = (lo, hi)
+    modulus_field = parse_field(raw.get("field"), source)
+    if modulus_field is not None and parameter_regions:
+        raise c.error("regions and a [field] exclude each other: give one of them")
     return Body(
         source,
         meshes,
@@ -424,6 +431,7 @@ def parse_body(
         _targets(table(raw, "targets", source), source),
         supports,
         parse_reference(raw.get("reference"), source, tuple(names)),
+        modulus_field,
     )
 
 

@@ -41,6 +41,8 @@ def body_digest(body: Body) -> str:
     )
     if body.supports or body.reference:  # nor are these (both change states)
         text += f"|{body.supports!r}|{body.reference!r}"
+    if body.modulus_field is not None:  # no repr either
+        text += f"|field:{body.modulus_field!r}"
     return hashlib.sha256(text.encode()).hexdigest()
 
 

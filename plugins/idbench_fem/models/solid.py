@@ -62,7 +62,7 @@ from typing import Any, cast
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench import ConfigError, ModelSpec, ParameterSpec, Scenario
+from idbench import ConfigError, ModelSpec, Scenario
 from idbench_fem.bodies import resolve
 from idbench_fem.bodies.catalog import body_path, get_body, get_mesh, mesh_file
 from idbench_fem.bodies.description import Body
@@ -77,7 +77,9 @@ from idbench_fem.fem.solver import resolve_backend
 from idbench_fem.fem.svk_assembly import Assembler
 from idbench_fem.models.digests import body_digest, mesh_digest
 from idbench_fem.models.driven import DrivenGrasp
+from idbench_fem.models.field_members import FieldMembers
 from idbench_fem.models.observables import Observables
+from idbench_fem.models.parameterisation import parameterise
 from idbench_fem.models.points import place_points
 from idbench_fem.models.rest_shape import rest_mesh
 from idbench_fem.models.solid_settings import DEFAULT_BODY, SolidSettings
@@ -96,11 +98,9 @@ one reuses its factorization, from a secant prediction (same tolerance)."""
 RTOL = 1e-8
 ATOL = 1e-12
 MAX_ITERATIONS = 25
-_BOUNDS = (1e-3, 1e3)
-"""Parameter bounds as multiples of the body's E."""
 
 
-class SolidModel(DrivenGrasp, Supported, Observables, BatchedSteps):
+class SolidModel(DrivenGrasp, Supported, Observables, FieldMembers, BatchedSteps):
     """A body under one manipulation, on one mesh, stepped by Newton.
 
     Parameters
@@ -167,7 +167,6 @@ class SolidModel(DrivenGrasp, Supported, Observables, BatchedSteps):
             ),
         )  # fmt: skip
         self.nu = float(body.material.nu if s.nu is None else s.nu)
-        E = float(body.material.E)
 
         fixed = resolve.fixed_nodes(body, mesh)
         free = np.ones(len(mesh.points), dtype=bool)
@@ -186,17 +185,11 @@ class SolidModel(DrivenGrasp, Supported, Observables, BatchedSteps):
         if self.manipulation.driven:  # the state keeps them, Newton does not
             self._init_driven(body, mesh, float(s.load_scale))
 
-        # parameters: E per region; c_e = true modulus / its region's true value
-        self.element_regions = resolve.element_regions(body, mesh)
-        moduli = resolve.element_moduli(body, mesh)
-        names = body.parameter_names
-        true = np.array(body.parameter_values)
-        self._factors = moduli / true[self.element_regions]
-        lo, hi = body.parameter_bounds or (_BOUNDS[0] * E, _BOUNDS[1] * E)
-        self.parameters = ParameterSpec(
-            names, tuple(lo for _ in names), tuple(hi for _ in names),
-            default=tuple(float(v) for v in true),
-        )  # fmt: skip
+        # parameters: E, E per region or per field cell (E_e = theta_r(e) c_e)
+        params = parameterise(body, mesh, reference, s)
+        self.element_regions, self._factors = params.regions, params.factors
+        self.parameters, self.parameter_field = params.spec, params.field
+        self._described = params.describe or {}
         self._attach_springs(body, mesh)  # [[support]]: springs, their parameters
 
         f1 = nodal_forces(
@@ -404,7 +397,7 @@ class SolidModel(DrivenGrasp, Supported, Observables, BatchedSteps):
             out["scenario"]["displacement"] = list(m.displacement)
         if m.conserve != "none":
             out["scenario"]["conserve"] = m.conserve
-        return out
+        return {**out, **self._described}
 
     def load_figures(self) -> dict[str, float]:
         """The end load on this mesh, measured (:mod:`idbench_fem.bodies.figures`).

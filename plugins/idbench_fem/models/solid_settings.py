@@ -74,6 +74,12 @@ class SolidSettings:
         factorization (a chord step), in [0, 1) (None: 1e-2; 0: plain Newton).
     sensitivity_refine
         Refine sensitivities with one step of iterative refinement (None: on).
+    field_cells, field_length, field_std, field_seed
+        A modulus field (:mod:`idbench_fem.bodies.field`): E per cell of
+        ``field_cells`` k-means cells (or ``"known"``), the prior's
+        correlation length (m) and std of ln E, the k-means seed; each
+        overrides the body's ``[field]`` (None: the body's; no field if it
+        has none and ``field_cells`` is None).
     path_reuse
         A step that continues the previous one starts from the path's
         extrapolation and keeps its factorization (chords, refactoring by the
@@ -98,6 +104,10 @@ class SolidSettings:
     chord_ratio: float | None = None
     sensitivity_refine: bool | None = None
     path_reuse: bool | None = None
+    field_cells: int | str | None = None
+    field_length: float | None = None
+    field_std: float | None = None
+    field_seed: int | None = None
 
     EXECUTION: ClassVar[tuple[str, ...]] = ("processes",)
     """Settings that change where work runs, not results (left out of run ids)."""
@@ -123,6 +133,7 @@ class SolidSettings:
         reuse = self.path_reuse
         if reuse is not None and not isinstance(reuse, bool):
             raise ValueError(f"path_reuse {reuse!r}: need true or false")
+        check_field_settings(self)
 
     def proposed_scenarios(self) -> list[Scenario]:
         """The body's manipulations as scenarios (their loads name ``body``).
@@ -180,12 +191,39 @@ class SolidSettings:
                self.max_iterations]  # fmt: skip
         if self.load_scale != 1.0:
             out.append(self.load_scale)
+        named = ("chord_ratio", "sensitivity_refine", "path_reuse", *FIELD_SETTINGS)
         extra = [
             [name, getattr(self, name)]
-            for name in ("chord_ratio", "sensitivity_refine", "path_reuse")
+            for name in named
             if getattr(self, name) is not None
         ]
         return [*out, *extra]
+
+
+FIELD_SETTINGS = ("field_cells", "field_length", "field_std", "field_seed")
+
+
+def check_field_settings(settings: Any) -> None:
+    """Check the field options (each None when not given).
+
+    Raises
+    ------
+    ValueError
+        One line naming the bad value and what is allowed.
+    """
+    cells = settings.field_cells
+    whole = isinstance(cells, int) and not isinstance(cells, bool) and cells >= 1
+    if cells is not None and not (whole or cells == "known"):
+        raise ValueError(f"field_cells {cells!r}: need a whole number >= 1 or 'known'")
+    for name in ("field_length", "field_std"):
+        v = getattr(settings, name)
+        if v is not None and not (_number(v) and v > 0):
+            raise ValueError(f"{name} {v!r}: need a number > 0")
+    seed = settings.field_seed
+    if seed is not None and (
+        not isinstance(seed, int) or isinstance(seed, bool) or seed < 0
+    ):
+        raise ValueError(f"field_seed {seed!r}: need a whole number >= 0")
 
 
 def check_solver_settings(settings: Any) -> None:
