@@ -121,6 +121,8 @@ class ModelView:
     reaction = Delegated()
     targets = Delegated()
     needs_observed = Delegated()
+    inputs = Delegated()
+    max_markers = Delegated()
     observation_cov = Delegated()
     grid_cov = Delegated()
     targets_cov = Delegated()

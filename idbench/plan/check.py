@@ -26,8 +26,11 @@ from idbench.calibrate.design import CalibrationSettings
 from idbench.core.capabilities import (
     bounds_of,
     estimate_solves_of,
+    inputs_of,
+    max_markers_of,
     n_nodes_of,
     needs_observed_of,
+    observation_check_of,
     requirement_met,
 )
 from idbench.core.interfaces import ConfigError, ForwardModel, ModelSpec
@@ -176,6 +179,7 @@ def plan(config: CompareConfig, session: PlanSession) -> Plan:
         build = functools.partial(session.model, runs[0], mesh, role=role)
         models[mesh] = model = _build(reg, config, mesh, settings, build)
         nodes[mesh] = int(n_nodes_of(model) or 0)
+    _check_markers(config, models)
     for mesh in config.meshes if rec is None else ():
         truth = models[config.truth_mesh]
         check_truth_mesh(truth, config.truth_mesh, models[mesh], mesh)
@@ -298,22 +302,60 @@ def _same(given: Any, recorded: Any) -> bool:
     return False
 
 
-def _check_observed(spec: RunSpec, model: ForwardModel, session: PlanSession) -> None:
-    """Refuse a run whose observation uses none of the members its model needs.
+def _check_markers(config: CompareConfig, models: dict[str, ForwardModel]) -> None:
+    """Refuse more markers than a model can place (before any is allocated).
 
-    See :class:`~idbench.core.optional.ObservationNeedsModel` (a solid whose tool
-    moves by a prescribed displacement needs its ``reaction``: the force).
+    See :class:`~idbench.core.optional.MarkerLimitModel`.
+
+    Raises
+    ------
+    ConfigError
+        One line naming the marker count, the mesh and the maximum.
+    """
+    limits = {mesh: max_markers_of(model) for mesh, model in models.items()}
+    known = {mesh: n for mesh, n in limits.items() if n is not None}
+    if not known:
+        return
+    mesh = min(known, key=lambda m: known[m])
+    most = known[mesh]
+    asked = max(config.obs_points)
+    if asked > most:
+        raise ConfigError(
+            f"obs_points = {asked}: model {config.model!r} on mesh {mesh!r} can "
+            f"place at most {most} markers (its candidate points); give "
+            f"--obs-points between 1 and {most}"
+        )
+
+
+def _check_observed(spec: RunSpec, model: ForwardModel, session: PlanSession) -> None:
+    """Refuse a run whose observation cannot identify the model's parameters.
+
+    Its every block uses only members the model says are its input
+    (:class:`~idbench.core.optional.InputsModel`: the force of a force-controlled
+    load), or it uses none of the members the model needs
+    (:class:`~idbench.core.optional.ObservationNeedsModel`: a solid whose tool
+    moves by a prescribed displacement needs its ``reaction``, the force).
 
     Raises
     ------
     ConfigError
         One line naming the scenario and the observations that would do.
     """
+    blocks = kinds.leaves(session.observation_model(spec))
+    inputs = set(inputs_of(model))
+    if inputs and all(set(b.requires) <= inputs for _, b in blocks):
+        members = sorted({m for _, b in blocks for m in b.requires})
+        raise ConfigError(
+            f"scenario {spec.scenario!r}: observe {spec.observe!r} uses only the "
+            f"model's {' and '.join(f'{n}()' for n in members)}, which its load "
+            "prescribes whatever the parameters (the input, not a measurement): "
+            "it cannot identify anything; observe markers or cloud (alone or "
+            "with it)"
+        )
     needs = needs_observed_of(model)
     if not needs:
         return
-    used = {m for _, b in kinds.leaves(session.observation_model(spec))
-            for m in b.requires}  # fmt: skip
+    used = {m for _, b in blocks for m in b.requires}
     if used & set(needs):
         return
     would = []
@@ -409,7 +451,10 @@ def resolve(
     """Each ``config.observe`` name -> its resolved settings per block.
 
     ``models`` are built models of the comparison (a model mesh and the
-    truth): each must have every member the observation models require.
+    truth): each must have every member the observation models require, and
+    pass each block's own ``check(model)`` where it has one (a camera that
+    sees the body, see :class:`~idbench.observe.cloud.Cloud`). A table named
+    after a kind may configure that kind only (not define another).
 
     Raises
     ------
@@ -425,6 +470,13 @@ def resolve(
                 f"[observe.{table}] is not used: observe names "
                 f"{', '.join(config.observe)}"
             )
+        kind = tables[table].get("kind", table)
+        if table in known and kind != table:
+            raise ConfigError(
+                f"[observe.{table}] kind = {kind!r} shadows the observation model "
+                f"{table!r}: a table named after a kind configures that kind; "
+                f"name the variant otherwise (e.g. [observe.{kind}-variant])"
+            )
     out: dict[str, Items] = {}
     for name in config.observe:
         obs = kinds.build(name, tables, registry)
@@ -435,6 +487,14 @@ def resolve(
                         f"observe {name!r} needs the model's {member}(); model "
                         f"{config.model!r} ({type(model).__name__}) has none"
                     )
+        for block, leaf in kinds.leaves(obs):
+            check = observation_check_of(leaf)
+            for model in models:
+                try:
+                    if check is not None:
+                        check(model)
+                except ValueError as exc:
+                    raise ConfigError(f"observe {block or name!r}: {exc}") from None
         out[name] = kinds.settings_items(name, tables, registry)
     return out
 

@@ -136,7 +136,8 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
     ``parameters.default``, if set, must lie inside the bounds;
     ``surface(state)`` must give finite vertices (V, 3) and triangles (T, 3)
     indexing them; ``reaction(theta, k, state)`` a finite vector;
-    ``targets(state)`` finite displacements (T, 3) (T = 0: none).
+    ``targets(state)`` finite displacements (T, 3) (T = 0: none);
+    ``max_markers`` a whole number >= 1; ``inputs`` member names.
     """
     usable = present(model)
     for name in given(model):
@@ -189,6 +190,16 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
     if n_nodes is not None:
         assert isinstance(n_nodes, int | np.integer) and n_nodes >= 1, (
             f"n_nodes must be a whole number >= 1, got {n_nodes!r}"
+        )
+    limit = member(model, "max_markers")
+    if limit is not None:
+        assert isinstance(limit, int | np.integer) and limit >= 1, (
+            f"max_markers must be a whole number >= 1, got {limit!r}"
+        )
+    inputs = member(model, "inputs")
+    if inputs is not None:
+        assert all(isinstance(n, str) for n in inputs), (
+            f"inputs must name model members (strings), got {inputs!r}"
         )
     bounds = bounds_of(model)
     if bounds is not None:

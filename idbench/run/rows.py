@@ -51,6 +51,7 @@ def base_row(spec: RunSpec) -> dict[str, Any]:
         "failed_step": np.nan,
         "traceback": "",
         "warning": "",
+        "observe_kind": spec.observe_kind(),
     }
 
 

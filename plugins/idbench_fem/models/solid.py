@@ -29,7 +29,9 @@ others, through :class:`~idbench_fem.fem.prescribed.PrescribedAssembler`;
 f_ext is zero, and Newton's floor is rtol times the load the first step
 puts on the unknowns. :meth:`reaction` is then the tool's force, and the
 model declares ``needs_observed = ("reaction",)``: its displacements do not
-depend on a homogeneous E.
+depend on a homogeneous E. Under a load (any other manipulation) the
+reaction is the support's, which balances the load whatever E: the model
+declares ``inputs = ("reaction",)`` (:class:`idbench.InputsModel`).
 
 Newton (:mod:`idbench_fem.fem.newton`): converged
 when :math:`\|r\| \le \max(\mathrm{rtol} \|f_{ext}(k)\|, \mathrm{atol})`
@@ -74,7 +76,7 @@ from idbench_fem.fem.solver import resolve_backend
 from idbench_fem.fem.svk_assembly import Assembler
 from idbench_fem.models.digests import body_digest, mesh_digest
 from idbench_fem.models.observables import Observables
-from idbench_fem.models.points import place_points
+from idbench_fem.models.points import place_points, reference_markers
 from idbench_fem.models.solid_settings import DEFAULT_BODY, SolidSettings
 
 log = logging.getLogger(__name__)
@@ -172,6 +174,8 @@ class SolidModel(Observables, BatchedSteps):
         self._driven: IntArray | None = None
         if self.manipulation.driven:  # the state keeps them, Newton does not
             self._init_driven(body, mesh, float(s.load_scale))
+        else:  # a load: the support's reaction balances it, whatever E
+            self.inputs = ("reaction",)
 
         # parameters: E per region; c_e = true modulus / its region's true value
         self.element_regions = resolve.element_regions(body, mesh)
@@ -212,6 +216,8 @@ class SolidModel(Observables, BatchedSteps):
             # the load the grasp's first step puts on the unknowns
             self.atol = float(s.atol or self.rtol) * self._driven_force_scale()
 
+        # the candidate markers: the body's listed points, or its region's nodes
+        self.max_markers = len(reference_markers(body, reference))
         placed = place_points(
             body, mesh, reference, markers, self._state_asm().full_to_free
         )
