@@ -192,6 +192,7 @@ def plan(config: CompareConfig, session: PlanSession) -> Plan:
         built = list(models.values())
         runs = expand(config, setup, resolve(config, reg, built))
     _check_corrected(runs, config)
+    _check_calibration_meshes(runs, config, reg, settings, models)
     runs, inputs = model_inputs(runs, session, config, settings, reg)
     solves, work = 0, {}
     for spec in runs:
@@ -593,6 +594,30 @@ def _check_corrected(runs: list[RunSpec], config: CompareConfig) -> None:
                 f"estimator {spec.estimator!r}: a correction on a recording needs "
                 "a calibration mesh (--calibration-mesh): a recording has no truth mesh"
             )
+
+
+def _check_calibration_meshes(
+    runs: list[RunSpec],
+    config: CompareConfig,
+    reg: Registry,
+    settings: Any,
+    models: dict[str, ForwardModel],
+) -> None:
+    """Refuse a calibration mesh that is not finer than a run's mesh, or another body.
+
+    As a truth mesh is checked (:func:`~idbench.plan.validity.check_truth_mesh`),
+    but the model mesh itself is refused too.
+
+    Raises
+    ------
+    ConfigError
+        One line naming both meshes and what differs.
+    """
+    pairs = {(str(dict(s.calibration)["mesh"]), s.mesh) for s in runs if s.calibration}
+    for fine, mesh in sorted(pairs):
+        if fine not in models:
+            models[fine] = _build(reg, config, fine, settings)
+        check_truth_mesh(models[fine], fine, models[mesh], mesh, role="calibration")
 
 
 def _known(kind: str, names: Any, table: dict[str, Any], reg: Registry) -> None:

@@ -393,11 +393,14 @@ def _run_on(
         model.parameters, stream, truth, spec.noise, means[-1],
         np.array([row[f"{n}_ref"] for n in spec.setup.names]),
     )  # fmt: skip
-    beyond = extrapolated_of(model)
-    if beyond:  # a corrected model asked beyond its calibrated load states
-        note = (f"the correction extrapolated ({beyond} predictions beyond the "
-                "calibrated load states)")  # fmt: skip
-        row["warning"] = "; ".join(w for w in (row["warning"], note) if w)
+    if "calibration_cost" in row:  # corrected: its predictions beyond the
+        # calibrated load states, the estimator's and the scores' (any estimator)
+        beyond = extrapolated_of(model) + extrapolated_of(metrics_model)
+        row["extrapolated"] = beyond
+        if beyond:
+            note = (f"the correction extrapolated ({beyond} predictions beyond "
+                    "the calibrated load states)")  # fmt: skip
+            row["warning"] = "; ".join(w for w in (row["warning"], note) if w)
 
 
 def _model_who(spec: RunSpec, session: Session) -> str:
