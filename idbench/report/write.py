@@ -14,10 +14,11 @@ import numpy as np
 import pandas as pd
 
 from idbench.core.sanitize import markdown_cell
+from idbench.report.caveats import caveat_lines
 from idbench.report.columns import headers, legend, seeds_note
 from idbench.report.paired import Paired, paired_markdown
 from idbench.report.summary import parameter_names, summarise, sweep_axes
-from idbench.report.text import FORMATS, markdown_table, summary_text
+from idbench.report.text import FORMATS, flagged_lines, markdown_table, summary_text
 from idbench.store import lock
 
 __all__ = [
@@ -295,6 +296,9 @@ def _write_report(
         *(markdown_cell(x) + "\n" for x in [legend(summary)] if not summary.empty),
         *(markdown_cell(x) + "\n" for x in seeds_note(summary)),
     ]
+    caveats = [*flagged_lines(runs), *caveat_lines(runs, traces)]
+    if caveats:  # what a reader must know before believing the numbers
+        lines += ["## Caveats", "", *(f"- {markdown_cell(x)}" for x in caveats), ""]
     for p in paired or []:
         lines += [paired_markdown(p), ""]
     if not table.empty:
@@ -315,6 +319,7 @@ def _write_report(
     md.write_text("\n".join(lines) + "\n")
     written.append(md)
     written.append(
-        write_html(root, runs, summary, frontier_display(table), svgs, paired)
+        write_html(root, runs, summary, frontier_display(table), svgs, paired,
+                   caveats=caveats)
     )
     return written

@@ -46,7 +46,7 @@ from idbench.plan.validity import run_warning
 from idbench.run import rows
 from idbench.run.checked import CheckedModel
 from idbench.run.session import Session
-from idbench.score import targets
+from idbench.score import metrics, targets
 from idbench.truth.simulate import Truth
 
 log = logging.getLogger(__name__)
@@ -393,6 +393,9 @@ def _run_on(
         model.parameters, stream, truth, spec.noise, means[-1],
         np.array([row[f"{n}_ref"] for n in spec.setup.names]),
     )  # fmt: skip
+    inconsistent = metrics.inconsistency(row["nis"], row["nis_dof"])
+    if inconsistent:  # a filter whose innovations do not match its noise
+        row["warning"] = "; ".join(w for w in (row["warning"], inconsistent) if w)
     if "calibration_cost" in row:  # corrected: its predictions beyond the
         # calibrated load states, the estimator's and the scores' (any estimator)
         beyond = extrapolated_of(model) + extrapolated_of(metrics_model)
