@@ -24,7 +24,10 @@ class CorrectedModel:
     the grid discrepancy, ``sensitivity`` by the chain rule
     (I + d mu / d z) J_c, ``targets`` (once calibrated) with the targets'
     discrepancy; ``reset``, ``step`` and ``cost`` are the coarse model's, and
-    ``describe`` is its description with the calibration's. An
+    ``describe`` is its description with the calibration's. Each prediction
+    (``observe``, ``grid``, ``targets``) whose load state lies beyond the
+    calibrated ones (:meth:`Discrepancy.extrapolates`) is counted in
+    :attr:`extrapolated`. An
     estimator that knows it reads the extra observation covariance from
     :meth:`observation_cov` (``R + observation_cov(state)`` is its noise);
     one that does not still gets the corrected mean.
@@ -73,23 +76,31 @@ class CorrectedModel:
 
     def observe(self, state: FloatArray) -> FloatArray:
         """h_c(state) + mu(h_c(state))."""
-        z = np.asarray(self.coarse.observe(state), dtype=float)
-        if self.discrepancy.extrapolates(z):
-            self.extrapolated += 1
+        z = self._load_state(state)
         return z + self.discrepancy.mean(z)
 
     def grid(self, state: FloatArray) -> FloatArray:
         """Coarse grid displacements plus the mean grid discrepancy."""
         g = np.asarray(self.coarse.grid(state), dtype=float)
-        z = np.asarray(self.coarse.observe(state), dtype=float)
+        z = self._load_state(state)
         return g + self.discrepancy.mean_grid(z).reshape(g.shape)
 
     def _targets(self, state: FloatArray) -> FloatArray:
         """Coarse target displacements plus the mean targets' discrepancy."""
         moved = member(self.coarse, "targets")
         t: FloatArray = np.asarray(moved(state), dtype=np.float64)
-        z = np.asarray(self.coarse.observe(state), dtype=float)
+        z = self._load_state(state)
         return np.asarray(t + self.discrepancy.mean_targets(z).reshape(t.shape))
+
+    def _load_state(self, state: FloatArray) -> FloatArray:
+        """The load state h_c(state) of a prediction; counted if it extrapolates.
+
+        The unloaded state (z = 0, also what a shape is probed with) is not.
+        """
+        z = np.asarray(self.coarse.observe(state), dtype=float)
+        if np.any(z) and self.discrepancy.extrapolates(z):
+            self.extrapolated += 1
+        return z
 
     def grid_cov(self, state: FloatArray) -> FloatArray:
         """The grid prediction's discrepancy covariance per point (G, d, d)."""

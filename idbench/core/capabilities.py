@@ -43,9 +43,11 @@ from idbench.core.optional import (
     CellDataModel,
     DiscrepancyModel,
     FieldModel,
+    InputsModel,
     LinearObservationModel,
     LoadFiguresModel,
     LoadScalingModel,
+    MarkerLimitModel,
     NodeCountModel,
     ObservationNeedsModel,
     ObservationPointsModel,
@@ -79,6 +81,8 @@ OPTIONAL: dict[str, type] = {
     "marker_points": PlacedPointsModel,
     "target_points": PlacedPointsModel,
     "needs_observed": ObservationNeedsModel,
+    "inputs": InputsModel,
+    "max_markers": MarkerLimitModel,
     "observation_cov": DiscrepancyModel,
     "grid_cov": DiscrepancyModel,
     "targets_cov": DiscrepancyModel,
@@ -160,6 +164,24 @@ def needs_observed_of(model: Any) -> tuple[str, ...]:
     """
     value = member(model, "needs_observed")
     return tuple(str(v) for v in value) if value else ()
+
+
+def inputs_of(model: Any) -> tuple[str, ...]:
+    """Members of ``model`` that give its input, not a measurement (empty: none).
+
+    See :class:`~idbench.core.optional.InputsModel`.
+    """
+    value = member(model, "inputs")
+    return tuple(str(v) for v in value) if value else ()
+
+
+def max_markers_of(model: Any) -> int | None:
+    """The most markers ``model`` can place, or None where it does not say.
+
+    See :class:`~idbench.core.optional.MarkerLimitModel`.
+    """
+    value = member(model, "max_markers")
+    return None if value is None else int(value)
 
 
 def n_nodes_of(model: Any) -> int | None:
@@ -391,6 +413,12 @@ def state_of(estimate: Any) -> Any:
 def needs_theta_of(observation: Any) -> bool:
     """Whether an observation model's prediction uses theta itself."""
     return bool(observation_member(observation, "needs_theta"))
+
+
+def observation_check_of(observation: Any) -> Callable[[Any], None] | None:
+    """An observation model's ``check(model)`` (None without one)."""
+    value: Callable[[Any], None] | None = observation_member(observation, "check")
+    return value
 
 
 def plugin_version_of(plugin: Any) -> str:

@@ -40,6 +40,19 @@ class ModelFailure(RuntimeError):
         self.step = step
 
 
+class ModelError(RuntimeError):
+    """A model broke the protocol: an answer of the wrong shape.
+
+    Not a failed solve (:class:`ModelFailure`): a fault of the model's code,
+    charged to it. The message says which call returned what (the run room
+    adds the model's name and plugin).
+    """
+
+    def __init__(self, message: str, step: int | None = None) -> None:
+        super().__init__(message)
+        self.step = step
+
+
 class Diverged(RuntimeError):
     """An estimator's state became non-finite or left the parameter bounds."""
 

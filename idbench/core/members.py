@@ -105,6 +105,14 @@ OBSERVATION_OPTIONAL: dict[str, Member] = {
         "state (force): the prediction is carried in the estimators' state "
         "(idbench.observe.observed_model)",
     ),
+    "check": Member(
+        None,
+        "check(model) -> None: before any run, on each model of the comparison "
+        "(truth and model meshes), raise ValueError naming a setting that "
+        "cannot work on it (a camera inside the body, or seeing too little of "
+        "it); idbench.plan.check refuses the comparison with that line",
+        method=True,
+    ),
     "linearize": Member(
         None,
         "linearize(model, frame, theta, k, state) -> (H_u, H_theta): dh/du "

@@ -85,6 +85,38 @@ class ObservationNeedsModel(ForwardModel, Protocol):
 
 
 @runtime_checkable
+class InputsModel(ForwardModel, Protocol):
+    """A forward model some of whose members give its input, not a measurement.
+
+    Optional: ``inputs`` names model members (``("reaction",)``) whose values
+    the load path prescribes whatever theta is. A solid loaded by a force
+    declares ``("reaction",)``: its support's reaction balances the applied
+    load. An observation whose every block uses only such members cannot
+    identify anything, and is refused at plan time.
+    """
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        """Members whose values do not depend on the parameters (may be empty)."""
+        ...
+
+
+@runtime_checkable
+class MarkerLimitModel(ForwardModel, Protocol):
+    """A forward model that says how many markers it can place.
+
+    Optional: a comparison asking for more markers (``obs_points``) than
+    ``max_markers`` of any of its models is refused at plan time, before
+    anything of that size is allocated.
+    """
+
+    @property
+    def max_markers(self) -> int:
+        """The most markers the model can place (its candidate points), >= 1."""
+        ...
+
+
+@runtime_checkable
 class TargetModel(ForwardModel, Protocol):
     """A forward model with hidden targets (a tumour, points on a vessel).
 

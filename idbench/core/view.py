@@ -124,6 +124,8 @@ class ModelView:
     marker_points = Delegated()
     target_points = Delegated()
     needs_observed = Delegated()
+    inputs = Delegated()
+    max_markers = Delegated()
     observation_cov = Delegated()
     grid_cov = Delegated()
     targets_cov = Delegated()

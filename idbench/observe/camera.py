@@ -12,6 +12,7 @@ it.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -35,6 +36,24 @@ def camera_rays(
     r = np.cross(f, up)
     r /= np.linalg.norm(r)
     return r, np.cross(r, f), f
+
+
+def winding_number(
+    point: FloatArray, vertices: FloatArray, triangles: NDArray[np.int64]
+) -> float:
+    r"""How many times the closed surface (vertices, triangles) winds around ``point``.
+
+    The sum of the solid angles the triangles subtend at the point over
+    :math:`4\pi` (Van Oosterom and Strackee's formula, vectorised over the
+    triangles): 1 inside a closed surface with outward normals, 0 outside
+    (about 0.5 on it).
+    """
+    a, b, c = (vertices[triangles[:, i]] - point for i in range(3))
+    la, lb, lc = (np.linalg.norm(x, axis=1) for x in (a, b, c))
+    dot = functools.partial(np.einsum, "ij,ij->i")
+    det = dot(a, np.cross(b, c))
+    den = la * lb * lc + dot(a, b) * lc + dot(b, c) * la + dot(c, a) * lb
+    return float(np.sum(2.0 * np.arctan2(det, den)) / (4.0 * np.pi))
 
 
 def render(

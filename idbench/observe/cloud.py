@@ -39,7 +39,7 @@ import numpy as np
 
 from idbench.core.capabilities import member
 from idbench.core.interfaces import FloatArray, ForwardModel
-from idbench.observe.camera import render
+from idbench.observe.camera import render, winding_number
 from idbench.observe.surface import (
     CANDIDATES,
     point_to_surface,
@@ -254,6 +254,41 @@ class Cloud:
         fields.pop("noise")
         fields.pop("requires")
         return ["cloud", sorted((k, _plain(v)) for k, v in fields.items())]
+
+    def check(self, model: ForwardModel) -> None:
+        """Refuse a camera that cannot see the unloaded body of ``model`` well enough.
+
+        Raises
+        ------
+        ValueError
+            The camera inside the body; seeing no part of it (looking away);
+            or fewer distinct surface pixels (after ``holes``) than ``points``.
+        """
+        vertices, triangles = surface_of(model, model.reset())
+        origin, look = self.pose(vertices)
+        at = np.round(origin, 6).tolist()
+        if abs(winding_number(origin, vertices, triangles)) > 0.5:
+            raise ValueError(
+                f"the camera at {at} is inside the body; place it outside "
+                "(position, or direction and distance)"
+            )
+        _, depth, _ = render(
+            vertices, triangles, origin, look, self.resolution, self.fov
+        )
+        if depth.size == 0:
+            raise ValueError(
+                f"the camera at {at} looking at {np.round(look, 6).tolist()} sees "
+                "no part of the body (it looks away from it); check position, "
+                "look_at, direction, fov"
+            )
+        seen = depth.size - round(self.holes * depth.size)
+        if seen < self.points:
+            raise ValueError(
+                f"points = {self.points}: the camera sees {seen} distinct surface "
+                f"pixels of the unloaded body at resolution {list(self.resolution)}"
+                + (f" (holes = {self.holes:g})" if self.holes else "")
+                + f"; ask for at most {seen} points, or raise the resolution"
+            )
 
     # -- the camera -------------------------------------------------------------
 

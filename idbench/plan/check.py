@@ -27,8 +27,6 @@ from idbench.core.capabilities import (
     bounds_of,
     estimate_solves_of,
     n_nodes_of,
-    needs_observed_of,
-    requirement_met,
 )
 from idbench.core.interfaces import ConfigError, ForwardModel, ModelSpec
 from idbench.core.settings import (
@@ -44,7 +42,8 @@ from idbench.core.settings import (
 from idbench.estimate.posterior import PosteriorSettings, check_budget
 from idbench.observe import kinds
 from idbench.plan.config import CompareConfig
-from idbench.plan.runspec import Items, RunSpec, Setup, expand
+from idbench.plan.observations import check_markers, check_observed, resolve
+from idbench.plan.runspec import RunSpec, Setup, expand
 from idbench.plan.validity import check_prior, check_truth_mesh
 from idbench.registry.registry import Registry, used_plugins
 from idbench.store import recording
@@ -183,6 +182,7 @@ def plan(config: CompareConfig, session: PlanSession) -> Plan:
         build = functools.partial(session.model, runs[0], mesh, role=role)
         models[mesh] = model = _build(reg, config, mesh, settings, build)
         nodes[mesh] = int(n_nodes_of(model) or 0)
+    check_markers(config, models)
     for mesh in config.meshes if rec is None else ():
         truth = models[config.truth_mesh]
         check_truth_mesh(truth, config.truth_mesh, models[mesh], mesh)
@@ -195,11 +195,12 @@ def plan(config: CompareConfig, session: PlanSession) -> Plan:
         built = list(models.values())
         runs = expand(config, setup, resolve(config, reg, built))
     _check_corrected(runs, config)
+    _check_calibration_meshes(runs, config, reg, settings, models)
     runs, inputs = model_inputs(runs, session, config, settings, reg)
     solves, work, skipped, guesses = 0, {}, [], {}
     for spec in runs:
         model = session.model(spec, spec.mesh)
-        _check_observed(spec, model, session)
+        check_observed(spec, model, session)
         n_state = model.reset().size
         guess = _guess_solves(reg, spec, n_state, model.parameters.p)
         work[spec.run_id] = float(guess) * n_state
@@ -310,45 +311,6 @@ def _same(given: Any, recorded: Any) -> bool:
     return False
 
 
-def _check_observed(spec: RunSpec, model: ForwardModel, session: PlanSession) -> None:
-    """Refuse a run whose observation uses none of the members its model needs.
-
-    See :class:`~idbench.core.optional.ObservationNeedsModel` (a solid whose tool
-    moves by a prescribed displacement needs its ``reaction``: the force).
-
-    Raises
-    ------
-    ConfigError
-        One line naming the scenario and the observations that would do.
-    """
-    needs = needs_observed_of(model)
-    if not needs:
-        return
-    used = {m for _, b in kinds.leaves(session.observation_model(spec))
-            for m in b.requires}  # fmt: skip
-    if used & set(needs):
-        return
-    would = []
-    for kind in sorted(kinds.kinds(session.registry)):
-        try:
-            block = kinds.build(kind, {}, session.registry)
-        except (ConfigError, TypeError, ValueError):  # a kind with required settings
-            continue
-        if set(block.requires) & set(needs):
-            would.append(kind)
-    fix = (
-        f"add --observe {would[0]} or markers+{would[0]}"
-        if would
-        else "use an observation model that does"
-    )
-    raise ConfigError(
-        f"scenario {spec.scenario!r}: its parameters are identifiable only if an "
-        f"observation uses the model's {' or '.join(f'{n}()' for n in needs)} "
-        f"(observe {spec.observe!r} does not: displacements alone do not depend "
-        f"on them); {fix}"
-    )
-
-
 def model_inputs(
     runs: list[RunSpec],
     session: PlanSession,
@@ -413,42 +375,6 @@ def _guess_solves(reg: Registry, spec: RunSpec, n_state: int, p: int) -> int:
     except (Exception, SystemExit) as exc:
         log.warning("estimator %r cannot estimate its cost: %r", spec.estimator, exc)
         return 2 * steps
-
-
-def resolve(
-    config: CompareConfig, registry: Any, models: list[ForwardModel]
-) -> dict[str, Items]:
-    """Each ``config.observe`` name -> its resolved settings per block.
-
-    ``models`` are built models of the comparison (a model mesh and the
-    truth): each must have every member the observation models require.
-
-    Raises
-    ------
-    ConfigError
-        Naming the bad value and what is allowed.
-    """
-    tables = config.observe_settings
-    known = kinds.kinds(registry)
-    used = {b for name in config.observe for b in kinds.block_names(name)}
-    for table in tables:
-        if table not in used and table not in known:
-            raise ConfigError(
-                f"[observe.{table}] is not used: observe names "
-                f"{', '.join(config.observe)}"
-            )
-    out: dict[str, Items] = {}
-    for name in config.observe:
-        obs = kinds.build(name, tables, registry)
-        for member in obs.requires:
-            for model in models:
-                if not requirement_met(model, member):
-                    raise ConfigError(
-                        f"observe {name!r} needs the model's {member}(); model "
-                        f"{config.model!r} ({type(model).__name__}) has none"
-                    )
-        out[name] = kinds.settings_items(name, tables, registry)
-    return out
 
 
 def _build(
@@ -546,6 +472,30 @@ def _check_corrected(runs: list[RunSpec], config: CompareConfig) -> None:
                 f"estimator {spec.estimator!r}: a correction on a recording needs "
                 "a calibration mesh (--calibration-mesh): a recording has no truth mesh"
             )
+
+
+def _check_calibration_meshes(
+    runs: list[RunSpec],
+    config: CompareConfig,
+    reg: Registry,
+    settings: Any,
+    models: dict[str, ForwardModel],
+) -> None:
+    """Refuse a calibration mesh that is not finer than a run's mesh, or another body.
+
+    As a truth mesh is checked (:func:`~idbench.plan.validity.check_truth_mesh`),
+    but the model mesh itself is refused too.
+
+    Raises
+    ------
+    ConfigError
+        One line naming both meshes and what differs.
+    """
+    pairs = {(str(dict(s.calibration)["mesh"]), s.mesh) for s in runs if s.calibration}
+    for fine, mesh in sorted(pairs):
+        if fine not in models:
+            models[fine] = _build(reg, config, fine, settings)
+        check_truth_mesh(models[fine], fine, models[mesh], mesh, role="calibration")
 
 
 def _known(kind: str, names: Any, table: dict[str, Any], reg: Registry) -> None:

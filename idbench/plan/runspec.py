@@ -137,6 +137,18 @@ class RunSpec:
         """Whether the run observes anything but plain markers."""
         return self.observe != "markers" or bool(self.observe_settings)
 
+    def observe_kind(self) -> str:
+        """The observation models that run, by kind (``cloud`` for ``cloud500``).
+
+        Each block of :attr:`observe` (``A+B``) as the kind its settings
+        resolved it to: a table's ``kind``, else the block's own name.
+        """
+        resolved = {block: dict(items).get("kind", block)
+                    for block, items in self.observe_settings}  # fmt: skip
+        return "+".join(
+            str(resolved.get(b.strip(), b.strip())) for b in self.observe.split("+")
+        )
+
     def _observe_key(self) -> list[Any]:
         if not self.observed_otherwise():
             return []

@@ -61,29 +61,38 @@ def check_prior(
         )
 
 
-def check_truth_mesh(truth: Any, truth_mesh: str, model: Any, mesh: str) -> None:
+def check_truth_mesh(
+    truth: Any, truth_mesh: str, model: Any, mesh: str, role: str = "truth"
+) -> None:
     """Refuse a truth that is not finer than ``mesh`` or is another body.
 
     The truth must have more nodes than every model mesh (the same mesh spec,
     an "inverse crime" check, is allowed), and, where both models expose
     ``bounds`` and ``volume``, the same bounding box (within
     :data:`BOX_TOLERANCE` of its extent) and volume (within
-    :data:`VOLUME_TOLERANCE`).
+    :data:`VOLUME_TOLERANCE`). With ``role = "calibration"`` the same
+    checks for a calibration mesh, whose same mesh spec is refused too (its
+    discrepancy would be zero).
 
     Raises
     ------
     ConfigError
         Naming both meshes and what differs.
     """
-    if mesh == truth_mesh:
+    if mesh == truth_mesh and role == "truth":
         return
-    pair = f"truth mesh {truth_mesh!r} and model mesh {mesh!r}"
+    pair = f"{role} mesh {truth_mesh!r} and model mesh {mesh!r}"
+    if mesh == truth_mesh:
+        raise ConfigError(
+            f"{role} mesh {truth_mesh!r} is model mesh {mesh!r} itself; the "
+            f"{role} mesh must be a finer mesh of the same body"
+        )
     n_truth, n_model = n_nodes_of(truth), n_nodes_of(model)
     if n_truth is not None and n_model is not None and n_truth <= n_model:
         raise ConfigError(
-            f"truth mesh {truth_mesh!r} ({n_truth} nodes) is not finer than model "
-            f"mesh {mesh!r} ({n_model} nodes); the truth must have more nodes than "
-            "every model mesh"
+            f"{role} mesh {truth_mesh!r} ({n_truth} nodes) is not finer than model "
+            f"mesh {mesh!r} ({n_model} nodes); the {role} mesh must have more nodes "
+            "than every model mesh"
         )
     box_t, box_m = _bounds(truth), _bounds(model)
     if box_t is not None and box_m is not None and box_t.shape == box_m.shape:
@@ -93,7 +102,7 @@ def check_truth_mesh(truth: Any, truth_mesh: str, model: Any, mesh: str) -> None
         if off[axis] > BOX_TOLERANCE:
             raise ConfigError(
                 f"{pair} are not the same body: their bounding boxes differ by "
-                f"{off[axis]:.0%} of the truth's extent along axis {axis} (truth "
+                f"{off[axis]:.0%} of the {role}'s extent along axis {axis} ({role} "
                 f"{_box(box_t)}, model {_box(box_m)}; allowed {BOX_TOLERANCE:.0%})"
             )
     v_t, v_m = volume_of(truth), volume_of(model)

@@ -144,7 +144,9 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
     ``observe(state)`` (3M values), and ``target_points`` (T, 3), one a
     target of ``targets(state)``;
     ``load_figures()`` finite numbers >= 0 by name (each a column
-    ``load_NAME_ratio``).
+    ``load_NAME_ratio``);
+
+    ``max_markers`` a whole number >= 1; ``inputs`` member names.
     """
     usable = present(model)
     for name in given(model):
@@ -209,6 +211,16 @@ def check_optional_members(model: ForwardModel, state: FloatArray) -> None:
     if n_nodes is not None:
         assert isinstance(n_nodes, int | np.integer) and n_nodes >= 1, (
             f"n_nodes must be a whole number >= 1, got {n_nodes!r}"
+        )
+    limit = member(model, "max_markers")
+    if limit is not None:
+        assert isinstance(limit, int | np.integer) and limit >= 1, (
+            f"max_markers must be a whole number >= 1, got {limit!r}"
+        )
+    inputs = member(model, "inputs")
+    if inputs is not None:
+        assert all(isinstance(n, str) for n in inputs), (
+            f"inputs must name model members (strings), got {inputs!r}"
         )
     bounds = bounds_of(model)
     if bounds is not None:

@@ -132,6 +132,7 @@ def write_html(
     svgs: dict[str, str],
     paired: list[Any] | None = None,
     view: str = "",
+    caveats: list[str] | None = None,
 ) -> Path:
     """Write ``root/report.html`` and return its path.
 
@@ -153,6 +154,9 @@ def write_html(
     view
         The 3D view's section (:func:`idbench.report.view3d.section`), shown
         after them.
+    caveats
+        Lines a reader must know before believing the numbers (flagged runs,
+        disagreements, incomplete traces), shown as text after the summary.
     """
     manifest_path = root / "manifest.json"
     manifest = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
@@ -182,6 +186,7 @@ def write_html(
         f"<p>{html.escape(legend(summary))}</p>" if not summary.empty else "",
         _summary_table(summary, headers(summary)),
         *(f"<p>{html.escape(line)}</p>" for line in seeds_note(summary)),
+        *_caveats(caveats or []),
         *(paired_html(p) for p in paired or []),
         view,
     ]
@@ -327,6 +332,13 @@ def _table(
         f'<table id="{ident}" class="sortable"><thead><tr>{head}</tr></thead>'
         f"<tbody>{''.join(body)}</tbody></table>"
     )
+
+
+def _caveats(lines: list[str]) -> list[str]:
+    """The caveats section's HTML (none without lines)."""
+    if not lines:
+        return []
+    return ["<h2>Caveats</h2><ul>", *(f"<li>{_text(c)}</li>" for c in lines), "</ul>"]
 
 
 def _text(value: Any, join_lines: bool = False) -> str:

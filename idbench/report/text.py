@@ -3,9 +3,10 @@
 :func:`summary_text` renders :func:`idbench.report.summary.summarise` with
 the columns of :mod:`idbench.report.columns`; a table wider than the
 terminal is split in blocks of columns (:func:`text_blocks`). The runs a
-warning flags are listed after it (:func:`flagged_lines`). Strings from
-plugins are shown through :func:`idbench.core.sanitize.printable` (in
-markdown, :func:`idbench.core.sanitize.markdown_cell`).
+warning flags are listed after it (:func:`flagged_lines`), then estimators
+that disagree on the same data (:func:`idbench.report.caveats.disagreements`).
+Strings from plugins are shown through :func:`idbench.core.sanitize.printable`
+(in markdown, :func:`idbench.core.sanitize.markdown_cell`).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import textwrap
 import pandas as pd
 
 from idbench.core.sanitize import markdown_cell, printable
+from idbench.report.caveats import disagreements
 from idbench.report.columns import (
     format_cell,
     headers,
@@ -60,10 +62,10 @@ def summary_text(
         return str(summary.to_json(orient="records", indent=1))
     if summary.empty:
         return "(no runs)"
-    flags = flagged_lines(runs)
+    flags = flagged_lines(runs) + disagreements(runs)
     if fmt == "markdown":
         text = markdown_table(summary, headers(summary))
-        flags = flagged_lines(runs, markdown=True)
+        flags = flagged_lines(runs, markdown=True) + disagreements(runs, True)
         return "\n\n".join([text, "\n".join(flags)]) if flags else text
     cols, rows, numeric = summary_cells(summary)
     if width is None:
@@ -89,9 +91,8 @@ def summary_text(
         lines += textwrap.wrap(
             f"[{j}] {note}", width=max(width, 40), subsequent_indent="    "
         )
-    for line in seeds_note(summary):
+    for line in [*seeds_note(summary), *flags]:
         lines += textwrap.wrap(line, width=max(width, 40), subsequent_indent="    ")
-    lines += flags
     return "\n".join(lines).rstrip()
 
 

@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 
 from idbench.core.sanitize import markdown_cell
+from idbench.report.caveats import caveat_lines
 from idbench.report.columns import headers, legend, seeds_note
 from idbench.report.maps import is_field, map_figure
 from idbench.report.paired import Paired, paired_markdown
@@ -314,6 +315,9 @@ def _write_report(
         *(markdown_cell(x) + "\n" for x in seeds_note(summary)),
         *_markdown_flags(runs),
     ]
+    caveats = [*flagged_lines(runs), *caveat_lines(runs, traces)]
+    if caveats:  # what a reader must know before believing the numbers
+        lines += ["## Caveats", "", *(f"- {markdown_cell(x)}" for x in caveats), ""]
     for p in paired or []:
         lines += [paired_markdown(p), ""]
     if not table.empty:
@@ -345,7 +349,7 @@ def _write_report(
     written.append(
         write_html(
             root, runs, summary, frontier_display(table), svgs, paired,
-            section(scenes, runs),
+            section(scenes, runs), caveats=caveats,
         )
     )
     return written

@@ -16,7 +16,7 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -32,6 +32,7 @@ from idbench.core.interfaces import (
     Diverged,
     FloatArray,
     ForwardModel,
+    ModelError,
     ModelFailure,
     Observation,
     Skipped,
@@ -43,8 +44,9 @@ from idbench.plan.config import ConfigError
 from idbench.plan.runspec import RunSpec
 from idbench.plan.validity import run_warning
 from idbench.run import rows
+from idbench.run.checked import CheckedModel
 from idbench.run.session import Session
-from idbench.score import targets
+from idbench.score import metrics, targets
 from idbench.store import surfaces
 from idbench.truth.simulate import Truth
 
@@ -142,7 +144,7 @@ def _blame(who: str, call: str, step: int | None = None) -> Iterator[None]:
     at = f" at step {step}" if step is not None else ""
     try:
         yield
-    except (Diverged, ModelFailure, Skipped, ConfigError):
+    except (Diverged, ModelFailure, Skipped, ConfigError, ModelError):
         raise
     except SystemExit as exc:
         raise EstimatorError(
@@ -239,6 +241,12 @@ def execute(
         row.update(status="skipped", error=str(exc))
     except (Diverged, ModelFailure) as exc:
         row.update(status="diverged", error=str(exc), failed_step=exc.step)
+    except ModelError as exc:  # the model's fault, named (not the estimator's)
+        row.update(
+            status="failed",
+            error=str(exc),
+            failed_step=np.nan if exc.step is None else exc.step,
+        )
     except EstimatorError as exc:
         row.update(
             status="failed",
@@ -339,7 +347,14 @@ def _run_on(
     refused = occlusion.refusal(spec.estimator, estimator, stream)
     if refused:  # NaN entries an estimator off idbench.Filter does not mask
         raise Skipped(refused)
-    direct = session.direct(spec)
+    named = _model_who(spec, session)
+    try:
+        direct = session.direct(spec)
+    except ModelError as exc:  # the model run with the true values
+        raise ModelError(f"{named} {exc}", exc.step) from None
+    # its answers' shapes checked: a model's fault names the model
+    m = None if spec.setup.data else int(np.shape(truth.observations)[-1])
+    checked = CheckedModel(model, named, m)
     row[surfaces.ROW_KEY] = recorder = surfaces.Recorder(
         metrics_model, spec.setup.steps, _view_keys(spec),
         session.observation_model(spec),
@@ -351,13 +366,15 @@ def _run_on(
     with _deadline(spec.timeout):  # the estimator's own work, not shared inputs
         t_start = time.perf_counter()
         with _blame(who, "start()"):
-            seen = session.estimator_model(spec, model)  # h(x) of the run's
+            seen = session.estimator_model(spec, cast(ForwardModel, checked))
             if correction_of(estimator) == "prior-mean":  # + mu_k, a fine mesh's
                 seen = session.mean_corrected(spec, seen)
-            estimator.start(seen, session.prior(master, spec))  # observation model
+            estimator.start(seen, session.prior(master, spec))  # h(x) of its obs.
+        if checked.fault is not None:  # even if the estimator caught it
+            raise checked.fault
         est, means, stds, last = _estimate(
             spec, estimator, who, stream, truth, direct, traces,
-            (model, metrics_model), t_start, recorder,
+            (checked, metrics_model), t_start, recorder,
         )  # fmt: skip
     if phase is not None:
         phase("scoring")
@@ -388,11 +405,24 @@ def _run_on(
         model.parameters, stream, truth, spec.noise, means[-1],
         np.array([row[f"{n}_ref"] for n in spec.setup.names]),
     )  # fmt: skip
-    beyond = extrapolated_of(model)
-    if beyond:  # a corrected model asked beyond its calibrated load states
-        note = (f"the correction extrapolated ({beyond} predictions beyond the "
-                "calibrated load states)")  # fmt: skip
-        row["warning"] = "; ".join(w for w in (row["warning"], note) if w)
+    inconsistent = metrics.inconsistency(row["nis"], row["nis_dof"])
+    if inconsistent:  # a filter whose innovations do not match its noise
+        row["warning"] = "; ".join(w for w in (row["warning"], inconsistent) if w)
+    if "calibration_cost" in row:  # corrected: its predictions beyond the
+        # calibrated load states, the estimator's and the scores' (any estimator)
+        beyond = extrapolated_of(model) + extrapolated_of(metrics_model)
+        row["extrapolated"] = beyond
+        if beyond:
+            note = (f"the correction extrapolated ({beyond} predictions beyond "
+                    "the calibrated load states)")  # fmt: skip
+            row["warning"] = "; ".join(w for w in (row["warning"], note) if w)
+
+
+def _model_who(spec: RunSpec, session: Session) -> str:
+    """The run's model as its faults name it: model, plugin and mesh."""
+    name = spec.setup.model
+    plugin = session.registry.models[name].plugin
+    return f"model {name!r} (plugin {plugin!r}) on mesh {spec.mesh!r}"
 
 
 def _view_keys(spec: RunSpec) -> dict[str, str]:
@@ -410,7 +440,7 @@ def _estimate(
     truth: Truth,
     direct: FloatArray,
     traces: list[dict[str, Any]],
-    models: tuple[ForwardModel, ForwardModel],
+    models: tuple[CheckedModel, ForwardModel],
     t_start: float,
     recorder: surfaces.Recorder,
 ) -> tuple[Any, FloatArray, FloatArray, FloatArray]:
@@ -421,7 +451,7 @@ def _estimate(
     The shape error uses the estimator's own state where it has one, else one
     forward solve with the current estimate (not counted).
     """
-    _, metrics_model = models  # bounds from the metrics model (not lent out)
+    checked, metrics_model = models  # bounds from the metrics model (not lent out)
     p = metrics_model.parameters.p
     shadow = metrics_model.reset()
     means = np.full((spec.setup.steps, p), np.nan)
@@ -434,6 +464,8 @@ def _estimate(
         t0 = time.perf_counter()
         with _blame(who, "update()", k):
             est = estimator.update(k, obs)
+            if checked.fault is not None:  # even if the estimator caught it
+                raise checked.fault
             mean, std = _checked(who, est, p, k)
         dt = time.perf_counter() - t0
         if not metrics_model.parameters.contains(mean):

@@ -52,6 +52,7 @@ def base_row(spec: RunSpec) -> dict[str, Any]:
         "failed_step": np.nan,
         "traceback": "",
         "warning": "",
+        "observe_kind": spec.observe_kind(),
     }
 
 
@@ -107,6 +108,7 @@ def step_row(
         row[n] = mean[j]
         row[f"{n}_std"] = std[j]
     row["nis"] = _nis(innovation) if observation is not None else np.nan
+    row["nis_dof"] = _size(innovation) if np.isfinite(row["nis"]) else 0
     row.update(
         shape_error=se_sum,
         shape_error_mean=se_mean,
@@ -127,6 +129,27 @@ def _nis(innovation: Any) -> float:
     except (TypeError, ValueError) as exc:
         log.warning("innovation is not (residual, covariance): %s", exc)
         return np.nan
+
+
+def _size(innovation: Any) -> int:
+    """The number of observed values an innovation (nu, S) has (its NIS's dof)."""
+    return int(np.size(innovation[0]))
+
+
+def nis_columns(traces: list[dict[str, Any]]) -> dict[str, float]:
+    """The run's NIS summed over its observed steps and its degrees of freedom.
+
+    ``nis`` (the sum of the traces' finite ``nis``) and ``nis_dof`` (the sum
+    of their ``nis_dof``, the observed values); both NaN where no step has a
+    NIS (the estimator gives no innovation). See
+    :func:`idbench.score.metrics.inconsistency`.
+    """
+    nis = np.array([t["nis"] for t in traces], dtype=float)
+    seen = np.isfinite(nis)
+    if not seen.any():
+        return {"nis": np.nan, "nis_dof": np.nan}
+    dof = np.array([t["nis_dof"] for t in traces], dtype=float)
+    return {"nis": float(nis[seen].sum()), "nis_dof": float(dof[seen].sum())}
 
 
 def uncertainty_columns(
@@ -233,6 +256,7 @@ def final_columns(
     field = parameter_field_of(session.model(spec, spec.mesh))
     if field is not None:  # a map: its own metrics (idbench.score.maps)
         out.update(maps.map_columns(field, means[-1], stds[-1], true))
+    out.update(nis_columns(traces))
     out["n_solves"] = estimate.cost.forward_solves
     out["newton_its"] = estimate.cost.newton_its
     out["wall_s_step"] = float(np.mean([t["wall_s"] for t in traces]))

@@ -325,6 +325,58 @@ def nis(innovation: ArrayLike, covariance: ArrayLike) -> float:
         return float("nan")
 
 
+NIS_LEVEL = 0.95
+"""Probability of the two-sided chi-square band a run's summed NIS is tested against."""
+
+
+def nis_band(dof: float, level: float = NIS_LEVEL) -> tuple[float, float]:
+    r"""The two-sided ``level`` band of a chi-square with ``dof`` degrees of freedom.
+
+    A consistent filter's innovations nu_k (m_k,) are independent with
+    covariances S_k, so its NIS summed over the observed steps,
+
+    .. math::
+
+        \sum_k \nu_k^T S_k^{-1} \nu_k \sim \chi^2_{\sum_k m_k},
+
+    (exactly for a linear-Gaussian model whose truth is drawn from the prior)
+    lies in this band with probability ``level``; a sum above it says the
+    filter's spread is too small for its data, below it too large.
+
+    Returns
+    -------
+    tuple of float
+        The ``(1 - level) / 2`` and ``(1 + level) / 2`` quantiles (NaN for
+        ``dof`` < 1).
+    """
+    if not dof >= 1:
+        return float("nan"), float("nan")
+    tail = (1.0 - level) / 2.0
+    chi2 = scipy.stats.chi2(dof)
+    return float(chi2.ppf(tail)), float(chi2.ppf(1.0 - tail))
+
+
+INCONSISTENT = "inconsistent"
+"""The word that flags a run whose NIS lies outside its band (``warning``)."""
+
+
+def inconsistency(total: float, dof: float) -> str:
+    """Why a run is inconsistent with its data ('' if it is not, or cannot say).
+
+    Its summed NIS ``total`` outside the two-sided 95% chi-square band of
+    ``dof`` degrees of freedom (:func:`nis_band`).
+    """
+    lo, hi = nis_band(dof)
+    if not (np.isfinite(total) and np.isfinite(lo)) or lo <= total <= hi:
+        return ""
+    side = ("above", "too small") if total > hi else ("below", "too large")
+    return (
+        f"{INCONSISTENT}: its NIS lies {side[0]} the 95% chi-square band of its "
+        f"degrees of freedom (columns nis, nis_dof): its spread is {side[1]} for "
+        "its data, its interval not to be believed"
+    )
+
+
 TARGET_LEVEL = 0.95
 """Probability mass of the target-covariance region a TRE coverage tests."""
 

@@ -22,7 +22,12 @@ from idbench.core.capabilities import (
     n_nodes_of,
     probes_of,
 )
-from idbench.core.interfaces import FloatArray, ForwardModel, ModelFailure
+from idbench.core.interfaces import (
+    FloatArray,
+    ForwardModel,
+    ModelError,
+    ModelFailure,
+)
 from idbench.store.files import stable_hash
 from idbench.truth.cache import cache_dir, read_states, write_states
 
@@ -103,6 +108,12 @@ def simulate_path(
     states = np.empty((n_steps, state.size))
     for k in range(1, n_steps + 1):
         state = model.step(theta, k, state)
+        if np.shape(state) != states.shape[1:]:
+            raise ModelError(
+                f"returned a state of shape {np.shape(state)} from step() at step "
+                f"{k}; expected {states.shape[1:]}, the shape of its reset()",
+                step=k,
+            )
         states[k - 1] = state
         if on_step is not None:
             on_step(k, n_steps)

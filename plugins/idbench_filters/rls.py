@@ -13,7 +13,8 @@ differences in xi (p extra solves). With forgetting factor lambda:
     \quad \xi \leftarrow \xi + K (y - h), \quad P = P^- - K S K^T.
 
 Forgetting applies at observed steps only. With lambda = 1 and a linear model
-this is the exact Gaussian posterior given the prior. The reported state is
+this is the exact Gaussian posterior given the prior. The innovation
+(y - h, S) is kept for the normalized innovation squared (NIS). The reported state is
 the one the innovation was computed with (the estimate before the update).
 
 With ``correction = "approximation-error"`` (:class:`idbench.Filter`) h is
@@ -72,6 +73,7 @@ class Rls(Filter):
             J, e = linear
             Pm = P / self.forgetting
             S = J @ Pm @ J.T + self.noise_cov(observation, u)
+            self.innovation = (e, S)  # the traces' NIS
             K = np.linalg.solve(S, J @ Pm).T  # (p, m); S symmetric
             xi = xi + K @ e
             P = Pm - K @ S @ K.T

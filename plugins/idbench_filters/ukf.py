@@ -18,7 +18,8 @@ has one (shared factorizations; see :class:`idbench.BatchModel`), else one
 "approximation-error"`` (:class:`idbench.Filter`) h is the corrected model's
 and R the matrix R + Sigma at the forecast mean. An occluded observation
 (NaN entries) is updated with its visible entries only (:class:`idbench.Filter`
-masks h and R).
+masks h and R). The innovation (filterpy's y and S of the update) is kept
+for the normalized innovation squared (NIS).
 """
 
 from __future__ import annotations
@@ -242,6 +243,7 @@ class Ukf(Filter):
                 R = noise_matrix(R, z.size)  # (filterpy expands a float to dim_z)
             ukf.update(z, R=R, UT=weighted_transform)
             ukf.P = 0.5 * (ukf.P + ukf.P.T)
+            self.innovation = (np.array(ukf.y), np.array(ukf.S))  # the NIS
         nu = self._nu
         x, P = ukf.x, ukf.P
         return Analysis(x[nu:], P[nu:, nu:], x[:nu], finite=(P, x))

@@ -41,7 +41,7 @@ HOSTILE = '''
     class Base:
         def start(self, model, prior):
             self.mean = np.asarray(prior.mean, dtype=float)
-            self.misbehave(model)
+            self.misbehave(model.model)  # through the harness's checked view
 
         def update(self, k, observation):
             return idbench.Estimate(self.mean, np.full_like(self.mean, 1.0),

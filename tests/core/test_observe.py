@@ -340,7 +340,7 @@ def test_a_camera_that_sees_nothing_is_one_line_before_any_run(tmp_path):
         compare(config, tmp_path)
     text = str(info.value)
     assert "\n" not in text
-    assert "observe 'cloud' on the truth" in text and "sees no part" in text
+    assert "observe 'cloud'" in text and "sees no part" in text
     assert not (tmp_path / "runs.parquet").exists()
 
 

@@ -8,18 +8,16 @@ import pytest
 pytest.importorskip("gmsh")
 
 
-def test_clouds_identify_like_markers_and_a_force_alone_does_not(study, tmp_path):
+def test_clouds_identify_like_markers(study, tmp_path):
     module = study("point_clouds")
     table = module.compute(quick=True, out=tmp_path)
     assert (table["status"] == "ok").all(), table
     by = table.set_index("observe")
-    assert {"markers", "force", "cloud-points-200"} <= set(by.index)
+    assert {"markers", "cloud-points-200"} <= set(by.index)
     # a 200-point cloud without correspondence identifies about what 8 markers do
     E = by["E_ratio"]
     assert abs(E["cloud-points-200"] - E["markers"]) < 0.1
-    # the force of a force-controlled grasp is the applied load: E stays unknown
-    assert abs(by.loc["force", "E_ratio"] - 1) > 0.3
-    assert by.loc["force", "tre_mm"] > 3 * by.loc["markers", "tre_mm"]
+    # (the force of a force-controlled grasp, the applied load, is refused)
     assert np.isfinite(table["tre_mm"]).all() and (table["tre_mm"] > 0).all()
     module.plot(table, tmp_path / "fig.png")
     assert (tmp_path / "fig.png").stat().st_size > 10_000

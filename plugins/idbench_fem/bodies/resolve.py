@@ -195,6 +195,28 @@ def shape_error_points(
     return pts[keep]
 
 
+def target_points(body: Body, mesh: SolidMesh) -> FloatArray:
+    """The body's hidden targets (T, 3), each inside ``mesh`` (the reference).
+
+    Raises
+    ------
+    ValueError
+        A target outside the body: its number (from 1, in the order of
+        ``[targets]``), name, distance from the surface and the mesh.
+    """
+    pts = np.array([point for _, point in body.targets], dtype=float).reshape(-1, 3)
+    out = np.flatnonzero(~inside(mesh, pts)) if len(pts) else []
+    if len(out):
+        i = int(out[0])
+        dist = float(project_to_surface(mesh, pts[i : i + 1])[3][0])
+        raise ValueError(
+            f"{body.source}: target {i + 1} ({body.targets[i][0]!r}) at "
+            f"{pts[i].tolist()} lies outside the body, {dist:.3g} m from the "
+            f"surface of {mesh.path!r}; a hidden target must be inside it"
+        )
+    return pts
+
+
 def element_regions(body: Body, mesh: SolidMesh) -> IntArray:
     """Parameter region of every tet (T,): zeros for one E.
 
@@ -275,3 +297,4 @@ def check(body: Body, meshes: list[SolidMesh] | None = None) -> None:
             if m.driven:
                 driven_nodes(body, m.name, mesh)
     shape_error_points(body, meshes[-1])
+    target_points(body, meshes[-1])

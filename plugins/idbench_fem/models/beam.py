@@ -141,6 +141,12 @@ def build(
     ``chord_ratio``: see :class:`~idbench_fem.models.solid_settings.SolidSettings`.
     """
     s = settings or BeamSettings()
+    limit = len(mesh.surface_nodes)  # one marker a surface node at most
+    if markers > limit:
+        raise ValueError(
+            f"{markers} markers asked for on mesh {mesh.path!r}: at most {limit} "
+            "(its surface nodes)"
+        )
     body = beam_body(mesh, scenario, markers, s)
     model = SolidModel(
         body, mesh, body.manipulations[0].name, mesh, n_steps, markers,
@@ -149,6 +155,7 @@ def build(
     model.parameters = replace(
         model.parameters, default=s.true_values(model.parameters.p)
     )
+    model.max_markers = limit
     return model
 
 

@@ -75,7 +75,9 @@ def place_points(
     Raises
     ------
     ValueError
-        If the body has fewer than ``markers`` markers on ``reference``.
+        If the body has fewer than ``markers`` markers on ``reference``, or
+        a target outside it (targets are located in ``mesh`` like the grid:
+        a coarse mesh that misses one takes its nearest tet's weights).
     """
     pts = reference_markers(body, reference)
     if markers > len(pts):
@@ -116,9 +118,7 @@ def place_points(
             np.asarray(point, dtype=float)[None, :],
             functools.partial("[[probe]] {0!r}".format, name),
         )
-    target_points = np.array(
-        [point for _, point in body.targets], dtype=float
-    ).reshape(-1, 3)
+    target_points = reference_targets(body, reference)  # inside the body
     targets = nearest_interpolation(mesh, target_points, f2f)
     return PlacedPoints(
         marker_points, grid_points, target_points, observe, grid, targets, probes
@@ -129,6 +129,12 @@ def place_points(
 def reference_markers(body: Body, reference: SolidMesh) -> FloatArray:
     """The body's markers placed on the reference mesh (cached), (M, 3)."""
     return resolve.marker_points(body, reference)
+
+
+@functools.lru_cache(maxsize=8)
+def reference_targets(body: Body, reference: SolidMesh) -> FloatArray:
+    """The body's hidden targets, checked inside the reference mesh (cached), (T, 3)."""
+    return resolve.target_points(body, reference)
 
 
 @functools.lru_cache(maxsize=8)

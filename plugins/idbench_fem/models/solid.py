@@ -29,7 +29,9 @@ others, through :class:`~idbench_fem.fem.prescribed.PrescribedAssembler`;
 f_ext is zero, and Newton's floor is rtol times the load the first step
 puts on the unknowns. :meth:`reaction` is then the tool's force, and the
 model declares ``needs_observed = ("reaction",)``: its displacements do not
-depend on a homogeneous E.
+depend on a homogeneous E. Under a load (any other manipulation) the
+reaction is the support's, which balances the load whatever E: the model
+declares ``inputs = ("reaction",)`` (:class:`idbench.InputsModel`).
 
 Newton (:mod:`idbench_fem.fem.newton`): converged
 when :math:`\|r\| \le \max(\mathrm{rtol} \|f_{ext}(k)\|, \mathrm{atol})`
@@ -80,7 +82,7 @@ from idbench_fem.models.driven import DrivenGrasp
 from idbench_fem.models.field_members import FieldMembers
 from idbench_fem.models.observables import Observables
 from idbench_fem.models.parameterisation import parameterise
-from idbench_fem.models.points import place_points
+from idbench_fem.models.points import place_points, reference_markers
 from idbench_fem.models.rest_shape import rest_mesh
 from idbench_fem.models.solid_settings import DEFAULT_BODY, SolidSettings
 from idbench_fem.models.supported import Supported
@@ -184,6 +186,8 @@ class SolidModel(DrivenGrasp, Supported, Observables, FieldMembers, BatchedSteps
         self._driven: IntArray | None = None
         if self.manipulation.driven:  # the state keeps them, Newton does not
             self._init_driven(body, mesh, float(s.load_scale))
+        else:  # a load: the support's reaction balances it, whatever E
+            self.inputs = ("reaction",)
 
         # parameters: E, E per region or per field cell (E_e = theta_r(e) c_e)
         params = parameterise(body, mesh, reference, s)
@@ -228,6 +232,8 @@ class SolidModel(DrivenGrasp, Supported, Observables, FieldMembers, BatchedSteps
             # the load the grasp's first step puts on the unknowns
             self.atol = float(s.atol or self.rtol) * self._driven_force_scale()
 
+        # the candidate markers: the body's listed points, or its region's nodes
+        self.max_markers = len(reference_markers(body, reference))
         placed = place_points(
             body, mesh, reference, markers, self._state_asm().full_to_free
         )
