@@ -5,6 +5,7 @@ The public API is what this module exports; plugins import only from here.
 
 from __future__ import annotations
 
+from idbench.calibrate.design import fine_path
 from idbench.calibrate.effective import effective_path
 from idbench.core.interfaces import (
     Cost,
@@ -25,6 +26,7 @@ from idbench.core.optional import (
     BatchModel,
     BoundingBoxModel,
     CellDataModel,
+    DiagnosedModel,
     DiscrepancyModel,
     FieldModel,
     LoadScalingModel,
@@ -32,6 +34,7 @@ from idbench.core.optional import (
     ObservationNeedsModel,
     ProbedModel,
     ReactionModel,
+    ReducedOrderModel,
     SensitiveModel,
     SurfaceModel,
     TargetModel,
@@ -55,6 +58,8 @@ from idbench.registry.registry import (
 )
 from idbench.run.compare import compare
 from idbench.score.metrics import shape_error
+from idbench.store.files import stable_hash
+from idbench.truth.cache import cache_dir, read_entry, write_entry
 from idbench.truth.simulate import simulate_path, simulate_truth
 
 __all__ = [
@@ -67,6 +72,7 @@ __all__ = [
     "CompareConfig",
     "ConfigError",
     "Cost",
+    "DiagnosedModel",
     "DiscrepancyModel",
     "Diverged",
     "Estimate",
@@ -93,6 +99,7 @@ __all__ = [
     "Registry",
     "Scenario",
     "ReactionModel",
+    "ReducedOrderModel",
     "SensitiveModel",
     "Skipped",
     "SurfaceModel",
@@ -101,13 +108,18 @@ __all__ = [
     "VolumeModel",
     "__version__",
     "build_registry",
+    "cache_dir",
     "closest_on_triangles",
     "compare",
     "effective_path",
+    "fine_path",
     "noise_matrix",
+    "read_entry",
     "get_plugin_manager",
     "hookimpl",
     "shape_error",
     "simulate_path",
     "simulate_truth",
+    "stable_hash",
+    "write_entry",
 ]

@@ -29,6 +29,7 @@ from idbench.core.optional import (
     BatchModel,
     BoundingBoxModel,
     CellDataModel,
+    DiagnosedModel,
     DiscrepancyModel,
     FieldModel,
     LoadScalingModel,
@@ -36,6 +37,7 @@ from idbench.core.optional import (
     ObservationNeedsModel,
     ProbedModel,
     ReactionModel,
+    ReducedOrderModel,
     SensitiveModel,
     SurfaceModel,
     TargetModel,
@@ -63,6 +65,9 @@ OPTIONAL: dict[str, type] = {
     "targets_cov": DiscrepancyModel,
     "extrapolated": DiscrepancyModel,
     "load_scaling": LoadScalingModel,
+    "reduces": ReducedOrderModel,
+    "diagnostics": DiagnosedModel,
+    "diagnostic_warning": DiagnosedModel,
 }
 """Each optional member of a forward model and the protocol that declares it."""
 
@@ -80,6 +85,8 @@ METHODS = frozenset(
         "observation_cov",
         "grid_cov",
         "targets_cov",
+        "diagnostics",
+        "diagnostic_warning",
     }
 )
 """The optional members that are methods (the others are values)."""
@@ -199,6 +206,25 @@ def extrapolated_of(model: Any) -> int:
     See :class:`~idbench.core.optional.DiscrepancyModel`.
     """
     return int(member(model, "extrapolated") or 0)
+
+
+def reduces_of(model: Any) -> str | None:
+    """The mesh a reduced-order model approximates, or None (no such model).
+
+    See :class:`~idbench.core.optional.ReducedOrderModel`.
+    """
+    value = member(model, "reduces")
+    return None if value is None else str(value)
+
+
+def diagnostics_of(model: Any) -> tuple[dict[str, float], str]:
+    """A model's report on its own run: columns and a warning (empty: none).
+
+    See :class:`~idbench.core.optional.DiagnosedModel`.
+    """
+    columns, warning = member(model, "diagnostics"), member(model, "diagnostic_warning")
+    found = {str(k): float(v) for k, v in (columns() if columns else {}).items()}
+    return found, str(warning() if warning else "")
 
 
 def requirement_met(model: Any, name: str) -> bool:

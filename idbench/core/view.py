@@ -126,3 +126,6 @@ class ModelView:
     targets_cov = Delegated()
     extrapolated = Delegated()
     load_scaling = Delegated()
+    reduces = Delegated()
+    diagnostics = Delegated()
+    diagnostic_warning = Delegated()

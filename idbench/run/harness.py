@@ -22,6 +22,7 @@ import numpy as np
 
 from idbench.core.capabilities import (
     correction_of,
+    diagnostics_of,
     extrapolated_of,
     innovation_of,
     n_nodes_of,
@@ -381,6 +382,9 @@ def _run_on(
         note = (f"the correction extrapolated ({beyond} predictions beyond the "
                 "calibrated load states)")  # fmt: skip
         row["warning"] = "; ".join(w for w in (row["warning"], note) if w)
+    columns, note = diagnostics_of(model)  # a model's report on its own run
+    row.update(columns)
+    row["warning"] = "; ".join(w for w in (row["warning"], note) if w)
 
 
 def _estimate(
