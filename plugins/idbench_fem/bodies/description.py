@@ -94,9 +94,9 @@ happen when a region is resolved on a mesh (:mod:`idbench_fem.bodies.resolve`;
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -104,6 +104,9 @@ from numpy.typing import NDArray
 from idbench_fem.bodies.reader import TableReader, table
 from idbench_fem.bodies.regions import SELECTORS, Region
 from idbench_fem.fem.materials import LAWS, lame, make_material
+
+if TYPE_CHECKING:
+    from idbench_fem.bodies.design import Design
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -239,6 +242,9 @@ class Body:
     ...); none: the largest nodal displacement ``u_max``."""
     targets: tuple[tuple[str, Vec], ...] = ()
     """Hidden target points (name, point); ``name[i]`` for a list's i-th."""
+    design: Design | None = field(default=None, repr=False)
+    """The offline design (``[design]``, :mod:`idbench_fem.bodies.design`), or
+    None. (Not in the repr, which keys the truths of bodies built in memory.)"""
 
     def manipulation(self, name: str) -> Manipulation:
         """The manipulation called ``name``."""
@@ -302,6 +308,7 @@ def parse_body(
         "parameters",
         "probe",
         "targets",
+        "design",
     )
     TableReader(source, "body").keys(raw, top)
 
@@ -433,7 +440,7 @@ def parse_body(
         if not lo < hi:
             raise c.error(f"bounds = {bounds!r}: need lower < upper")
         bounds = (lo, hi)
-    return Body(
+    body = Body(
         source,
         meshes,
         material,
@@ -446,6 +453,12 @@ def parse_body(
         _probes(raw.get("probe", []), source),
         _targets(table(raw, "targets", source), source),
     )
+    if "design" not in raw:
+        return body
+    from idbench_fem.bodies.design import parse_design
+
+    design = parse_design(raw["design"], source, body, _manipulation)
+    return replace(body, design=design)
 
 
 def _targets(raw: dict[str, Any], source: str) -> tuple[tuple[str, Vec], ...]:

@@ -582,6 +582,10 @@ def make_model(spec: ModelSpec) -> SolidModel:
             f"{', '.join(m.name for m in own.manipulations)})"
         )
     body.manipulation(name)  # one line if unknown
+    if str(spec.mesh).startswith("rom:"):  # a reduced model of a fine mesh
+        from idbench_fem.models.reduced import reduced_model
+
+        return reduced_model(body, name, spec, settings)  # type: ignore[return-value]
     mesh = get_mesh(mesh_file(body, spec.mesh))
     reference = get_mesh(mesh_file(body, settings.reference or "truth"))
     return SolidModel(body, mesh, name, reference, spec.n_steps, spec.markers, settings)

@@ -1,0 +1,345 @@
+r"""The ``solid`` model on a reduced fine mesh: Galerkin POD with ECSW, online.
+
+:class:`ReducedModel` is the forward model a ``rom:`` mesh spec builds
+(:mod:`idbench_fem.models.reduction` is the offline half). Its state is the
+reduced coordinates q (r,), the fine displacements being u = V q; each load
+step solves the Galerkin system by Newton in q,
+
+.. math::
+
+    \sum_\rho \theta_\rho \hat g_\rho(q) = \tfrac{k}{K} V^T f_{ext},\qquad
+    \hat K(q; \theta)\, \delta q = -\hat r(q),
+
+with the hyper-reduced forces and tangent of :mod:`idbench_fem.fem.hyper`
+(r x r, dense, Cholesky), converged when
+:math:`\|\hat r\| \le \max(\mathrm{rtol} \|V^T f_{ext}(k)\|, \mathrm{atol})`.
+Observations, shape-error points and targets are the fine model's linear
+maps times V, computed once, so a step's cost depends on r and on the
+sampled elements, not on the fine mesh. The sensitivity is one reduced
+solve, dq/dtheta_rho = -K-hat^-1 g-hat_rho. Everything else (the surface for
+clouds, the reaction, the displacement field) is the fine model's at V q.
+
+**Its own error.** Every :attr:`ReducedModel.error_every`-th step (and the
+last), the first state solved at that step is lifted and the fine model's
+residual there, |f_int(V q) - f_ext(k)| / |f_ext(k)|, is recorded: one
+fine force assembly, no solve. :meth:`ReducedModel.diagnostics` reports the
+largest (``reduction_residual``) as a column of the run's row, and
+:meth:`ReducedModel.diagnostic_warning` flags a run where it exceeds
+:attr:`ReducedModel.error_tolerance`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import NDArray
+
+from idbench import Cost, ModelFailure, ModelSpec
+from idbench_fem.bodies.catalog import get_mesh, mesh_file
+from idbench_fem.bodies.description import Body
+from idbench_fem.fem.hyper import HyperReduced
+from idbench_fem.models.reduction import (
+    PREFIX,
+    Reduction,
+    ReductionSpec,
+    element_dofs,
+    element_factors,
+    element_set,
+    parse_spec,
+    reduce,
+)
+from idbench_fem.models.solid import SolidModel
+from idbench_fem.models.solid_settings import SolidSettings
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+ERROR_EVERY = 5
+"""Steps between two measurements of the fine residual at the lifted state."""
+
+ERROR_TOLERANCE = 0.05
+"""The fine residual |f_int(V q) - f_ext| / |f_ext| above which a run is flagged."""
+
+BACKTRACKS = 8
+
+
+class ReducedModel:
+    """A reduced model of ``fine``'s mesh (see the module).
+
+    Parameters
+    ----------
+    fine
+        The full model of the same body, manipulation, steps and markers on
+        the fine mesh (the reduction's).
+    reduction
+        Basis, sampled elements and weights.
+    spec
+        The parsed ``rom:`` spec (it names the model in ``describe``).
+    """
+
+    def __init__(
+        self, fine: SolidModel, reduction: Reduction, spec: ReductionSpec
+    ) -> None:
+        V = reduction.basis
+        if V.shape[0] != fine.n_state:
+            raise ValueError(
+                f"reduction basis has {V.shape[0]} rows, the mesh {fine.n_state} dofs"
+            )
+        if fine.driven_nodes.size:
+            raise ModelFailure(
+                f"manipulation {fine.manipulation.name!r}: a reduced model covers "
+                "force-controlled manipulations (a displacement-controlled grasp "
+                "is not one)"
+            )
+        self.fine, self.reduction, self.spec = fine, reduction, spec
+        self.parameters = fine.parameters
+        self.n_steps = fine.n_steps
+        self.n_state = reduction.modes
+        self.rtol, self.atol = fine.rtol, float(fine.atol)
+        self.max_iterations = fine.max_iterations
+        self.error_every = ERROR_EVERY
+        self.error_tolerance = ERROR_TOLERANCE
+        self._V = V
+        self._f_end = V.T @ fine.external_force(fine.n_steps)
+        self._f_end_norm = float(np.linalg.norm(fine.external_force(fine.n_steps)))
+        self._H = np.column_stack([fine.observe(v) for v in V.T])
+        self._G = np.column_stack([np.ravel(fine.grid(v)) for v in V.T])
+        self._T = np.column_stack([np.ravel(fine.targets(v)) for v in V.T])
+        _, tets = fine.mesh()
+        sample = reduction.elements
+        self._hyper = HyperReduced(
+            element_set(fine, tets[sample]), element_dofs(fine, tets[sample]), V,
+            reduction.weights, element_factors(fine)[sample],
+            fine.element_regions[sample], fine.parameters.p,
+        )  # fmt: skip
+        self.marker_points = fine.marker_points
+        self.grid_points = fine.grid_points
+        self.n_nodes = fine.n_nodes
+        self.bounds, self.volume = fine.bounds, fine.volume
+        self._cost = [0, 0, 0]
+        self._errors: dict[int, float] = {}
+        for a in (self._V, self._f_end, self._H, self._G, self._T):
+            a.flags.writeable = False
+
+    def __copy__(self) -> ReducedModel:
+        """A copy for one run: its own counters and error record."""
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        new._cost = list(self._cost)
+        new._errors = {}
+        return new
+
+    @property
+    def reduces(self) -> str:
+        """The mesh spec of the fine mesh this model reduces."""
+        return self.spec.mesh
+
+    # -- the ForwardModel protocol --------------------------------------------
+
+    def reset(self) -> FloatArray:
+        """The unloaded state: q = 0 (r,)."""
+        return np.zeros(self.n_state)
+
+    def step(
+        self, theta: FloatArray, k: int, state: FloatArray, *, substeps: int = 1
+    ) -> FloatArray:
+        """Solve load step ``k`` (1..K) in q from ``state``.
+
+        Raises
+        ------
+        ModelFailure
+            No convergence, or an inverted sampled element in every backtrack.
+        """
+        th = self._theta(theta, k)
+        if not 1 <= k <= self.n_steps:
+            raise ValueError(f"load step k = {k}: must be in 1..{self.n_steps}")
+        if substeps < 1:
+            raise ValueError(f"substeps = {substeps}: must be >= 1")
+        q = np.array(state, dtype=np.float64)
+        if q.shape != (self.n_state,):
+            raise ValueError(f"state has shape {q.shape}, expected ({self.n_state},)")
+        self._cost[0] += 1
+        for j in range(1, substeps + 1):
+            q = self._newton(th, ((k - 1 + j / substeps) / self.n_steps), q, k)
+        if (k % self.error_every == 0 or k == self.n_steps) and k not in self._errors:
+            self._errors[k] = self.fine_residual(th, k, q)
+        return q
+
+    def observe(self, state: FloatArray) -> FloatArray:
+        """Marker displacements (3M,): H V q."""
+        return np.asarray(self._H @ state)
+
+    def grid(self, state: FloatArray) -> FloatArray:
+        """Displacements of the shape-error points (G, 3)."""
+        return np.asarray(self._G @ state).reshape(-1, 3)
+
+    def targets(self, state: FloatArray) -> FloatArray:
+        """Displacements (T, 3) of the body's ``[targets]``."""
+        return np.asarray(self._T @ state).reshape(-1, 3)
+
+    def sensitivity(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
+        """D observe / d theta (3M, p): H V dq, K-hat dq = -g-hat (a reduced solve)."""
+        th = self._theta(theta, k)
+        st = self._hyper.state(np.asarray(state, dtype=float))
+        g = self._hyper.region_forces(st)
+        dq = -self._solve(self._hyper.tangent(st, th), g, k)
+        self._cost[2] += th.size
+        return np.asarray(self._H @ dq)
+
+    def cost(self) -> Cost:
+        """Cumulative forward solves, Newton iterations and (reduced) solves."""
+        return Cost(*self._cost)
+
+    def describe(self) -> dict[str, Any]:
+        """The fine model's description and the reduction's (its key, size)."""
+        out = dict(self.fine.describe())
+        red = self.reduction
+        out["reduction"] = {
+            "key": red.key, "modes": red.modes, "elements": len(red.elements),
+            "spec": f"{PREFIX}{self.spec.mesh}", "error_every": self.error_every,
+        }  # fmt: skip
+        return out
+
+    # -- what else the fine model shows, at V q -------------------------------
+
+    def lift(self, state: FloatArray) -> FloatArray:
+        """The fine model's state V q (n,)."""
+        return np.asarray(self._V @ state)
+
+    def probes(self, state: FloatArray) -> dict[str, float]:
+        """The fine model's probes at V q."""
+        return self.fine.probes(self.lift(state))
+
+    def mesh(self) -> tuple[FloatArray, IntArray]:
+        """The fine mesh's nodes (N, 3) and tets (T, 4)."""
+        return self.fine.mesh()
+
+    def cell_data(self) -> dict[str, FloatArray]:
+        """The fine model's cell data and each tet's ECSW weight (0: not sampled)."""
+        out = dict(self.fine.cell_data())
+        w = np.zeros(len(self.fine.mesh()[1]))
+        w[self.reduction.elements] = self.reduction.weights
+        out["ecsw_weight"] = w
+        return out
+
+    def displacement_field(self, state: FloatArray) -> FloatArray:
+        """Displacement of every fine node (N, 3) at V q."""
+        return self.fine.displacement_field(self.lift(state))
+
+    def surface(self, state: FloatArray) -> tuple[FloatArray, IntArray]:
+        """The fine mesh's deformed boundary at V q."""
+        return self.fine.surface(self.lift(state))
+
+    def reaction(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
+        """The fine model's reaction force at V q (a fine force assembly)."""
+        return self.fine.reaction(theta, k, self.lift(state))
+
+    # -- its own error ---------------------------------------------------------
+
+    def fine_residual(self, theta: FloatArray, k: int, state: FloatArray) -> float:
+        """|f_int(V q; theta) - f_ext(k)| / |f_ext(k)| of the fine model."""
+        r = self.fine.residual(theta, k, self.lift(state))
+        scale = (k / self.n_steps) * self._f_end_norm
+        return float(np.linalg.norm(r) / max(scale, 1e-300))
+
+    def diagnostics(self) -> dict[str, float]:
+        """``reduction_residual``: the largest fine residual measured this run."""
+        if not self._errors:
+            return {}
+        return {"reduction_residual": max(self._errors.values())}
+
+    def diagnostic_warning(self) -> str:
+        """Why the run's reduction is not to be trusted ("" if it is)."""
+        if not self._errors:
+            return ""
+        k, worst = max(self._errors.items(), key=lambda kv: kv[1])
+        if worst <= self.error_tolerance:
+            return ""
+        return (
+            f"the reduced model's fine residual reached {worst:.3g} of the load at "
+            f"step {k} (tolerance {self.error_tolerance:g}): its states are outside "
+            "what its design's snapshots cover"
+        )
+
+    # -- internals -------------------------------------------------------------
+
+    def _theta(self, theta: FloatArray, k: int | None) -> FloatArray:
+        th = np.asarray(theta, dtype=np.float64).reshape(-1)
+        if th.shape != (self.parameters.p,):
+            raise ValueError(
+                f"theta has shape {th.shape}, expected ({self.parameters.p},)"
+            )
+        if not np.all(np.isfinite(th)) or np.any(th <= 0):
+            raise ModelFailure(
+                f"parameters {th.tolist()} are not positive and finite", step=k
+            )
+        return th
+
+    def _solve(self, K: FloatArray, rhs: FloatArray, k: int) -> FloatArray:
+        """K^-1 rhs by Cholesky (LU where K is not positive definite)."""
+        try:
+            return np.asarray(scipy.linalg.cho_solve(scipy.linalg.cho_factor(K), rhs))
+        except (np.linalg.LinAlgError, ValueError):
+            try:
+                return np.asarray(scipy.linalg.solve(K, rhs))
+            except (np.linalg.LinAlgError, ValueError) as exc:
+                raise ModelFailure(f"singular reduced tangent: {exc}", step=k) from exc
+
+    def _newton(self, th: FloatArray, t: float, q: FloatArray, k: int) -> FloatArray:
+        """Newton in q for the load fraction ``t`` of the end load."""
+        hyper = self._hyper
+        f_ext = t * self._f_end
+        tol = max(self.rtol * float(np.linalg.norm(f_ext)), self.atol)
+        st = hyper.state(q)
+        if not np.all(st.det > 0):
+            raise ModelFailure("the starting state inverts a sampled element", step=k)
+        first = None
+        for it in range(self.max_iterations + 1):
+            r = hyper.force(st, th) - f_ext
+            norm = float(np.linalg.norm(r))
+            first = norm if first is None else first
+            if not np.isfinite(norm):
+                raise ModelFailure(f"non-finite reduced residual (iteration {it})", k)
+            if norm <= tol:
+                self._cost[1] += it
+                return q
+            if it == self.max_iterations or norm > 1e10 * max(first, tol):
+                self._cost[1] += it
+                raise ModelFailure(
+                    f"reduced Newton did not converge in {it} iterations: |r| = "
+                    f"{norm:.3e} > tol {tol:.3e}", step=k,
+                )  # fmt: skip
+            dq = -self._solve(hyper.tangent(st, th), r, k)
+            self._cost[2] += 1
+            for _ in range(BACKTRACKS + 1):
+                st = hyper.state(q + dq)
+                if np.all(st.det > 0) and np.all(np.isfinite(st.S1)):
+                    break
+                dq = 0.5 * dq
+            else:
+                self._cost[1] += it + 1
+                raise ModelFailure("inverted sampled element in every backtrack", k)
+            q = q + dq
+        raise AssertionError("unreachable")  # pragma: no cover
+
+
+def reduced_model(
+    body: Body, manipulation: str, spec: ModelSpec, settings: SolidSettings
+) -> ReducedModel:
+    """The reduced model a ``rom:`` mesh spec asks for (see :data:`~.reduction.SYNTAX`).
+
+    Builds (or reads from the cache) the reduction of the body's design, and
+    the full model of the manipulation on the fine mesh it reduces.
+    """
+    rspec = parse_spec(spec.mesh)
+    settings = replace(settings, processes=None)
+    reduction = reduce(body, rspec, settings)
+    fine = SolidModel(
+        body, get_mesh(mesh_file(body, rspec.mesh)), manipulation,
+        get_mesh(mesh_file(body, settings.reference or "truth")), spec.n_steps,
+        spec.markers, settings,
+    )  # fmt: skip
+    return ReducedModel(fine, reduction, rspec)
