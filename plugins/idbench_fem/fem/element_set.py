@@ -71,6 +71,11 @@ class ElementState:
     Finv: FloatArray | None = None
     log_det: FloatArray | None = None
 
+    def take(self, members: NDArray[np.int64]) -> ElementState:
+        """The state of the elements ``members`` only."""
+        return ElementState(*(None if a is None else a[members] for a in (
+            self.F, self.det, self.S1, self.Finv, self.log_det)))  # fmt: skip
+
 
 class ElementSet:
     """P1 tets (their gradients and volumes) and a law, for element-wise kernels.
@@ -100,6 +105,15 @@ class ElementSet:
 
     def __len__(self) -> int:
         return len(self.volumes)
+
+    def subset(self, members: NDArray[np.int64]) -> ElementSet:
+        """The same law on the elements ``members`` only."""
+        out = object.__new__(ElementSet)
+        out.grads = np.ascontiguousarray(self.grads[members])
+        out.volumes = np.ascontiguousarray(self.volumes[members])
+        out.law, out.lam, out.mu = self.law, self.lam, self.mu
+        out._gg = self._gg[members]
+        return out
 
     def state(self, ue: FloatArray) -> ElementState:
         """Kinematics and unit stress at element displacements ``ue`` (T, 4, 3)."""
