@@ -3,16 +3,22 @@ r"""The ``solid`` model on a reduced fine mesh: Galerkin POD with ECSW, online.
 :class:`ReducedModel` is the forward model a ``rom:`` mesh spec builds
 (:mod:`idbench_fem.models.reduction` is the offline half). Its state is the
 reduced coordinates q (r,), the fine displacements being u = V q; each load
-step solves the Galerkin system by Newton in q,
+step solves the Galerkin system in q,
 
 .. math::
 
-    \sum_\rho \theta_\rho \hat g_\rho(q) = \tfrac{k}{K} V^T f_{ext},\qquad
-    \hat K(q; \theta)\, \delta q = -\hat r(q),
+    \hat r(q) = \sum_\rho \theta_\rho \hat g_\rho(q) - \tfrac{k}{K} V^T f_{ext}
+    = 0,
 
-with the hyper-reduced forces and tangent of :mod:`idbench_fem.fem.hyper`
-(r x r, dense, Cholesky), converged when
-:math:`\|\hat r\| \le \max(\mathrm{rtol} \|V^T f_{ext}(k)\|, \mathrm{atol})`.
+with the hyper-reduced forces and tangents of :mod:`idbench_fem.fem.hyper`,
+converged when :math:`\|\hat r\| \le \max(\mathrm{rtol} \|V^T
+f_{ext}(k)\|, \mathrm{atol})` (:data:`RTOL`). The iteration is quasi-Newton:
+the per-region tangents K-hat_rho (r x r) are held between solves and
+combined for each theta exactly, their inverse improved by Broyden's update
+within a solve, and evaluated anew only when an iteration stalls or they are
+:data:`LAG` steps old; a solve starts from the previous solve's increment
+(a secant predictor) where that lowers the residual. A force evaluation is
+O(r T_s), a tangent O(12 r^2 T_s).
 Observations, shape-error points and targets are the fine model's linear
 maps times V, computed once, so a step's cost depends on r and on the
 sampled elements, not on the fine mesh. The sensitivity is one reduced
@@ -57,8 +63,28 @@ from idbench_fem.models.solid_settings import SolidSettings
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
+RTOL = 1e-6
+"""The reduced Newton tolerance, relative to |V^T f_ext(k)| (the solid
+setting ``rtol`` overrides it): the reduction's own error is 1e-3 to 1e-2 of
+the displacements, so the fine model's 1e-8 would buy nothing."""
+
 ERROR_EVERY = 5
 """Steps between two measurements of the fine residual at the lifted state."""
+
+STALL = 0.95
+"""An iteration that cut the reduced residual less than this drops the
+Broyden updates of the inverse, or, if it had none, evaluates the tangents
+anew. Otherwise the held ones serve, their inverse improved by Broyden's
+update within a solve (one force evaluation and an r x r product an
+iteration; the tangent costs about 12 r times more). Tangents are held
+per region, so they serve every theta exactly (K-hat = sum theta_rho
+K-hat_rho)."""
+
+LAG = 8
+"""Held tangents serve the steps up to this many after the one they were
+evaluated at (not earlier steps); :meth:`ReducedModel.reset` drops them, so a
+path's numbers depend on its own calls only (equal to Newton's to the
+tolerance)."""
 
 ERROR_TOLERANCE = 0.05
 """The fine residual |f_int(V q) - f_ext| / |f_ext| above which a run is flagged."""
@@ -98,7 +124,8 @@ class ReducedModel:
         self.parameters = fine.parameters
         self.n_steps = fine.n_steps
         self.n_state = reduction.modes
-        self.rtol, self.atol = fine.rtol, float(fine.atol)
+        self.rtol = float(fine.settings.rtol or RTOL)
+        self.atol = float(fine.atol)
         self.max_iterations = fine.max_iterations
         self.error_every = ERROR_EVERY
         self.error_tolerance = ERROR_TOLERANCE
@@ -120,7 +147,13 @@ class ReducedModel:
         self.n_nodes = fine.n_nodes
         self.bounds, self.volume = fine.bounds, fine.volume
         self._cost = [0, 0, 0]
+        self.factorizations = 0
+        """Tangent evaluations (and their factorizations), a count."""
         self._errors: dict[int, float] = {}
+        self._tangents: dict[str, Any] = {}
+        """The held per-region tangents ("K"), the step they were evaluated at
+        ("k"), their inverses by theta, and the last solve ("last": its step,
+        start and end, for the next one's secant predictor)."""
         for a in (self._V, self._f_end, self._H, self._G, self._T):
             a.flags.writeable = False
 
@@ -130,6 +163,7 @@ class ReducedModel:
         new.__dict__.update(self.__dict__)
         new._cost = list(self._cost)
         new._errors = {}
+        new._tangents = {}
         return new
 
     @property
@@ -140,7 +174,8 @@ class ReducedModel:
     # -- the ForwardModel protocol --------------------------------------------
 
     def reset(self) -> FloatArray:
-        """The unloaded state: q = 0 (r,)."""
+        """The unloaded state: q = 0 (r,); a new path (the held tangents dropped)."""
+        self._tangents = {}
         return np.zeros(self.n_state)
 
     def step(
@@ -162,8 +197,15 @@ class ReducedModel:
         if q.shape != (self.n_state,):
             raise ValueError(f"state has shape {q.shape}, expected ({self.n_state},)")
         self._cost[0] += 1
+        start = q
+        guess = None
+        last = self._tangents.get("last")  # (k, start, end) of the last solve
+        if substeps == 1 and last is not None and last[0] in (k, k - 1):
+            guess = q + (last[2] - last[1])  # a secant predictor
         for j in range(1, substeps + 1):
-            q = self._newton(th, ((k - 1 + j / substeps) / self.n_steps), q, k)
+            t = (k - 1 + j / substeps) / self.n_steps
+            q = self._newton(th, t, q, k, guess)
+        self._tangents["last"] = (k, start, q)
         if (k % self.error_every == 0 or k == self.n_steps) and k not in self._errors:
             self._errors[k] = self.fine_residual(th, k, q)
         return q
@@ -183,9 +225,8 @@ class ReducedModel:
     def sensitivity(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
         """D observe / d theta (3M, p): H V dq, K-hat dq = -g-hat (a reduced solve)."""
         th = self._theta(theta, k)
-        st = self._hyper.state(np.asarray(state, dtype=float))
-        g = self._hyper.region_forces(st)
-        dq = -self._solve(self._hyper.tangent(st, th), g, k)
+        st = self._hyper.evaluate(np.asarray(state, dtype=float))
+        dq = -self._solve(self._hyper.tangent(st, th), st.g, k)
         self._cost[2] += th.size
         return np.asarray(self._H @ dq)
 
@@ -278,6 +319,16 @@ class ReducedModel:
             )
         return th
 
+    def _held_inverse(self, th: FloatArray, k: int) -> FloatArray:
+        """K-hat^-1 (r, r) of the held tangents at ``th`` (computed once per theta)."""
+        key = th.tobytes()
+        inverse = self._tangents.get(key)
+        if inverse is None:
+            K = np.tensordot(th, self._tangents["K"], axes=1)
+            inverse = self._solve(K, np.eye(len(K)), k)
+            self._tangents[key] = inverse
+        return np.asarray(inverse)
+
     def _solve(self, K: FloatArray, rhs: FloatArray, k: int) -> FloatArray:
         """K^-1 rhs by Cholesky (LU where K is not positive definite)."""
         try:
@@ -288,41 +339,77 @@ class ReducedModel:
             except (np.linalg.LinAlgError, ValueError) as exc:
                 raise ModelFailure(f"singular reduced tangent: {exc}", step=k) from exc
 
-    def _newton(self, th: FloatArray, t: float, q: FloatArray, k: int) -> FloatArray:
-        """Newton in q for the load fraction ``t`` of the end load."""
+    def _newton(
+        self, th: FloatArray, t: float, q: FloatArray, k: int,
+        guess: FloatArray | None = None,
+    ) -> FloatArray:  # fmt: skip
+        """Quasi-Newton in q for the load fraction ``t`` of the end load.
+
+        From ``q``, or from ``guess`` where its residual is smaller; with the
+        held tangents' inverse, improved by Broyden's update after each
+        iteration (see :data:`STALL` and :data:`LAG`).
+        """
         hyper = self._hyper
         f_ext = t * self._f_end
         tol = max(self.rtol * float(np.linalg.norm(f_ext)), self.atol)
-        st = hyper.state(q)
-        if not np.all(st.det > 0):
+        st = hyper.evaluate(q)
+        if not st.valid:
             raise ModelFailure("the starting state inverts a sampled element", step=k)
-        first = None
+        r = hyper.force(st, th) - f_ext
+        if guess is not None:
+            at = hyper.evaluate(guess)
+            r_at = hyper.force(at, th) - f_ext if at.valid else r
+            if at.valid and np.linalg.norm(r_at) < np.linalg.norm(r):
+                q, st, r = guess, at, r_at
+        res: list[float] = []
+        H = None
+        updated = False  # whether H carries Broyden updates
+        r_old = dq = np.zeros(0)
         for it in range(self.max_iterations + 1):
-            r = hyper.force(st, th) - f_ext
+            if it > 0:
+                r = hyper.force(st, th) - f_ext
             norm = float(np.linalg.norm(r))
-            first = norm if first is None else first
+            res.append(norm)
             if not np.isfinite(norm):
                 raise ModelFailure(f"non-finite reduced residual (iteration {it})", k)
             if norm <= tol:
                 self._cost[1] += it
                 return q
-            if it == self.max_iterations or norm > 1e10 * max(first, tol):
+            if it == self.max_iterations or norm > 1e10 * max(res[0], tol):
                 self._cost[1] += it
                 raise ModelFailure(
                     f"reduced Newton did not converge in {it} iterations: |r| = "
                     f"{norm:.3e} > tol {tol:.3e}", step=k,
                 )  # fmt: skip
-            dq = -self._solve(hyper.tangent(st, th), r, k)
+            stalled = it > 0 and norm > STALL * res[-2]
+            if stalled and updated:  # first back to the held tangents' inverse
+                H, updated = None, False
+            elif stalled or not 0 <= k - self._tangents.get("k", -LAG - 1) <= LAG:
+                last = self._tangents.get("last")
+                self._tangents = {"K": hyper.region_tangents(st), "k": k, "last": last}
+                self.factorizations += 1
+                H = None
+            if H is None:
+                H = self._held_inverse(th, k).copy()
+            elif it > 0:  # Broyden's ("good") update of the inverse
+                updated = True
+                y = r - r_old
+                Hy = H @ y
+                denom = float(dq @ Hy)
+                if abs(denom) > 1e-300:
+                    H += np.outer(dq - Hy, dq @ H) / denom
+            dq = -(H @ r)
             self._cost[2] += 1
             for _ in range(BACKTRACKS + 1):
-                st = hyper.state(q + dq)
-                if np.all(st.det > 0) and np.all(np.isfinite(st.S1)):
+                st = hyper.evaluate(q + dq)
+                if st.valid:
                     break
                 dq = 0.5 * dq
             else:
                 self._cost[1] += it + 1
                 raise ModelFailure("inverted sampled element in every backtrack", k)
             q = q + dq
+            r_old = r
         raise AssertionError("unreachable")  # pragma: no cover
 
 
