@@ -89,6 +89,7 @@ def test_every_mode_and_element_is_the_full_model(tmp_path, law):
         rom.sensitivity(theta, 4, Q[-1]), full.sensitivity(theta, 4, U[-1]), rtol=1e-6
     )
     assert rom.diagnostics()["reduction_residual"] < 1e-7  # the full residual
+    assert rom.diagnostics()["reduction_error_estimate"] < 1e-7
     assert rom.diagnostic_warning() == ""
 
 
@@ -215,9 +216,10 @@ def test_the_reduced_model_meets_the_protocol(designed):
 def test_a_large_residual_flags_the_run(designed):
     rom = model(designed, "rom:truth:2:all", steps=5)
     path(rom, np.array([3000.0]))
-    worst = rom.diagnostics()["reduction_residual"]
+    worst = rom.diagnostics()["reduction_error_estimate"]
+    assert worst > 1e-3  # two modes: far from the full model
     rom.error_tolerance = worst / 2
-    assert "fine residual reached" in rom.diagnostic_warning()
+    assert "error estimate reached" in rom.diagnostic_warning()
     import copy
 
     assert copy.copy(rom).diagnostics() == {}  # a run's copy starts afresh

@@ -27,7 +27,9 @@ full model; DEIM interpolates the force vector and gives a non-symmetric
 reduced Jacobian that can lose stability. Both laws are linear in each
 region's modulus, so each region is sampled on its own and theta stays exact.
 
-C is never formed: the element forces of every snapshot are kept (N, T, 12)
+A training snapshot whose projection inverts an element (a large
+deformation that r modes do not hold on a fine mesh) is left out, with a
+warning. C is never formed: the element forces of every snapshot are kept (N, T, 12)
 (float32) and the gradient is computed by lifting the residual, so memory
 grows with N T, not N r T.
 """
@@ -136,18 +138,26 @@ def _training(
     forces = np.empty((len(Q), T, 12), dtype=np.float32)
     targets = np.zeros((p, len(Q), r))
     safe = np.where(held, dofs, 0)
+    kept = []
     for s, q in enumerate(Q):
         u = V @ q
         ue = np.where(held, u[safe], 0.0).reshape(T, 4, 3)
-        fe = elements.forces(elements.state(ue), np.asarray(factors, float))
-        if not np.all(np.isfinite(fe)):
-            raise ValueError(f"ECSW training snapshot {s} inverts an element")
-        forces[s] = fe
+        st = elements.state(ue)
+        fe = elements.forces(st, np.asarray(factors, float))
+        if not (np.all(st.det > 0) and np.all(np.isfinite(fe))):
+            continue  # its projection inverts an element: no state to train on
+        forces[len(kept)] = fe
         for rho in range(p):
             sel = held & (regions == rho)[:, None]
             g = np.bincount(dofs[sel], weights=fe[sel], minlength=n)
-            targets[rho, s] = V.T @ g
-    return forces, targets
+            targets[rho, len(kept)] = V.T @ g
+        kept.append(s)
+    if len(kept) < len(Q):
+        log.warning("ECSW: %d of %d projected training snapshots invert an element "
+                    "(left out)", len(Q) - len(kept), len(Q))  # fmt: skip
+    if not kept:
+        raise ValueError("ECSW: every projected training snapshot inverts an element")
+    return forces[: len(kept)], targets[:, : len(kept)]
 
 
 def _greedy(

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -50,7 +51,7 @@ IntArray = NDArray[np.int64]
 PREFIX = "rom:"
 """How a mesh spec asks for a reduced model."""
 
-REDUCTION_VERSION = "reduction/1"
+REDUCTION_VERSION = "reduction/2"
 """Changes when a reduction's result changes (keys the reduction cache)."""
 
 POD_TOLERANCE = 1e-7
@@ -236,6 +237,9 @@ def design_models(
 ) -> list[SolidModel]:
     """The fine model of each design manipulation (its steps, the design's).
 
+    Markers and grid are placed on the fine mesh itself (the states do not
+    depend on them; the cache keys of the paths do).
+
     Raises
     ------
     ConfigError
@@ -250,7 +254,10 @@ def design_models(
         )
     dbody = design.body(body)
     fine = get_mesh(mesh_file(body, spec.mesh))
-    reference = get_mesh(mesh_file(body, settings.reference or "truth"))
+    # markers placed on the fine mesh itself, whatever the comparison's
+    # reference: the states do not depend on them, so every comparison
+    # shares the paths' cache entries (a truth on that mesh too)
+    reference = fine
     return [
         SolidModel(dbody, fine, name, reference, design.steps, 1, settings)
         for name in design.manipulations
@@ -271,8 +278,19 @@ def reduction_key(body: Body, spec: ReductionSpec, models: list[SolidModel]) -> 
     )  # fmt: skip
 
 
-def reduce(body: Body, spec: ReductionSpec, settings: SolidSettings) -> Reduction:
-    """The reduction of ``spec`` for ``body``: from the cache, or built (see module)."""
+Check = Callable[["Reduction", list[SolidModel], list[FloatArray]], dict[str, float]]
+"""Scores a reduction on its design's paths (their fine models and states)."""
+
+
+def reduce(
+    body: Body, spec: ReductionSpec, settings: SolidSettings,
+    check_design: Check | None = None,
+) -> Reduction:  # fmt: skip
+    """The reduction of ``spec`` for ``body``: from the cache, or built (see module).
+
+    ``check_design`` adds its scores to a reduction's ``info`` before it is
+    cached (:func:`idbench_fem.models.reduced.design_check`).
+    """
     models = design_models(body, spec, settings)
     key = reduction_key(body, spec, models)
     path = idbench.cache_dir() / f"reduction-{key}.npz"
@@ -286,15 +304,18 @@ def reduce(body: Body, spec: ReductionSpec, settings: SolidSettings) -> Reductio
     cached = idbench.read_entry(path, key, check, "reduction")
     if cached is not None:
         return Reduction.of(key, cached)
-    out = build(body, spec, models, key)
+    out = build(body, spec, models, key, check_design)
     idbench.write_entry(path, key, out.arrays(), "reduction")
     return out
 
 
 def design_snapshots(
     body: Body, models: list[SolidModel]
-) -> tuple[FloatArray, dict[str, float]]:
-    """Every design path's states (N, n), simulated or from the cache, and the cost."""
+) -> tuple[list[FloatArray], dict[str, float]]:
+    """Each design path's states (K_i, n), simulated or from the cache; the cost.
+
+    Paths in the order of ``models`` and, for each, of the design's moduli.
+    """
     assert body.design is not None
     thetas = body.design.thetas()
     total = len(models) * len(thetas)
@@ -313,15 +334,17 @@ def design_snapshots(
                      len(path), model.n_steps, dt)  # fmt: skip
     info = {"fine_paths": float(total), "fine_steps": float(steps),
             "design_seconds": seconds}  # fmt: skip
-    return np.vstack(states), info
+    return states, info
 
 
 def build(
-    body: Body, spec: ReductionSpec, models: list[SolidModel], key: str
-) -> Reduction:
+    body: Body, spec: ReductionSpec, models: list[SolidModel], key: str,
+    check_design: Check | None = None,
+) -> Reduction:  # fmt: skip
     """POD and ECSW over the design's snapshots (the cache's miss path)."""
     t0 = time.perf_counter()
-    snapshots, info = design_snapshots(body, models)
+    paths, info = design_snapshots(body, models)
+    snapshots = np.vstack(paths)
     modes, singular = pod(snapshots)
     r = spec.modes or modes_for(singular, spec.pod_tolerance)
     if r > modes.shape[1]:
@@ -351,6 +374,10 @@ def build(
         ecsw_fit=fit,
         offline_seconds=time.perf_counter() - t0,
     )
+    out = Reduction(key, V, singular, elements, weights, info)
+    if check_design is not None:
+        info.update(check_design(out, models, paths))
+        info["offline_seconds"] = time.perf_counter() - t0
     log.info("reduction %s: %d modes, %d of %d elements, %.0f s offline", key, r,
              len(elements), len(tets), info["offline_seconds"])  # fmt: skip
-    return Reduction(key, V, singular, elements, weights, info)
+    return out
