@@ -277,3 +277,14 @@ def test_moduli_must_name_every_parameter(tmp_path):
 
     with pytest.raises(ValueError, match="for each parameter: E"):
         load_body(body)
+
+
+def test_one_range_of_E_serves_every_parameter(tmp_path):
+    from idbench_fem.bodies.description import load_body
+
+    body, _ = write_designed_beam(tmp_path, "4x2x2")
+    slabs = "{ slab = { index = 0, count = 2 } }, { slab = { index = 1, count = 2 } }"
+    body.write_text(body.read_text() + f"\n[parameters]\nregions = [{slabs}]\n")
+    design = load_body(body).design
+    assert [m[0] for m in design.moduli] == ["E_region0", "E_region1"]
+    np.testing.assert_allclose(design.thetas(), [[2500.0, 2500.0]])

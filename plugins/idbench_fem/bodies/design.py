@@ -7,7 +7,7 @@ model over manipulations and moduli. A body describes them once::
     [design]
     manipulations = ["push-a", "sag"]   # optional: the paths' loads (below, or
                               # the body's own); default: every one below
-    moduli = { E = [1000.0, 16000.0] }  # Pa, a range per parameter
+    moduli = { E = [1000.0, 16000.0] }  # Pa, a range per parameter (E: all)
     steps = 30                # load steps of each fine path
     paths = 1                 # moduli per manipulation (p > 1: their ratios)
 
@@ -60,7 +60,8 @@ class Design:
     own
         The design's own manipulations (``[[design.manipulation]]``).
     moduli
-        (parameter name, lowest, highest) per parameter, in the body's order.
+        (parameter name, lowest, highest) per parameter, in the body's order
+        (``E`` alone in the table: the same range for every parameter).
     steps
         Load steps of each fine path.
     paths
@@ -159,6 +160,8 @@ def parse_design(
             raise c.error(f"manipulations: {n!r} is displacement-controlled")
     moduli = raw.get("moduli")
     params = body.parameter_names
+    if isinstance(moduli, dict) and set(moduli) == {"E"}:  # every parameter's
+        moduli = dict.fromkeys(params, moduli["E"])
     if not isinstance(moduli, dict) or set(moduli) != set(params):
         raise c.error(
             f"moduli = {moduli!r}: need a range [lowest, highest] (Pa) for each "
