@@ -116,7 +116,11 @@ BEAM_DEFAULTS = idbench.ModelDefaults(
         "nu": ("nu", "Poisson ratio"),
     },
     primary=True,
-    mesh_help="NXxNYxNZ: divisions of the box along x, y, z (each hex in 6 tets)",
+    mesh_help=(
+        "NXxNYxNZ: divisions of the box along x, y, z (each hex in 6 tets); "
+        "rom:NXxNYxNZ[:MODES[:SAMPLING]]: a reduced model of that mesh (as the "
+        "solid's), from 14 end tractions"
+    ),
 )
 """The study's comparison (docs/design.md section 1): what ``idbench compare`` runs."""
 

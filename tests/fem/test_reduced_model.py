@@ -288,3 +288,15 @@ def test_one_range_of_E_serves_every_parameter(tmp_path):
     design = load_body(body).design
     assert [m[0] for m in design.moduli] == ["E_region0", "E_region1"]
     np.testing.assert_allclose(design.thetas(), [[2500.0, 2500.0]])
+
+
+def test_the_beam_reduces_like_a_body():
+    reg = idbench.build_registry()
+    scenario = reg.scenario("bend-y")  # not one of the beam's design tractions
+    full = reg.model("svk-beam")(idbench.ModelSpec("8x2x2", scenario, 4, 2))
+    rom = reg.model("svk-beam")(idbench.ModelSpec("rom:8x2x2:12", scenario, 4, 2))
+    assert rom.n_state == 12 and rom.reduction.info["fine_paths"] == 14
+    theta = np.array([5000.0])
+    U, Q = path(full, theta), path(rom, theta)
+    lifted = Q @ rom.reduction.basis.T
+    assert np.abs(lifted - U).max() < 1e-2 * np.abs(U).max()

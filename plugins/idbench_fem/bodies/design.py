@@ -94,8 +94,13 @@ class Design:
         return np.asarray(points[np.sort(first)])
 
     def body(self, body: Body) -> Body:
-        """``body`` with the design's own manipulations added (for its fine models)."""
-        return replace(body, manipulations=(*body.manipulations, *self.own))
+        """``body`` with the design's loads as its manipulations (its fine models).
+
+        The body's manipulations the design does not use are left out, so a
+        body built in memory per scenario (the beam) keys the same paths.
+        """
+        used = tuple(m for m in body.manipulations if m.name in self.manipulations)
+        return replace(body, manipulations=(*used, *self.own))
 
     @property
     def n_paths(self) -> int:

@@ -31,8 +31,10 @@ residual r there is recorded: one fine force assembly, no solve. Relative to
 the load, |r| / |f_ext(k)| (``reduction_residual``), it is 1e2 times the
 displacement error (local imbalances the modes cannot hold); one Jacobi step
 on it, max |D^-1 r| / max |u| (``reduction_error_estimate``, D the fine
-tangent's diagonal at rest), is an estimate of the displacement error
-itself, to within a factor of about 3 either way on the liver.
+tangent's diagonal at rest), is an indicator of the displacement error
+itself, not a bound: within a factor of about 3 of the measured error on the
+liver, 10-40 times below it on the beam (stiff slender modes, which one
+Jacobi step underrates).
 :meth:`ReducedModel.diagnostics` reports the largest of each as columns of
 the run's row, and :meth:`ReducedModel.diagnostic_warning` flags a run
 whose estimate exceeds :attr:`ReducedModel.error_tolerance`.

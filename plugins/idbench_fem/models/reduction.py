@@ -36,6 +36,7 @@ import idbench
 from idbench import ConfigError
 from idbench_fem.bodies.catalog import get_mesh, mesh_file
 from idbench_fem.bodies.description import Body
+from idbench_fem.bodies.mesh import SolidMesh
 from idbench_fem.fem.ecsw import ecsw
 from idbench_fem.fem.element_set import ElementSet
 from idbench_fem.fem.pod import modes_for, pod, projection_error
@@ -233,8 +234,9 @@ def element_set(model: SolidModel, tets: IntArray) -> ElementSet:
 
 
 def design_models(
-    body: Body, spec: ReductionSpec, settings: SolidSettings
-) -> list[SolidModel]:
+    body: Body, spec: ReductionSpec, settings: SolidSettings,
+    fine: SolidMesh | None = None,
+) -> list[SolidModel]:  # fmt: skip
     """The fine model of each design manipulation (its steps, the design's).
 
     Markers and grid are placed on the fine mesh itself (the states do not
@@ -253,7 +255,8 @@ def design_models(
             "reference)"
         )
     dbody = design.body(body)
-    fine = get_mesh(mesh_file(body, spec.mesh))
+    if fine is None:  # (a body built in memory gives its mesh)
+        fine = get_mesh(mesh_file(body, spec.mesh))
     # markers placed on the fine mesh itself, whatever the comparison's
     # reference: the states do not depend on them, so every comparison
     # shares the paths' cache entries (a truth on that mesh too)
@@ -284,14 +287,14 @@ Check = Callable[["Reduction", list[SolidModel], list[FloatArray]], dict[str, fl
 
 def reduce(
     body: Body, spec: ReductionSpec, settings: SolidSettings,
-    check_design: Check | None = None,
+    check_design: Check | None = None, fine: SolidMesh | None = None,
 ) -> Reduction:  # fmt: skip
     """The reduction of ``spec`` for ``body``: from the cache, or built (see module).
 
     ``check_design`` adds its scores to a reduction's ``info`` before it is
     cached (:func:`idbench_fem.models.reduced.design_check`).
     """
-    models = design_models(body, spec, settings)
+    models = design_models(body, spec, settings, fine)
     key = reduction_key(body, spec, models)
     path = idbench.cache_dir() / f"reduction-{key}.npz"
 
