@@ -44,7 +44,7 @@ from idbench import CompareConfig, ModelSpec, Scenario, compare
 # Parameters (full size)
 ORGANS = {"liver": "grasp-lift", "kidney": "grasp-pole"}
 COARSE = ("500", "1000", "2000")
-REDUCED = ("rom:4000:40", "rom:16000:40")
+REDUCED = ("rom:4000:40", "rom:16000:40", "rom:16000:60")
 TRUTH = "16000"
 PRIORS = {"liver": (2000.0, 2000.0), "kidney": (3000.0, 3000.0)}
 SEEDS = 1

@@ -99,7 +99,7 @@ class ElementSet:
             raise ValueError(f"law {law!r}: allowed are {', '.join(LAWS)}")
         self.grads = np.ascontiguousarray(grads, dtype=np.float64)
         self.volumes = np.ascontiguousarray(volumes, dtype=np.float64)
-        self.law = law
+        self.law, self.nu = law, float(nu)
         self.lam, self.mu = lame(1.0, nu)
         self._gg = np.matmul(self.grads, self.grads.transpose(0, 2, 1))  # (T, 4, 4)
 
@@ -108,12 +108,7 @@ class ElementSet:
 
     def subset(self, members: NDArray[np.int64]) -> ElementSet:
         """The same law on the elements ``members`` only."""
-        out = object.__new__(ElementSet)
-        out.grads = np.ascontiguousarray(self.grads[members])
-        out.volumes = np.ascontiguousarray(self.volumes[members])
-        out.law, out.lam, out.mu = self.law, self.lam, self.mu
-        out._gg = self._gg[members]
-        return out
+        return ElementSet(self.grads[members], self.volumes[members], self.law, self.nu)
 
     def state(self, ue: FloatArray) -> ElementState:
         """Kinematics and unit stress at element displacements ``ue`` (T, 4, 3)."""
