@@ -10,8 +10,18 @@ For each organ case (``solid`` model, 20 load steps, noise 1e-4 m, prior at
 - the liver on springs (``examples/liver/springs.toml``) grasp-lift, p = 3
   (E and the normal stiffnesses of its two supports), at about 1,000;
 
-it prints, best of ``--repeat`` runs interleaved in one process (so the
-ratios hold on a loaded machine; absolute times do not):
+and reduced models of the fine meshes (``rom:N:MODES``, POD with ECSW,
+:mod:`idbench_fem.models.reduced`; their offline design is the body's
+``[design]``, simulated on first use and cached): the liver grasp-lift
+reduced from about 4,000 and 16,000 nodes, the kidney grasp-pole from about
+16,000 (p = 2). For these it prints, on one line each, the fine mesh's node
+count, the modes and the sampled elements, the RO-UKF's rate and the
+bound B of the fine mesh they reduce, measured in the same run (a
+reduced model's online cost must not depend on the fine mesh: its rate
+against 1 / B is its speed-up over one fine factorization a step).
+
+For the full meshes it prints, best of ``--repeat`` runs interleaved in one
+process (so the ratios hold on a loaded machine; absolute times do not):
 
 - the RO-UKF's steps per second (targets: liver p = 1 >= 60 Hz at 1,000 and
   >= 30 Hz at 2,000, kidney p = 2 >= 20 Hz, liver p = 4 >= 20 Hz, liver on
@@ -24,8 +34,9 @@ ratios hold on a loaded machine; absolute times do not):
   computed) as a multiple of ``B`` (target <= 1.5) and of one factorization
   plus solve alone, and its factorizations a step.
 
-Run ``python benchmarks/organs.py`` (``--quick``: 200-300-node meshes, at most
-2 repeats; ``--only liver kidney``: those cases).
+Run ``python benchmarks/organs.py`` (``--quick``: 200-300-node meshes and a
+reduced 1,000-node liver, at most 2 repeats; ``--only liver liver-rom-4000``:
+those cases; ``--no-reduced``: the full meshes only).
 Set OMP_NUM_THREADS / MKL_NUM_THREADS / OPENBLAS_NUM_THREADS = 1 for
 one-core figures.
 """
@@ -49,8 +60,15 @@ from idbench_filters import RoUkf
 N_STEPS = 20
 NOISE = 1e-4
 TARGETS = {"liver": 60.0, "liver-2000": 30.0, "kidney": 20.0, "liver-p4": 20.0,
-           "liver-springs": 30.0}  # fmt: skip
+           "liver-springs": 30.0, "liver-rom-4000": 100.0,
+           "liver-rom-16000": 100.0, "kidney-rom-16000": 60.0}  # fmt: skip
 SPRINGS = Path(__file__).resolve().parent.parent / "examples/liver/springs.toml"
+REDUCED = (
+    ("liver-rom-4000", "liver", "grasp-lift", "rom:4000:40"),
+    ("liver-rom-16000", "liver", "grasp-lift", "rom:16000:40"),
+    ("kidney-rom-16000", "kidney", "grasp-pole", "rom:16000:40"),
+)
+"""Reduced models: label, body, manipulation, mesh spec."""
 
 
 def liver_slabs(folder: Path, p: int) -> Path:
@@ -68,11 +86,12 @@ def liver_slabs(folder: Path, p: int) -> Path:
     return path
 
 
-def organ(body, manipulation: str, mesh: str):
+def organ(body, manipulation: str, mesh: str, reference: str | None = None):
     """A ``solid`` model of ``body`` (a name or a TOML path), one process."""
     load = {"body": str(body), "manipulation": manipulation}
+    settings = {"reference": reference or mesh}
     spec = ModelSpec(mesh=mesh, scenario=Scenario(manipulation, load),
-                     n_steps=N_STEPS, settings={"reference": mesh})  # fmt: skip
+                     n_steps=N_STEPS, settings=settings)  # fmt: skip
     return idbench.build_registry().model("solid")(spec)
 
 
@@ -144,11 +163,49 @@ def case(label, body, manipulation, mesh, repeat):
     )
 
 
+def reduced_case(label, body, manipulation, mesh, repeat):
+    """One line: a reduced model's RO-UKF rate against its fine mesh's B."""
+    fine_spec = mesh.split(":")[1]
+    t0 = time.perf_counter()
+    model = organ(body, manipulation, mesh, reference=fine_spec)
+    built = time.perf_counter() - t0
+    red, fine = model.reduction, model.fine
+    theta = np.array(model.parameters.default)
+    prior = Prior(tuple(0.6 * theta), tuple(0.5 * theta))
+    obs, _ = truth_path(model, NOISE, theta=theta)
+    best = {"wall": np.inf}
+    for _ in range(repeat):
+        f0, c0 = model.factorizations, model.cost()
+        wall, _, e, _ = time_filter(RoUkf(), model, obs, N_STEPS, prior)
+        work = model.cost() - c0
+        if wall < best["wall"]:
+            best = {"wall": wall, "E": e.mean, "its": work.newton_its / N_STEPS,
+                    "tan": (model.factorizations - f0) / N_STEPS}  # fmt: skip
+    t_step, _, q_end = forward(model, theta)
+    u_end = model.lift(q_end)  # B at (about) the path's end on the fine mesh
+    b_full = bound(fine, theta, u_end)[0]
+    hz = 1.0 / best["wall"]
+    target = TARGETS.get(label)
+    print(
+        f"{label:16s} ROM of {fine.n_nodes:,} nodes, {red.modes} modes, "
+        f"{len(red.elements):,} sampled elements (p={len(theta)}): RO-UKF "
+        f"{1e3 * best['wall']:6.2f} ms a step = {hz:6.1f} Hz"
+        + (f" (target {target:.0f}: {hz / target:4.2f}x)" if target else "")
+        + f"; {best['its']:4.1f} iterations, {best['tan']:4.2f} tangents a step; "
+        f"fine B = {1e3 * b_full:7.2f} ms (1/B = {1 / b_full:5.1f} Hz): "
+        f"{1 / b_full / hz:6.4f} B a step; forward step {1e3 * t_step:5.2f} ms; "
+        f"E = {np.round(best['E'], 1).tolist()} (true {theta.tolist()}); offline: "
+        f"{red.info['fine_paths']:.0f} fine paths, {red.info['fine_steps']:.0f} "
+        f"steps (built or read in {built:.0f} s)"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="200-node meshes")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--only", nargs="*", help="case labels to run")
+    ap.add_argument("--no-reduced", action="store_true", help="full meshes only")
     args = ap.parse_args()
     small = args.quick
     with tempfile.TemporaryDirectory() as tmp:
@@ -170,6 +227,14 @@ def main() -> None:
                 mesh,
                 min(args.repeat, 2) if small else args.repeat,
             )
+        reduced = [("liver-rom-1000", "liver", "grasp-lift", "rom:1000:20")]
+        for label, body, manipulation, mesh in [] if args.no_reduced else (
+            reduced if small else REDUCED
+        ):  # fmt: skip
+            if args.only and label not in args.only:
+                continue
+            reduced_case(label, body, manipulation, mesh,
+                         min(args.repeat, 2) if small else args.repeat)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ The public API is what this module exports; plugins import only from here.
 
 from __future__ import annotations
 
+from idbench.calibrate.design import fine_path
 from idbench.calibrate.effective import effective_path
 from idbench.core.capabilities import (
     adjoint_of,
@@ -34,6 +35,7 @@ from idbench.core.optional import (
     BatchModel,
     BoundingBoxModel,
     CellDataModel,
+    DiagnosedModel,
     DiscrepancyModel,
     FieldModel,
     InputsModel,
@@ -49,6 +51,7 @@ from idbench.core.optional import (
     ProbedModel,
     ReactionJacobianModel,
     ReactionModel,
+    ReducedOrderModel,
     SensitiveModel,
     SurfaceJacobianModel,
     SurfaceModel,
@@ -74,6 +77,8 @@ from idbench.registry.registry import (
 )
 from idbench.run.compare import compare
 from idbench.score.metrics import shape_error
+from idbench.store.files import stable_hash
+from idbench.truth.cache import cache_dir, read_entry, write_entry
 from idbench.truth.simulate import simulate_path, simulate_truth
 
 __all__ = [
@@ -88,6 +93,7 @@ __all__ = [
     "CompareConfig",
     "ConfigError",
     "Cost",
+    "DiagnosedModel",
     "DiscrepancyModel",
     "Diverged",
     "Estimate",
@@ -124,6 +130,7 @@ __all__ = [
     "Scenario",
     "ReactionJacobianModel",
     "ReactionModel",
+    "ReducedOrderModel",
     "SensitiveModel",
     "Skipped",
     "SurfaceJacobianModel",
@@ -134,16 +141,21 @@ __all__ = [
     "__version__",
     "adjoint_of",
     "build_registry",
+    "cache_dir",
     "closest_on_triangles",
     "compare",
     "effective_path",
+    "fine_path",
     "noise_matrix",
     "observation_jacobian_of",
     "observation_points_of",
     "parameter_field_of",
+    "read_entry",
     "get_plugin_manager",
     "hookimpl",
     "shape_error",
     "simulate_path",
     "simulate_truth",
+    "stable_hash",
+    "write_entry",
 ]

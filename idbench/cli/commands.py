@@ -318,11 +318,17 @@ def cmd_info(args: argparse.Namespace) -> int:
         raise UsageError(f"unknown name {args.name!r}; known: {', '.join(known)}")
     rows = settings(obj)
     summary = printable(summary_line(obj), join_lines=True)
+    defaults = reg.models[args.name].defaults if kind == "model" else None
+    mesh_help = defaults.mesh_help if defaults is not None else ""
     if args.json:
         out = {"name": args.name, "kind": kind, "plugin": plugin, "summary": summary}
+        if mesh_help:
+            out["mesh_help"] = mesh_help
         print(json.dumps({**out, "settings": rows}, indent=2, default=repr))
         return 0
     print(printable(f"{args.name} ({kind}, plugin {plugin}): {summary}"))
+    if mesh_help:
+        print(printable(f"mesh specs (--meshes): {mesh_help}"))
     if not rows:
         print("no declared settings")
         return 0

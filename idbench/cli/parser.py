@@ -38,8 +38,9 @@ class _HelpFormatter(argparse.HelpFormatter):
 
     A default is appended as "(default: X)" unless it is None, False or already
     in the text. ``%(scenarios)s``, ``%(models)s`` and ``%(estimators)s`` in a
-    help text become the registered names; the registry is built only when
-    help is printed.
+    help text become the registered names, ``%(meshes)s`` how each model
+    reads a mesh spec (its defaults' ``mesh_help``); the registry is built
+    only when help is printed.
     """
 
     def _get_help_string(self, action: argparse.Action) -> str | None:
@@ -56,11 +57,11 @@ class _HelpFormatter(argparse.HelpFormatter):
 
     def _expand_help(self, action: argparse.Action) -> str:
         text = action.help or ""
-        if "%(scenarios)" in text or "%(models)" in text or "%(estimators)" in text:
+        if any(f"%({k})" in text for k in ("scenarios", "models", "estimators",
+                                             "meshes")):  # fmt: skip
             names = self.registered()
-            text = text.replace("%(scenarios)s", names["scenarios"])
-            text = text.replace("%(models)s", names["models"])
-            text = text.replace("%(estimators)s", names["estimators"])
+            for kind in ("scenarios", "models", "estimators", "meshes"):
+                text = text.replace(f"%({kind})s", names[kind])
             action = argparse.Action(
                 action.option_strings, action.dest, default=action.default,
                 help=text, choices=action.choices, metavar=action.metavar,
@@ -68,19 +69,28 @@ class _HelpFormatter(argparse.HelpFormatter):
         return super()._expand_help(action)
 
     def _format_text(self, text: str) -> str:
-        for kind in ("scenarios", "models", "estimators"):
+        for kind in ("scenarios", "models", "estimators", "meshes"):
             if f"%({kind})s" in text:
                 text = text.replace(f"%({kind})s", self.registered()[kind])
         return super()._format_text(text)
 
     @classmethod
     def registered(cls) -> dict[str, str]:
-        """Registered scenario, model and estimator names, comma-separated."""
+        """Registered names, comma-separated, and each model's mesh specs.
+
+        Keys ``scenarios``, ``models``, ``estimators`` and ``meshes``.
+        """
         reg = registry()
+        meshes = [
+            f"{name}: {e.defaults.mesh_help}"
+            for name, e in reg.models.items()
+            if e.defaults is not None and e.defaults.mesh_help
+        ]
         return {
             "scenarios": ", ".join(reg.scenarios),
             "models": ", ".join(reg.models),
             "estimators": ", ".join(reg.estimators),
+            "meshes": "; ".join(meshes) or "see idbench info MODEL",
         }
 
 
@@ -181,7 +191,7 @@ def build_parser(defaults: Any = None) -> argparse.ArgumentParser:
         "--meshes",
         type=names,
         help="model mesh specs, comma list: NXxNYxNZ, node count, or mesh file "
-        f"(default: {d('meshes')})",
+        f"(default: {d('meshes')}); per model: %(meshes)s",
     )
     c.add_argument("--truth-mesh", help=f"truth mesh spec (default: {d('truth_mesh')})")
     c.add_argument(

@@ -41,6 +41,7 @@ from idbench.core.optional import (
     BatchModel,
     BoundingBoxModel,
     CellDataModel,
+    DiagnosedModel,
     DiscrepancyModel,
     FieldModel,
     InputsModel,
@@ -56,6 +57,7 @@ from idbench.core.optional import (
     ProbedModel,
     ReactionJacobianModel,
     ReactionModel,
+    ReducedOrderModel,
     SensitiveModel,
     SurfaceJacobianModel,
     SurfaceModel,
@@ -96,6 +98,9 @@ OPTIONAL: dict[str, type] = {
     "surface_jacobian": SurfaceJacobianModel,
     "reaction_jacobian": ReactionJacobianModel,
     "observation_points": ObservationPointsModel,
+    "reduces": ReducedOrderModel,
+    "diagnostics": DiagnosedModel,
+    "diagnostic_warning": DiagnosedModel,
 }
 """Each optional member of a forward model and the protocol that declares it."""
 
@@ -120,6 +125,8 @@ METHODS = frozenset(
         "surface_jacobian",
         "reaction_jacobian",
         "observation_points",
+        "diagnostics",
+        "diagnostic_warning",
     }
 )
 """The optional members that are methods (the others are values)."""
@@ -307,6 +314,25 @@ def target_points_of(model: Any) -> FloatArray | None:
     """
     value = member(model, "target_points")
     return None if value is None else np.asarray(value, dtype=float).reshape(-1, 3)
+
+
+def reduces_of(model: Any) -> str | None:
+    """The mesh a reduced-order model approximates, or None (no such model).
+
+    See :class:`~idbench.core.optional.ReducedOrderModel`.
+    """
+    value = member(model, "reduces")
+    return None if value is None else str(value)
+
+
+def diagnostics_of(model: Any) -> tuple[dict[str, float], str]:
+    """A model's report on its own run: columns and a warning (empty: none).
+
+    See :class:`~idbench.core.optional.DiagnosedModel`.
+    """
+    columns, warning = member(model, "diagnostics"), member(model, "diagnostic_warning")
+    found = {str(k): float(v) for k, v in (columns() if columns else {}).items()}
+    return found, str(warning() if warning else "")
 
 
 def requirement_met(model: Any, name: str) -> bool:

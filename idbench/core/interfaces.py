@@ -407,6 +407,9 @@ class ModelDefaults:
     primary
         Whether this is the model ``idbench compare`` uses when none is named
         and several are registered.
+    mesh_help
+        How the model reads a mesh spec, one line (``compare --help`` and
+        ``idbench info`` show it); empty: not said.
     """
 
     truth_mesh: str
@@ -416,3 +419,4 @@ class ModelDefaults:
     quick: dict[str, Any] = field(default_factory=dict, hash=False)
     shorthands: dict[str, tuple[str, str]] = field(default_factory=dict, hash=False)
     primary: bool = False
+    mesh_help: str = ""

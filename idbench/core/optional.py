@@ -352,6 +352,21 @@ class ParameterFieldModel(ForwardModel, Protocol):
 
 
 @runtime_checkable
+class ReducedOrderModel(ForwardModel, Protocol):
+    """A reduced-order model of a finer discretisation (say, POD of a fine mesh).
+
+    Optional: ``reduces`` names the mesh spec it approximates. It is not
+    that mesh, so a truth on a mesh of as many nodes as its ``n_nodes`` (the
+    mesh it reduces) is allowed (:mod:`idbench.plan.validity`).
+    """
+
+    @property
+    def reduces(self) -> str:
+        """The mesh spec of the discretisation this model approximates."""
+        ...
+
+
+@runtime_checkable
 class AdjointModel(ForwardModel, Protocol):
     """A forward model that gives products with its state's parameter derivative.
 
@@ -423,4 +438,23 @@ class ObservationPointsModel(ForwardModel, Protocol):
 
     def observation_points(self, k: int) -> FloatArray:
         """(m, d): each observed value's position at step k; NaN rows: not local."""
+        ...
+
+
+@runtime_checkable
+class DiagnosedModel(ForwardModel, Protocol):
+    """A forward model that reports on its own accuracy over a run.
+
+    Optional: after a run the harness adds ``diagnostics()`` to the run's row
+    (one column each) and a non-empty ``diagnostic_warning()`` to its
+    ``warning`` (the run is flagged). Both describe the run's copy of the
+    model, so they cover the steps that run solved.
+    """
+
+    def diagnostics(self) -> dict[str, float]:
+        """Named finite scalars on the run so far (an error estimate, ...)."""
+        ...
+
+    def diagnostic_warning(self) -> str:
+        """Why this run's model is not to be trusted; "" if nothing says so."""
         ...

@@ -138,3 +138,6 @@ class ModelView:
     surface_jacobian = Delegated()
     reaction_jacobian = Delegated()
     observation_points = Delegated()
+    reduces = Delegated()
+    diagnostics = Delegated()
+    diagnostic_warning = Delegated()

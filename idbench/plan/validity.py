@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from idbench.core.capabilities import bounds_of, n_nodes_of, volume_of
+from idbench.core.capabilities import bounds_of, n_nodes_of, reduces_of, volume_of
 from idbench.core.interfaces import FloatArray, Observation, ParameterSpec
 from idbench.plan.config import ConfigError
 from idbench.truth.simulate import Truth
@@ -67,7 +67,8 @@ def check_truth_mesh(
     """Refuse a truth that is not finer than ``mesh`` or is another body.
 
     The truth must have more nodes than every model mesh (the same mesh spec,
-    an "inverse crime" check, is allowed), and, where both models expose
+    an "inverse crime" check, is allowed; a reduced-order model, as many as
+    the mesh it reduces), and, where both models expose
     ``bounds`` and ``volume``, the same bounding box (within
     :data:`BOX_TOLERANCE` of its extent) and volume (within
     :data:`VOLUME_TOLERANCE`). With ``role = "calibration"`` the same
@@ -88,7 +89,10 @@ def check_truth_mesh(
             f"{role} mesh must be a finer mesh of the same body"
         )
     n_truth, n_model = n_nodes_of(truth), n_nodes_of(model)
-    if n_truth is not None and n_model is not None and n_truth <= n_model:
+    equal_ok = reduces_of(model) is not None  # it approximates that mesh
+    if n_truth is not None and n_model is not None and (
+        n_truth < n_model or (n_truth == n_model and not equal_ok)
+    ):
         raise ConfigError(
             f"{role} mesh {truth_mesh!r} ({n_truth} nodes) is not finer than model "
             f"mesh {mesh!r} ({n_model} nodes); the {role} mesh must have more nodes "

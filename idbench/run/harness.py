@@ -22,6 +22,7 @@ import numpy as np
 
 from idbench.core.capabilities import (
     correction_of,
+    diagnostics_of,
     extrapolated_of,
     innovation_of,
     n_nodes_of,
@@ -417,6 +418,9 @@ def _run_on(
                     "the calibrated load states)")  # fmt: skip
             row["warning"] = "; ".join(w for w in (row["warning"], note) if w)
 
+    columns, note = diagnostics_of(model)  # a model's report on its own run
+    row.update(columns)
+    row["warning"] = "; ".join(w for w in (row["warning"], note) if w)
 
 def _model_who(spec: RunSpec, session: Session) -> str:
     """The run's model as its faults name it: model, plugin and mesh."""

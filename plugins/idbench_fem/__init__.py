@@ -124,6 +124,11 @@ BEAM_DEFAULTS = idbench.ModelDefaults(
         "nu": ("nu", "Poisson ratio"),
     },
     primary=True,
+    mesh_help=(
+        "NXxNYxNZ: divisions of the box along x, y, z (each hex in 6 tets); "
+        "rom:NXxNYxNZ[:MODES[:SAMPLING]]: a reduced model of that mesh (as the "
+        "solid's), from 14 end tractions"
+    ),
 )
 """The study's comparison (docs/design.md section 1): what ``idbench compare`` runs."""
 
@@ -135,5 +140,13 @@ SOLID_DEFAULTS = idbench.ModelDefaults(
     prior=(2000.0, 2000.0),
     quick={"truth_mesh": "1000", "meshes": ("200", "500")},
     shorthands={"body": ("body", "body TOML path or shipped name (liver, kidney)")},
+    mesh_help=(
+        "a node count N (the body's mesh *-nN, else generated), a mesh file name "
+        "stem, truth, or a mesh file; rom:MESH[:MODES[:SAMPLING]]: a reduced "
+        "model of mesh MESH, MODES POD modes (or a share < 1 of the snapshots' "
+        "energy left out), SAMPLING the ECSW fit (< 1), a cap on the sampled "
+        "elements (a whole number) or all, from the body's [design] paths "
+        "(rom:16000:40)"
+    ),
 )
 """The shipped liver (settings' default body): meshes by node count, grasp-lift."""

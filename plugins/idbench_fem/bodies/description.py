@@ -101,9 +101,9 @@ happen when a region is resolved on a mesh (:mod:`idbench_fem.bodies.resolve`;
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -116,6 +116,9 @@ from idbench_fem.bodies.regions import SELECTORS, Region
 from idbench_fem.bodies.resolve import SNAP_DISTANCE
 from idbench_fem.bodies.supports import Support, parse_supports
 from idbench_fem.fem.materials import LAWS, lame, make_material
+
+if TYPE_CHECKING:
+    from idbench_fem.bodies.design import Design
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -212,6 +215,9 @@ class Body:
     """The meshes are the shape imaged under a manipulation (``[reference]``)."""
     modulus_field: FieldSpec | None = field(default=None, repr=False)
     """``[field]``: E per cell of a partition (:mod:`idbench_fem.bodies.field`)."""
+    design: Design | None = field(default=None, repr=False)
+    """The offline design (``[design]``, :mod:`idbench_fem.bodies.design`), or
+    None. (Not in the repr, which keys the truths of bodies built in memory.)"""
 
     def manipulation(self, name: str) -> Manipulation:
         """The manipulation called ``name``."""
@@ -278,6 +284,7 @@ def parse_body(
         "support",
         "reference",
         "field",
+        "design",
     )
     TableReader(source, "body").keys(raw, top)
 
@@ -417,7 +424,7 @@ def parse_body(
     modulus_field = parse_field(raw.get("field"), source)
     if modulus_field is not None and parameter_regions:
         raise c.error("regions and a [field] exclude each other: give one of them")
-    return Body(
+    body = Body(
         source,
         meshes,
         material,
@@ -433,6 +440,12 @@ def parse_body(
         parse_reference(raw.get("reference"), source, tuple(names)),
         modulus_field,
     )
+    if "design" not in raw:
+        return body
+    from idbench_fem.bodies.design import parse_design
+
+    design = parse_design(raw["design"], source, body)
+    return replace(body, design=design)
 
 
 def _targets(raw: dict[str, Any], source: str) -> tuple[tuple[str, Vec], ...]:

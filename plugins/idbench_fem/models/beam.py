@@ -29,9 +29,11 @@ from idbench_fem.bodies.description import (
     MeshFiles,
     ShapeError,
 )
+from idbench_fem.bodies.design import Design
 from idbench_fem.bodies.mesh import SolidMesh
 from idbench_fem.bodies.regions import Region
 from idbench_fem.fem.interpolation import marker_points
+from idbench_fem.models.beam_scenarios import DESIGN_MODULI, DESIGN_TRACTIONS
 from idbench_fem.models.beam_settings import DEFAULT_E, BeamSettings, EndTraction
 from idbench_fem.models.solid import SolidModel
 from idbench_fem.models.solid_settings import SolidSettings
@@ -90,7 +92,20 @@ def beam_body(
         parameter_bounds=E_BOUNDS,
         probes=(("tip", _vec(centre)),),
         targets=(("target", _vec(target)),),
+        design=beam_design(mesh, _parameter_regions(s)),
     )
+
+
+def beam_design(mesh: SolidMesh, regions: tuple[Region, ...] = ()) -> Design:
+    """The beam's offline design: its 14 end tractions (``DESIGN_TRACTIONS``)."""
+    own = tuple(
+        Manipulation(name, "traction", box.loaded_face(mesh), t)
+        for name, t in DESIGN_TRACTIONS.items()
+    )
+    names = [f"E_{r.name}" if r.name is not None else f"E_region{i}"
+             for i, r in enumerate(regions)] or ["E"]  # fmt: skip
+    lo, hi = DESIGN_MODULI
+    return Design(tuple(DESIGN_TRACTIONS), own, tuple((n, lo, hi) for n in names))
 
 
 def _vec(p: Any) -> tuple[float, float, float]:
@@ -171,6 +186,16 @@ def make_model(spec: ModelSpec) -> SolidModel:
         settings = BeamSettings()
     elif isinstance(settings, Mapping):
         settings = BeamSettings(**settings)
+    if str(spec.mesh).startswith("rom:"):  # a reduced model of a box mesh
+        from idbench_fem.models.reduced import ReducedModel, design_check
+        from idbench_fem.models.reduction import parse_spec, reduce
+
+        rspec = parse_spec(spec.mesh)
+        fine = build(box.parse(rspec.mesh), spec.scenario, spec.n_steps,
+                     spec.markers, settings)  # fmt: skip
+        red = reduce(fine.body, rspec, solid_settings(settings), design_check,
+                     fine.mesh_data)  # fmt: skip
+        return ReducedModel(fine, red, rspec)  # type: ignore[return-value]
     return build(
         box.parse(spec.mesh), spec.scenario, spec.n_steps, spec.markers, settings
     )

@@ -532,6 +532,10 @@ def make_model(spec: ModelSpec) -> SolidModel:
             f"{', '.join(m.name for m in own.manipulations)})"
         )
     body.manipulation(name)  # one line if unknown
+    if str(spec.mesh).startswith("rom:"):  # a reduced model of a fine mesh
+        from idbench_fem.models.reduced import reduced_model
+
+        return reduced_model(body, name, spec, settings)  # type: ignore[return-value]
     mesh = rest_mesh(body, get_mesh(mesh_file(body, spec.mesh)), settings)
     on = get_mesh(mesh_file(body, settings.reference or "truth"))
     reference = rest_mesh(body, on, settings)  # [reference]: stress-free shapes
