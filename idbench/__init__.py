@@ -12,6 +12,7 @@ from idbench.core.capabilities import (
     observation_jacobian_of,
     observation_points_of,
     parameter_field_of,
+    sensitivity_of,
 )
 from idbench.core.field import ParameterField
 from idbench.core.interfaces import (
@@ -153,6 +154,7 @@ __all__ = [
     "read_entry",
     "get_plugin_manager",
     "hookimpl",
+    "sensitivity_of",
     "shape_error",
     "simulate_path",
     "simulate_truth",

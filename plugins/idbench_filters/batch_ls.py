@@ -48,6 +48,7 @@ from idbench import (
     MaskedModel,
     Observation,
     Prior,
+    sensitivity_of,
 )
 from idbench_filters.common import FloatArray, advance, check_choice, check_positive
 
@@ -184,7 +185,7 @@ class BatchLs(Filter):
         lo, hi = self._bounds
         span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
         x0 = np.clip(self._xi, lo + 1e-9 * span, hi - 1e-9 * span)
-        jac = self._jacobian if hasattr(self.model, "sensitivity") else "2-point"
+        jac = self._jacobian if sensitivity_of(self.model) else "2-point"
         passes = 1 if self.correction == "none" else 2
         try:
             for _ in range(passes):

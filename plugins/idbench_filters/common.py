@@ -15,7 +15,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from idbench import Diverged, ForwardModel, IdentityTransform, ModelFailure, Observation
+from idbench import (
+    Diverged,
+    ForwardModel,
+    IdentityTransform,
+    ModelFailure,
+    Observation,
+    sensitivity_of,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -114,8 +121,9 @@ def observation_jacobian(
     solve of step k from ``prev_state`` with xi_j + h, h = fd_step max(1, |xi_j|).
     """
     theta = transform.to_theta(xi)
-    if hasattr(model, "sensitivity"):
-        j_theta = np.asarray(model.sensitivity(theta, k, state), dtype=float)
+    sensitivity = sensitivity_of(model)
+    if sensitivity is not None:
+        j_theta = np.asarray(sensitivity(theta, k, state), dtype=float)
         return j_theta * transform.dtheta_dxi(xi)[None, :]
     y0 = np.asarray(model.observe(state), dtype=float)
     cols = []

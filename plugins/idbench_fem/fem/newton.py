@@ -15,6 +15,7 @@ import functools
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from idbench import Cost, ModelFailure, ParameterSpec
@@ -79,7 +80,7 @@ def freeze(obj: Any, keep: tuple[str, ...] = ()) -> None:
         if name in keep:
             continue
         arrays = [value]
-        if hasattr(value, "indptr") and hasattr(value, "data"):  # scipy sparse
+        if sp.issparse(value):
             arrays = [value.data, value.indices, value.indptr]
         for a in arrays:
             if isinstance(a, np.ndarray):
