@@ -419,14 +419,19 @@ class Filter(_Conventions):
         """
         theta = self.to_theta(xi)
         if not np.all(np.isfinite(theta)):
-            raise Diverged(f"non-finite estimate {theta}", step=k)
+            raise Diverged(f"the parameter estimate is non-finite: {theta}", step=k)
         for arr in finite:
             if not np.all(np.isfinite(arr)):
-                raise Diverged("non-finite covariance or state", step=k)
+                raise Diverged(
+                    "the filter's updated state is non-finite (its covariance or "
+                    f"model state; the parameter estimate {theta} is finite)",
+                    step=k,
+                )
         spec = self.model.parameters
         if not spec.contains(theta):
             raise Diverged(
-                f"estimate {theta} left the bounds [{spec.lower}, {spec.upper}]",
+                f"the parameter estimate {theta} left the bounds "
+                f"[{spec.lower}, {spec.upper}]",
                 step=k,
             )
 

@@ -473,7 +473,11 @@ def _estimate(
             mean, std = _checked(who, est, p, k)
         dt = time.perf_counter() - t0
         if not metrics_model.parameters.contains(mean):
-            raise Diverged(f"estimate {mean} non-finite or outside bounds", step=k)
+            raise Diverged(
+                f"the parameter estimate {mean} is non-finite or outside the "
+                "bounds",
+                step=k,
+            )
         means[k - 1], stds[k - 1] = mean, std
         own = state_of(est)
         if own is not None:  # the model's part (see observed_model)

@@ -68,13 +68,16 @@ def advance(
         new = model.step(theta, k, state, substeps=RETRY_SUBSTEPS)
     except ModelFailure as exc:
         raise Diverged(
-            f"forward solve failed at theta={theta} ({first}); "
-            f"retry with {RETRY_SUBSTEPS} sub-steps failed too ({exc})",
+            f"forward solve failed at the parameter theta={theta}, from the "
+            f"filter's state of step {k - 1} ({first}); retry with "
+            f"{RETRY_SUBSTEPS} sub-steps failed too ({exc})",
             step=k,
         ) from exc
     if not np.all(np.isfinite(new)):
         raise Diverged(
-            f"forward solve gave a non-finite state at theta={theta}", step=k
+            f"forward solve gave a non-finite state at the parameter "
+            f"theta={theta}, from the filter's state of step {k - 1}",
+            step=k,
         )
     return np.asarray(new, dtype=float)
 

@@ -370,6 +370,7 @@ def test_sigma_point_in_the_tail_diverges_after_substep_retry(tmp_path):
         assert 1 <= step <= STEPS
         assert row["error"].startswith(f"step {step}: forward solve failed")
         assert "retry with 4 sub-steps failed too" in row["error"]
+        assert "at the parameter theta=" in row["error"]  # not the updated state
         assert np.isnan(row["E_final"])
     assert by.loc["rls", "status"] == "ok"
     assert np.isfinite(by.loc["rls", "E_final"])
