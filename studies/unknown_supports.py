@@ -100,6 +100,7 @@ def design_body(folder: Path, design: str) -> Path:
     text = text.replace('"meshes/', f'"{TRUTH_BODY.parent / "meshes"}/')
     head = text[: text.index("[[support]]")]
     tail = text[text.index("[[manipulation]]") :]
+    tail = tail.split("\n[design]")[0] + "\n"  # (reduced models' offline paths)
     supports = load_body(TRUTH_BODY).supports
     if design == "clamp":
         middle = '[fixed]\nname = "ligament"\n\n'

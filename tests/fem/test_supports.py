@@ -9,6 +9,16 @@ from support.helpers import write_box_mesh
 import idbench
 from idbench.registry.testing import check_batch_model, check_model
 from idbench_fem.bodies.description import load_body
+from idbench_fem.fem.hyper import HyperReduced
+from idbench_fem.models.reduced import ReducedModel
+from idbench_fem.models.reduction import (
+    Reduction,
+    ReductionSpec,
+    element_dofs,
+    element_factors,
+    element_set,
+    reduced_springs,
+)
 from idbench_fem.models.solid import make_model
 
 W = 0.02  # m: a cube [0, W]^3
@@ -236,3 +246,72 @@ def test_the_body_check_resolves_the_supports(tmp_path):
     with pytest.raises(ValueError, match="support") as err:
         resolve.check(load_body(body))
     assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("law", ["svk", "neo-hookean"])
+def test_a_reduction_with_every_mode_and_element_keeps_the_springs(tmp_path, law):
+    """Springs in a reduced model: exact when nothing is left out (V = I)."""
+    full = model_of(block_body(tmp_path, law, identify="k_n"), steps=3)
+    n, T = full.n_state, len(full.mesh()[1])
+    whole = Reduction("all", np.eye(n), np.ones(n), np.arange(T), np.ones(T), {})
+    rom = ReducedModel(full, whole, ReductionSpec("truth"))
+    rom.rtol = full.rtol
+    theta = np.array([0.7 * E, 1.6 * KB])  # an identified and two known springs
+    U, Q = [full.reset()], [rom.reset()]
+    for k in (1, 2, 3):
+        U.append(full.step(theta, k, U[-1]))
+        Q.append(rom.step(theta, k, Q[-1]))
+    scale = np.abs(U[-1]).max()
+    assert scale > 0
+    np.testing.assert_allclose(Q[-1], U[-1], rtol=0, atol=1e-7 * scale)
+    np.testing.assert_allclose(
+        rom.sensitivity(theta, 3, Q[-1]), full.sensitivity(theta, 3, U[-1]),
+        rtol=1e-6, atol=1e-9 * np.abs(full.sensitivity(theta, 3, U[-1])).max(),
+    )  # fmt: skip
+    assert rom.parameters.names == ("E", "k_n_bottom")
+    assert rom.diagnostics()["reduction_residual"] < 1e-6  # the fine residual
+
+
+def test_a_sampled_reduction_of_springs_has_its_derivative(tmp_path):
+    """The hyper-reduced force with springs: its tangent is its derivative."""
+    full = model_of(block_body(tmp_path, "neo-hookean", identify="k_n"), steps=2)
+    _, tets = full.mesh()
+    rng = np.random.default_rng(4)
+    V = np.linalg.qr(rng.standard_normal((full.n_state, 5)))[0]
+    pick = np.sort(rng.choice(len(tets), 12, replace=False))
+    hyper = HyperReduced(
+        element_set(full, tets[pick]), element_dofs(full, tets[pick]), V,
+        rng.uniform(0.5, 2.0, len(pick)), element_factors(full)[pick],
+        full.element_regions[pick], full.parameters.p,
+        springs=reduced_springs(full, V),
+    )  # fmt: skip
+    theta = np.array([E, KB])
+    q = 1e-6 * rng.standard_normal(5)
+    K = hyper.tangent(hyper.evaluate(q), theta)
+    for j in range(5):
+        dq = np.zeros(5)
+        dq[j] = 1e-9
+        fd = (hyper.force(hyper.evaluate(q + dq), theta)
+              - hyper.force(hyper.evaluate(q - dq), theta)) / 2e-9  # fmt: skip
+        np.testing.assert_allclose(K[:, j], fd, rtol=1e-5, atol=1e-6 * abs(K).max())
+    springs_only = hyper.force(hyper.evaluate(q), np.array([0.0, KB]))
+    S = reduced_springs(full, V)
+    assert S is not None
+    exact = KB * S.matrices[S.index >= 0].sum(axis=0) @ q + S.constant @ q
+    np.testing.assert_allclose(springs_only, exact, rtol=1e-12)
+
+
+def test_a_design_ranges_the_identified_stiffnesses_too(tmp_path):
+    """[design] moduli: E for every modulus, each identified stiffness its own."""
+    extra = (
+        "[design]\nmanipulations = [\"press\"]\nsteps = 3\npaths = 2\n"
+        f"moduli = {{ E = [1000.0, 8000.0], k_n_bottom = [{KB / 4}, {4 * KB}], "
+        f"k_n_xside = [{KS / 2}, {2 * KS}] }}\n"
+    )
+    identified = load_body(block_body(tmp_path, identify="k_n", extra=extra))
+    assert identified.design is not None
+    assert [m[0] for m in identified.design.moduli] == ["E", "k_n_bottom"]
+    assert identified.design.thetas().shape == (2, 2)  # (a known range unused)
+    with pytest.raises(ValueError, match="for each parameter: E, k_n_bottom"):
+        load_body(block_body(tmp_path, identify="k_n", extra=extra.replace(
+            f"k_n_bottom = [{KB / 4}, {4 * KB}], ", "")))  # fmt: skip

@@ -60,8 +60,9 @@ class Design:
     own
         The design's own manipulations (``[[design.manipulation]]``).
     moduli
-        (parameter name, lowest, highest) per parameter, in the body's order
-        (``E`` alone in the table: the same range for every parameter).
+        (parameter name, lowest, highest) per parameter, in the models' order:
+        the moduli (``E`` in the table: the same range for every modulus),
+        then the identified springs' stiffnesses (N/m3).
     steps
         Load steps of each fine path.
     paths
@@ -116,6 +117,23 @@ class Design:
         }
 
 
+def spring_parameters(body: Body, known: bool = False) -> tuple[str, ...]:
+    """The identified spring stiffnesses of ``body``, in the models' order.
+
+    They follow the moduli among a model's parameters
+    (:func:`idbench_fem.models.supported.springs_of`); a design gives each
+    a range as it does each modulus. ``known``: the known ones too (a range
+    given for one of them is left unused, so a body's copy with its springs
+    known keeps its design).
+    """
+    return tuple(
+        s.parameter(which)
+        for s in body.supports
+        for which in ("k_n", "k_t")
+        if (known or which in s.identify) and s.value(which) != 0.0
+    )
+
+
 def parse_design(
     raw: Any,
     source: str,
@@ -165,19 +183,24 @@ def parse_design(
         if known[n].driven:
             raise c.error(f"manipulations: {n!r} is displacement-controlled")
     moduli = raw.get("moduli")
-    params = body.parameter_names
-    if isinstance(moduli, dict) and set(moduli) == {"E"}:  # every parameter's
-        moduli = dict.fromkeys(params, moduli["E"])
+    stiffnesses = spring_parameters(body)
+    params = (*body.parameter_names, *stiffnesses)
+    if isinstance(moduli, dict):  # a known spring's range serves no path
+        springs = spring_parameters(body, known=True)
+        moduli = {k: v for k, v in moduli.items() if k in params or k not in springs}
+    if isinstance(moduli, dict) and set(moduli) - set(stiffnesses) == {"E"}:
+        moduli = {**dict.fromkeys(body.parameter_names, moduli["E"]),
+                  **{k: v for k, v in moduli.items() if k != "E"}}  # fmt: skip
     if not isinstance(moduli, dict) or set(moduli) != set(params):
         raise c.error(
-            f"moduli = {moduli!r}: need a range [lowest, highest] (Pa) for each "
-            f"parameter: {', '.join(params)}"
+            f"moduli = {moduli!r}: need a range [lowest, highest] (Pa; N/m3 for "
+            f"a spring's stiffness) for each parameter: {', '.join(params)}"
         )
     ranges = []
     for name in params:
         pair = moduli[name]
         if not isinstance(pair, list) or len(pair) != 2:
-            raise c.error(f"moduli.{name} = {pair!r}: need [lowest, highest] in Pa")
+            raise c.error(f"moduli.{name} = {pair!r}: need [lowest, highest]")
         lo, hi = (c.number(f"moduli.{name}", v, positive=True) for v in pair)
         if not lo < hi:
             raise c.error(f"moduli.{name} = {pair!r}: need lowest < highest")

@@ -22,6 +22,12 @@ full model's convergence. Each region's g-hat and K-hat are kept apart, so
 theta stays exact, one tangent evaluation serves every theta, and the
 sensitivity is one reduced solve, dq/dtheta_rho = -K-hat^-1 g-hat_rho.
 
+Springs on the surface (Robin supports, :mod:`~.springs`) are linear in u
+and in their stiffness: their reduced matrices M_c = V^T S_c V (r x r) are
+exact, with no sampling. A channel whose stiffness is parameter j adds
+M_c q to g-hat's column j and M_c to K-hat_j; a known one adds k_c M_c q to
+the force and k_c M_c to the tangent whatever theta (:class:`Springs`).
+
 Two paths, equal to round-off: with numba (:func:`~.kernels.available`) the
 sampled elements of each region form a compact mesh of their own dofs,
 lifted by the rows V_c of V there (u_c = V_c q), and the compiled loops of
@@ -57,6 +63,8 @@ class Evaluation:
     det: FloatArray
     g: FloatArray
     parts: list[Any] = field(default_factory=list)
+    fixed: FloatArray | float = 0.0
+    """The known springs' reduced force sum_c k_c M_c q (r,), or 0."""
 
     @property
     def valid(self) -> bool:
@@ -79,6 +87,44 @@ class _Block:
     n: int  # compact dofs
 
 
+@dataclass(frozen=True)
+class Springs:
+    """Reduced spring channels: exact, linear in u and in their stiffness.
+
+    Attributes
+    ----------
+    matrices
+        M_c = V^T S_c V, (q, r, r).
+    index
+        (q,): the parameter of each channel, -1 where its stiffness is known.
+    known
+        (q,): each known channel's stiffness (ignored where a parameter).
+    """
+
+    matrices: FloatArray
+    index: IntArray
+    known: FloatArray
+
+    @classmethod
+    def project(
+        cls, matrices: list[Any], index: list[int], known: list[float],
+        basis: FloatArray,
+    ) -> Springs:  # fmt: skip
+        """M_c = V^T S_c V of sparse S_c (n, n) on a basis V (n, r)."""
+        V = np.asarray(basis, dtype=np.float64)
+        reduced = [V.T @ np.asarray(S @ V) for S in matrices]
+        M = np.array([0.5 * (m + m.T) for m in reduced]).reshape(-1, V.shape[1],
+                                                                 V.shape[1])
+        return cls(M, np.asarray(index, dtype=np.int64),
+                   np.nan_to_num(np.asarray(known, dtype=np.float64)))  # fmt: skip
+
+    @property
+    def constant(self) -> FloatArray:
+        """Sum of k_c M_c over the known channels (r, r)."""
+        held = self.index < 0
+        return np.asarray(np.tensordot(self.known[held], self.matrices[held], axes=1))
+
+
 class HyperReduced:
     """Reduced force and tangent on sampled elements (see the module).
 
@@ -97,9 +143,11 @@ class HyperReduced:
     regions
         Each element's parameter region (T_s,), in 0..p-1.
     p
-        Number of parameters.
+        Number of parameters (the moduli's regions, then the springs' own).
     compiled
         Use the compiled loops; None: where numba works.
+    springs
+        The body's spring channels reduced on the same basis, or None.
     """
 
     def __init__(
@@ -112,6 +160,7 @@ class HyperReduced:
         regions: IntArray,
         p: int,
         compiled: bool | None = None,
+        springs: Springs | None = None,
     ) -> None:
         T = len(elements)
         dofs = np.asarray(element_dofs, dtype=np.int64)
@@ -126,12 +175,21 @@ class HyperReduced:
         Ve[held] = V[dofs[held]]
         self.elements = elements
         self.p = int(p)
+        self.springs = springs
+        identified = 0 if springs is None else int(np.sum(springs.index >= 0))
+        n_regions = self.p - identified  # the moduli's; springs' parameters after
+        self.fixed_tangent: FloatArray | float = (
+            0.0 if springs is None else springs.constant
+        )
+        """The known springs' reduced tangent (r, r), or 0."""
         self._ve = Ve
         self._vflat = Ve.reshape(T * 12, self.r)
         self._regions = np.asarray(regions, dtype=np.int64)
         self._unit = np.asarray(weights, float) * np.asarray(factors, float)
-        self._onehot = (self._regions[:, None] == np.arange(p)).astype(float)
-        self._members = [np.flatnonzero(self._regions == rho) for rho in range(p)]
+        self._onehot = (self._regions[:, None] == np.arange(self.p)).astype(float)
+        self._members = [
+            np.flatnonzero(self._regions == rho) for rho in range(n_regions)
+        ]
         code = law_kernels.LAW_CODES.get(elements.law, -1)
         if compiled is None:
             compiled = kernels.available()
@@ -169,9 +227,9 @@ class HyperReduced:
             st = self.elements.state((self._vflat @ q).reshape(-1, 4, 3))
             fe = self.elements.forces(st, self._unit)  # (T_s, 12)
             g = np.einsum("tir,ti->tr", self._ve, fe).T @ self._onehot
-            return Evaluation(st.det, np.asarray(g), [st])
+            return self._with_springs(Evaluation(st.det, np.asarray(g), [st]), q)
         det = np.empty(self.n_elements)
-        g = np.empty((self.r, self.p))
+        g = np.zeros((self.r, self.p))
         parts = []
         el = self.elements
         for rho, b in enumerate(self._blocks):
@@ -184,15 +242,32 @@ class HyperReduced:
             det[b.members] = d
             g[:, rho] = b.V.T @ force
             parts.append((F, S, d))
-        return Evaluation(det, g, parts)
+        return self._with_springs(Evaluation(det, g, parts), q)
+
+    def _with_springs(self, ev: Evaluation, q: FloatArray) -> Evaluation:
+        """``ev`` with the springs' M_c q in g-hat's columns or its fixed force."""
+        sp = self.springs
+        if sp is None or not len(sp.index):
+            return ev
+        forces = sp.matrices @ q  # (q, r)
+        for c, j in enumerate(sp.index):
+            if j >= 0:
+                ev.g[:, j] += forces[c]
+        held = sp.index < 0
+        ev.fixed = forces[held].T @ sp.known[held]
+        return ev
 
     def force(self, ev: Evaluation, theta: FloatArray) -> FloatArray:
-        """f-hat (r,) = sum_rho theta_rho g-hat_rho."""
-        return np.asarray(ev.g @ np.asarray(theta, dtype=float))
+        """f-hat (r,) = sum_rho theta_rho g-hat_rho (+ the known springs')."""
+        return np.asarray(ev.g @ np.asarray(theta, dtype=float) + ev.fixed)
 
     def tangent(self, ev: Evaluation, theta: FloatArray) -> FloatArray:
         """K-hat (r, r) at parameters ``theta``."""
-        return np.asarray(np.tensordot(theta, self.region_tangents(ev), axes=1))
+        return self.combine(self.region_tangents(ev), theta)
+
+    def combine(self, tangents: FloatArray, theta: FloatArray) -> FloatArray:
+        """sum_rho theta_rho K-hat_rho + the known springs' (r, r)."""
+        return np.asarray(np.tensordot(theta, tangents, axes=1) + self.fixed_tangent)
 
     def region_tangents(self, ev: Evaluation) -> FloatArray:
         """Each region's reduced tangent at unit modulus (p, r, r), symmetric.
@@ -200,7 +275,7 @@ class HyperReduced:
         K-hat(q; theta) = sum_rho theta_rho K-hat_rho(q): one evaluation serves
         every theta at this state.
         """
-        out = np.empty((self.p, self.r, self.r))
+        out = np.zeros((self.p, self.r, self.r))
         el = self.elements
         for rho, b in enumerate(self._blocks):
             T_b = len(b.members)
@@ -217,4 +292,8 @@ class HyperReduced:
             A = np.matmul(Ke, b.Ve).reshape(-1, self.r)
             K = b.Ve.reshape(-1, self.r).T @ A
             out[rho] = 0.5 * (K + K.T)
+        sp = self.springs
+        for c, j in enumerate(() if sp is None else sp.index):
+            if j >= 0:
+                out[j] += sp.matrices[c]  # type: ignore[union-attr]
         return out

@@ -62,6 +62,7 @@ from idbench_fem.models.reduction import (
     element_set,
     parse_spec,
     reduce,
+    reduced_springs,
 )
 from idbench_fem.models.solid import SolidModel
 from idbench_fem.models.solid_settings import SolidSettings
@@ -149,6 +150,7 @@ class ReducedModel:
             element_set(fine, tets[sample]), element_dofs(fine, tets[sample]), V,
             reduction.weights, element_factors(fine)[sample],
             fine.element_regions[sample], fine.parameters.p,
+            springs=reduced_springs(fine, V),
         )  # fmt: skip
         self.marker_points = fine.marker_points
         self.target_points = fine.target_points
@@ -312,7 +314,7 @@ class ReducedModel:
         r = self.fine.residual(theta, k, u)
         scale = (k / self.n_steps) * self._f_end_norm
         raw = float(np.linalg.norm(r) / max(scale, 1e-300))
-        D = np.tensordot(np.asarray(theta, float), self._diagonals, axes=1)
+        D = np.asarray(theta, float) @ self._diagonals[:-1] + self._diagonals[-1]
         step = np.linalg.norm((r / D).reshape(-1, 3), axis=1).max()
         size = np.linalg.norm(u.reshape(-1, 3), axis=1).max()
         estimate = float(step / max(size, 1e-300))
@@ -321,19 +323,24 @@ class ReducedModel:
         return raw, estimate
 
     def _jacobi(self) -> FloatArray:
-        """Per region, the fine tangent's diagonal at rest at unit modulus (p, n)."""
+        """The fine tangent's diagonal at rest (p + 1, n).
+
+        One row per parameter at unit value, then the part no parameter
+        scales (the known springs').
+        """
         fine, p = self.fine, self.parameters.p
         th = np.asarray(fine.parameters.default, dtype=float)
         zero = np.zeros(fine.n_state)
         base = fine.tangent(th, zero).diagonal()
-        if p == 1:
-            out = (base / th[0])[None, :]
-        else:  # K is linear in theta: one more assembly per region
-            out = np.empty((p, fine.n_state))
+        out = np.zeros((p + 1, fine.n_state))
+        if p == 1 and fine.springs is None:
+            out[0] = base / th[0]
+        else:  # K is linear in theta: one more assembly per parameter
             for rho in range(p):
                 more = th.copy()
                 more[rho] *= 2.0
                 out[rho] = (fine.tangent(more, zero).diagonal() - base) / th[rho]
+            out[p] = base - th @ out[:p]
         return out
 
     def diagnostics(self) -> dict[str, float]:
@@ -380,7 +387,7 @@ class ReducedModel:
         key = th.tobytes()
         inverse = self._tangents.get(key)
         if inverse is None:
-            K = np.tensordot(th, self._tangents["K"], axes=1)
+            K = self._hyper.combine(self._tangents["K"], th)
             inverse = self._solve(K, np.eye(len(K)), k)
             self._tangents[key] = inverse
         return np.asarray(inverse)
@@ -480,14 +487,12 @@ def reduced_model(
     Raises
     ------
     ConfigError
-        The body has what the reduction does not carry yet: springs
-        (``[[support]]``), a shape imaged under load (``[reference]``) or a
-        modulus field (``[field]``).
+        The body has what the reduction does not carry yet: a shape imaged
+        under load (``[reference]``) or a modulus field (``[field]``).
     """
     held = [
         what
         for what, present in (
-            ("[[support]] springs", body.supports),
             ("a [reference] imaged shape", body.reference is not None),
             ("a [field]", body.modulus_field is not None),
         )

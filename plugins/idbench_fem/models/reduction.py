@@ -39,6 +39,7 @@ from idbench_fem.bodies.description import Body
 from idbench_fem.bodies.mesh import SolidMesh
 from idbench_fem.fem.ecsw import ecsw
 from idbench_fem.fem.element_set import ElementSet
+from idbench_fem.fem.hyper import Springs
 from idbench_fem.fem.pod import modes_for, pod, projection_error
 from idbench_fem.fem.svk_assembly import shape_gradients
 from idbench_fem.models.solid import SolidModel
@@ -223,7 +224,23 @@ def element_dofs(model: SolidModel, tets: IntArray | None = None) -> IntArray:
 def element_factors(model: SolidModel) -> FloatArray:
     """c_e (T,): each element's modulus over its region's parameter."""
     true = np.asarray(model.parameters.default, dtype=float)
-    return np.asarray(model.element_moduli(true, None) / true[model.element_regions])
+    regions = model.element_regions
+    moduli = model.element_moduli(true, None)[: len(regions)]  # (springs' after)
+    return np.asarray(moduli / true[regions])
+
+
+def moduli_count(model: SolidModel) -> int:
+    """The parameters that are moduli of element regions (the springs' follow)."""
+    springs = model.springs
+    return model.parameters.p - (0 if springs is None else len(springs.names))
+
+
+def reduced_springs(model: SolidModel, basis: FloatArray) -> Springs | None:
+    """The model's spring channels projected on ``basis`` (None: no springs)."""
+    springs = model.springs
+    if springs is None:
+        return None
+    return Springs.project(springs.matrices, springs.index, springs.known, basis)
 
 
 def element_set(model: SolidModel, tets: IntArray) -> ElementSet:
@@ -367,7 +384,7 @@ def build(
         training = snapshots[::every] @ V
         sampled = ecsw(
             element_set(model, tets), element_dofs(model), V, element_factors(model),
-            model.element_regions, model.parameters.p, training,
+            model.element_regions, moduli_count(model), training,
             spec.ecsw_tolerance, spec.max_elements,
         )  # fmt: skip
         elements, weights, fit = sampled.elements, sampled.weights, sampled.residual

@@ -251,6 +251,11 @@ class Supported:
         self.force_is_cubic = False
         self._springs = springs
 
+    @property
+    def springs(self) -> Springs | None:
+        """The model's spring channels (None: no ``[[support]]``)."""
+        return self._springs
+
     def region_weights(self) -> FloatArray:
         """The parameters' stiffness shares (:meth:`Springs.weights` with springs)."""
         if self._springs is None:
