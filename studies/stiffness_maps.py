@@ -154,6 +154,8 @@ def write_body(
     text = source.read_text()
     text = re.sub(r"(?m)^E_regions.*\n", "", text)
     text = re.sub(r"(?ms)^\[parameters\].*?(?=^\[|\Z)", "", text)
+    # the reduced models' offline design ranges the regions' moduli: not a field's
+    text = re.sub(r"(?ms)^\[\[?design[^\n]*\].*?(?=^\[(?!\[?design)|\Z)", "", text)
     base = source.parent
     text = re.sub(r'"(meshes/[^"]+)"', lambda m: f'"{(base / m[1]).as_posix()}"', text)
     probe = spec["probe"]
