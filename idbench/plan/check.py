@@ -41,13 +41,16 @@ from idbench.core.settings import (
 )
 from idbench.estimate.posterior import PosteriorSettings, check_budget
 from idbench.observe import kinds
+from idbench.observe.registration import RegistrationError
+from idbench.observe.surface import surface_of
 from idbench.plan.config import CompareConfig
 from idbench.plan.observations import check_markers, check_observed, resolve
 from idbench.plan.runspec import RunSpec, Setup, expand
 from idbench.plan.validity import check_prior, check_truth_mesh
 from idbench.registry.registry import Registry, used_plugins
-from idbench.store import recording
+from idbench.store import recording, registered
 from idbench.store.files import stable_hash
+from idbench.store.recording import REST
 
 log = logging.getLogger(__name__)
 
@@ -188,7 +191,8 @@ def plan(config: CompareConfig, session: PlanSession) -> Plan:
         check_truth_mesh(truth, config.truth_mesh, models[mesh], mesh)
     if rec is not None:
         bounds = bounds_of(models[config.meshes[0]])
-        recording.check_body(rec, bounds, loads)
+        seen = [_in_body_frame(rec, models[mesh], mesh) for mesh in config.meshes]
+        recording.check_body(seen[0], bounds, loads)
         obs = kinds.build(rec.observe, rec.observe_settings, reg)
         recording.check_frames(rec, obs)
     if config.observe != ("markers",) or config.observe_settings:
@@ -292,6 +296,27 @@ def configure(config: CompareConfig) -> tuple[CompareConfig, recording.Recording
         true={},
     )
     return out, rec
+
+
+def _in_body_frame(
+    rec: recording.Recording, model: ForwardModel, mesh: str
+) -> recording.Recording:
+    """``rec`` moved into ``model``'s frame (a camera's clouds registered).
+
+    Raises
+    ------
+    ConfigError
+        The rest cloud does not register to the mesh's surface (one line).
+    """
+    if rec.frame != "camera":
+        return rec
+    try:
+        return registered.to_body(rec, *surface_of(model, model.reset()))[0]
+    except (RegistrationError, ValueError) as exc:
+        raise ConfigError(
+            f"recording {str(rec.path)!r}: its rest cloud ({REST}) does not "
+            f"register to mesh {mesh!r}: {exc}"
+        ) from None
 
 
 def _shown(value: Any) -> str:

@@ -48,7 +48,7 @@ from idbench.run import rows
 from idbench.run.checked import CheckedModel
 from idbench.run.session import Session
 from idbench.score import metrics, targets
-from idbench.store import surfaces
+from idbench.store import registered, surfaces
 from idbench.truth.simulate import Truth
 
 log = logging.getLogger(__name__)
@@ -328,6 +328,9 @@ def _run_on(
     row["truth_nodes"] = session.truth(spec).nodes
     row.update(rows.empty_parameter_columns(spec))
     row.update(rows.load_columns(master, session.truth(spec)))
+    fit = session.registration(spec)
+    if fit is not None:  # a camera's clouds, moved onto this mesh's surface
+        row.update(registered.columns(fit))
 
     cls = session.registry.estimator(spec.estimator)
     with _blame(who, "its constructor"):

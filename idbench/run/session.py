@@ -36,10 +36,12 @@ from idbench.core.settings import (
 from idbench.estimate.posterior import Posterior, PosteriorSettings, reference_posterior
 from idbench.observe import kinds
 from idbench.observe.observed_model import ObservedModel
+from idbench.observe.registration import Registration
+from idbench.observe.surface import surface_of
 from idbench.plan.runspec import RunSpec
 from idbench.registry.registry import Registry, build_registry
 from idbench.run.isolation import changes, fingerprint, private_copy
-from idbench.store import recording
+from idbench.store import recording, registered
 from idbench.store.files import stable_hash
 from idbench.truth.simulate import Truth, simulate_path, simulate_truth
 
@@ -64,6 +66,7 @@ class Session:
         self._own: dict[Any, dict[str, Scenario]] = {}
         self._discrepancies: dict[str, Discrepancy] = {}
         self._offsets: dict[str, list[FloatArray]] = {}
+        self._registered: dict[tuple[str, str], tuple[Any, Registration]] = {}
 
     def scenario(self, spec: RunSpec, name: str) -> Scenario:
         """The scenario ``name`` of ``spec``'s comparison.
@@ -249,7 +252,27 @@ class Session:
         rec = recording.read(path)
         if rec.digest != digest:
             raise ConfigError(f"recording {path!r} changed since it was planned")
-        return rec
+        if rec.frame != "camera":
+            return rec
+        return self._to_body(spec, rec)[0]
+
+    def registration(self, spec: RunSpec) -> Registration | None:
+        """How the run's recording was moved into its model's frame (None: not)."""
+        if not spec.setup.data:
+            return None
+        rec = recording.read(spec.setup.data[0])
+        return self._to_body(spec, rec)[1] if rec.frame == "camera" else None
+
+    def _to_body(
+        self, spec: RunSpec, rec: recording.Recording
+    ) -> tuple[recording.Recording, Registration]:
+        """``rec`` registered to the rest surface of the run's model mesh (cached)."""
+        key = (rec.digest, spec.mesh)
+        if key not in self._registered:
+            model = self.model(spec, spec.mesh)
+            surface = surface_of(model, model.reset())
+            self._registered[key] = registered.to_body(rec, *surface)
+        return self._registered[key]
 
     def observations(self, spec: RunSpec) -> list[Observation | None]:
         """The noisy, sparse observation stream of a run.

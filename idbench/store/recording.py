@@ -16,6 +16,7 @@ A recording is a folder with two files::
     markers = 8                  # markers per frame (--obs-points)
     steps = 20                   # load steps K; one frame per step, in order
     held_out = ["markers", "points", "targets"]   # in frames.npz, scoring only
+    frame = "body"               # or "camera": clouds in the camera's frame
 
     [model_settings]             # the model options (--model-option)
     body = "liver"
@@ -44,7 +45,10 @@ body's ``[targets]``, and ``held_out/points`` (K, N, 3), a cloud per frame
 without correspondence (positions, m; NaN rows where a frame has fewer),
 scored per step as ``heldout_points_mm``, the mean distance of the points to
 the model's deformed surface
-(:func:`idbench.observe.surface.heldout_points_mm`).
+(:func:`idbench.observe.surface.heldout_points_mm`). With ``frame =
+"camera"`` (clouds only) every position is in the camera's frame and
+``rest/points`` (N, 3) is the organ's cloud at rest: each model mesh
+registers it to its surface before any run (:mod:`idbench.store.registered`).
 
 :func:`read` checks a recording and says what is wrong in one line naming the
 frame (:class:`RecordingError`); :func:`check_body` checks it against the
@@ -76,6 +80,7 @@ from idbench.store.untrusted import HELD_OUT, RecordingError
 FORMAT = 1
 MANIFEST = "recording.toml"
 ARRAYS = "frames.npz"
+REST = "rest/points"
 UNITS = ("m",)
 
 __all__ = ["HELD_OUT", "Recording", "RecordingError", "read", "write"]
@@ -104,6 +109,10 @@ class Recording:
         ``markers`` (K, 3M), ``targets`` (K, T, 3) where recorded.
     digest
         SHA-256 of both files (keys the runs).
+    frame, rest
+        ``"body"`` (the default) or ``"camera"``: the clouds are in the
+        camera's frame, and ``rest`` (N, 3) is the organ's cloud at rest in
+        it (:mod:`idbench.store.registered` moves them into the body's).
     """
 
     path: Path
@@ -121,6 +130,8 @@ class Recording:
     frames: list[Frame]
     held_out: dict[str, FloatArray] = field(default_factory=dict)
     digest: str = ""
+    frame: str = "body"
+    rest: FloatArray | None = None
 
 
 def write(
@@ -129,10 +140,12 @@ def write(
     frames: Sequence[Frame],
     held_out: Mapping[str, FloatArray] | None = None,
     time: FloatArray | None = None,
+    rest: FloatArray | None = None,
 ) -> Path:
     """Write a recording folder: ``manifest`` keys as in the module, and arrays.
 
-    ``time`` defaults to one second a step; ``load`` is k/K of each frame.
+    ``time`` defaults to one second a step; ``load`` is k/K of each frame;
+    ``rest`` the cloud at rest of a recording in the camera's frame.
     """
     root = Path(path)
     root.mkdir(parents=True, exist_ok=True)
@@ -148,6 +161,8 @@ def write(
             arrays[f"frame.{f.step:05d}/{name}"] = np.asarray(value, dtype=float)
     for name, value in (held_out or {}).items():
         arrays[f"held_out/{name}"] = np.asarray(value, dtype=float)
+    if rest is not None:
+        arrays[REST] = np.asarray(rest, dtype=float)
     values = {"format": FORMAT, "units": "m", **manifest}
     values["model_settings"] = {
         k: _relative(v, root) for k, v in values.get("model_settings", {}).items()
@@ -245,6 +260,8 @@ def _read(root: Path, key: str) -> Recording:
                 f"{where}: held_out/points of shape {value.shape}: need (K, N, 3), "
                 "positions (m), NaN rows where a frame has fewer points"
             )
+    frame, rest = str(raw.get("frame", "body")), arrays.get(REST)
+    _check_rest(where, frame, rest, blocks)
     return Recording(
         path=root,
         model=str(raw["model"]),
@@ -265,7 +282,35 @@ def _read(root: Path, key: str) -> Recording:
         frames=frames,
         held_out=held,
         digest=key,
+        frame=frame,
+        rest=rest,
     )
+
+
+def _check_rest(
+    where: str, frame: str, rest: FloatArray | None, blocks: list[str]
+) -> None:
+    """A camera's frame needs clouds alone and a rest cloud; a body's none."""
+    if frame != "camera":
+        if rest is not None:
+            raise RecordingError(
+                f'{where}: {REST} is only read with frame = "camera" (the clouds '
+                "in the camera's frame); this recording is in the body's"
+            )
+        return
+    if blocks != ["cloud"]:
+        raise RecordingError(
+            f'{where}: frame = "camera" with observe = {COMBINE.join(blocks)!r}: '
+            'only a cloud can be registered (observe = "cloud")'
+        )
+    if rest is None or rest.ndim != 2 or rest.shape[1] != 3 or len(rest) < 10:
+        shape = None if rest is None else rest.shape
+        raise RecordingError(
+            f'{where}: frame = "camera" needs {REST} in {ARRAYS}, the organ at '
+            f"rest in the camera's frame, (N, 3) with N >= 10 (m); got {shape}"
+        )
+    if not np.all(np.isfinite(rest)):
+        raise RecordingError(f"{where}: {REST} has non-finite points")
 
 
 def _timeline(

@@ -69,6 +69,10 @@ MANIFEST_KEYS: dict[str, tuple[Callable[[Any], bool], str]] = {
         lambda v: isinstance(v, dict) and all(_number(x) for x in v.values()),
         "a table of finite numbers",
     ),
+    "frame": (
+        lambda v: v in ("body", "camera"),
+        '"body" or "camera" (the clouds\' coordinates)',
+    ),
 }
 """Each key of ``recording.toml``: its check and what it must be."""
 
@@ -130,7 +134,7 @@ def budget(steps: int, markers: int, points: int) -> int:
     """
     per_frame = 3 * markers + 3 * points + 4 + MAX_FORCE
     held = 3 * markers + 3 * MAX_TARGETS + 3 * points
-    need = 8 * (2 * steps + steps * (per_frame + held))
+    need = 8 * (2 * steps + steps * (per_frame + held) + 3 * points)  # + at rest
     return int(SLACK * need) + 2**20
 
 
@@ -194,7 +198,7 @@ def _member_key(name: str, label: str, steps: int, plugin_leaves: bool) -> str:
     if not name.endswith(".npy"):
         raise RecordingError(f"{label}: member {name!r} is not a .npy array")
     key = name[:-4]
-    if key in ("time", "load"):
+    if key in ("time", "load", "rest/points"):
         return key
     if key.startswith("held_out/"):
         if key.removeprefix("held_out/") in HELD_OUT:
@@ -206,7 +210,7 @@ def _member_key(name: str, label: str, steps: int, plugin_leaves: bool) -> str:
     match = FRAME.fullmatch(key)
     if match is None:
         raise RecordingError(
-            f"{label}: unknown member {key!r}; allowed: time, load, "
+            f"{label}: unknown member {key!r}; allowed: time, load, rest/points, "
             "frame.FFFFF/NAME, frame.FFFFF/BLOCK/NAME, held_out/NAME"
         )
     k, leaf = int(match.group(1)), match.group(3)
