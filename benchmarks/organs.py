@@ -61,11 +61,13 @@ N_STEPS = 20
 NOISE = 1e-4
 TARGETS = {"liver": 60.0, "liver-2000": 30.0, "kidney": 20.0, "liver-p4": 20.0,
            "liver-springs": 30.0, "liver-rom-4000": 100.0,
-           "liver-rom-16000": 100.0, "kidney-rom-16000": 60.0}  # fmt: skip
+           "liver-rom-16000": 100.0, "kidney-rom-4000": 60.0,
+           "kidney-rom-16000": 60.0}  # fmt: skip
 SPRINGS = Path(__file__).resolve().parent.parent / "examples/liver/springs.toml"
 REDUCED = (
     ("liver-rom-4000", "liver", "grasp-lift", "rom:4000:40"),
     ("liver-rom-16000", "liver", "grasp-lift", "rom:16000:40"),
+    ("kidney-rom-4000", "kidney", "grasp-pole", "rom:4000:40"),
     ("kidney-rom-16000", "kidney", "grasp-pole", "rom:16000:40"),
 )
 """Reduced models: label, body, manipulation, mesh spec."""

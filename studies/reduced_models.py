@@ -33,6 +33,7 @@ time, then come from the cache).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import _cli
 import numpy as np
@@ -47,7 +48,7 @@ COARSE = ("500", "1000", "2000")
 REDUCED = ("rom:4000:40", "rom:16000:40", "rom:16000:60")
 TRUTH = "16000"
 PRIORS = {"liver": (2000.0, 2000.0), "kidney": (3000.0, 3000.0)}
-SEEDS = 1
+SEEDS = 3
 STEPS = 20
 NOISE = 1e-4  # m
 UNSEEN = {"liver": ("grasp-lift", "lateral-push", "sag-90"),
@@ -64,34 +65,41 @@ QUICK = {
     "steps": 6,
     "unseen": {"liver": ("grasp-lift",)},
     "moduli": (1.0,),
+    "seeds": 1,
 }
 
 
-def _settings(quick: bool) -> dict:
+def _settings(quick: bool, **given: Any) -> dict:
     full = {"organs": tuple(ORGANS), "coarse": COARSE, "reduced": REDUCED,
             "truth": TRUTH, "steps": STEPS, "unseen": UNSEEN,
-            "moduli": MODULI}  # fmt: skip
-    return {**full, **(QUICK if quick else {})}
+            "moduli": MODULI, "seeds": SEEDS}  # fmt: skip
+    chosen = {k: v for k, v in given.items() if v}  # the command line's
+    return {**full, **(QUICK if quick else {}), **chosen}
 
 
-def compute(quick: bool = False, out: str | Path | None = None) -> pd.DataFrame:
+def compute(
+    quick: bool = False, out: str | Path | None = None, **given: Any
+) -> pd.DataFrame:
     """One row per (organ, mesh): identified moduli, rate, the reduction's size.
 
     Columns: ``organ``, ``mesh``, ``kind`` (coarse, reduced, full),
     ``model_nodes``, ``modes``, ``elements``, ``fine_paths``,
     ``fine_steps``, per parameter ``x``: ``x_ratio`` (x / x_true) and
     ``x_vs_full`` (x / the full fine model's), ``rate_hz``,
-    ``shape_error_mm`` (mm per grid point, last step) and
+    ``shape_error_mm`` (mm per grid point, last step), ``cover95`` (the
+    share of runs whose 95% interval of the first parameter holds its true
+    value), ``tre_mm`` (hidden targets, last step) and
     ``reduction_residual``, ``reduction_error_estimate`` (the largest of the
-    runs).
+    runs). ``given``: settings that replace the study's (``organs``,
+    ``truth``, ``reduced``, ``coarse``, ``seeds``).
     """
-    s = _settings(quick)
+    s = _settings(quick, **given)
     tables = []
     for organ in s["organs"]:
         meshes = (*s["coarse"], *s["reduced"], s["truth"])
         config = CompareConfig(
             model="solid", scenarios=(ORGANS[organ],), meshes=meshes,
-            truth_mesh=s["truth"], estimators=("ro-ukf",), seeds=SEEDS,
+            truth_mesh=s["truth"], estimators=("ro-ukf",), seeds=s["seeds"],
             steps=s["steps"], noise=(NOISE,), prior=PRIORS[organ],
             model_settings={"solid": {"body": organ, "reference": s["truth"]}},
         )  # fmt: skip
@@ -124,6 +132,10 @@ def _table(
                 )
         row["rate_hz"] = float(df["rate_hz"].mean())
         row["shape_error_mm"] = 1000.0 * float(df["shape_error_mean_final"].mean())
+        cover = f"{names[0]}_cover95_true"
+        row["cover95"] = float(df[cover].mean()) if cover in df else np.nan
+        row["tre_mm"] = float(df["tre_final_mm"].mean()) if "tre_final_mm" in df \
+            else np.nan
         for column in ("reduction_residual", "reduction_error_estimate"):
             if column in df:
                 row[column] = float(df[column].max())
@@ -154,7 +166,7 @@ def _model(organ: str, manipulation: str, mesh: str, steps: int):
     return idbench.build_registry().model("solid")(spec)
 
 
-def reduction_errors(quick: bool = False) -> pd.DataFrame:
+def reduction_errors(quick: bool = False, **given: Any) -> pd.DataFrame:
     """Each reduction against the full fine model on paths outside its design.
 
     One row per (organ, reduction, manipulation, modulus multiple):
@@ -163,7 +175,7 @@ def reduction_errors(quick: bool = False) -> pd.DataFrame:
     ``reduction_residual`` and ``reduction_error_estimate`` (the largest
     measured).
     """
-    s = _settings(quick)
+    s = _settings(quick, **given)
     rows = []
     for organ in s["organs"]:
         for manipulation in s["unseen"][organ]:
@@ -195,7 +207,8 @@ def markdown(table: pd.DataFrame) -> str:
     names = sorted({c[: -len("_ratio")] for c in table.columns if c.endswith("_ratio")})
     head = ["organ", "mesh", "nodes", "modes / elements"]
     head += [f"{n} / true" for n in names] + [f"{n} / full" for n in names]
-    head += ["rate (Hz)", "shape error (mm/pt)", "fine residual", "error estimate"]
+    head += ["95% covers true", "TRE (mm)", "rate (Hz)", "shape error (mm/pt)",
+             "fine residual", "error estimate"]  # fmt: skip
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for _, r in table.iterrows():
         size = (f"{int(r['modes'])} / {int(r['elements']):,}"
@@ -203,6 +216,7 @@ def markdown(table: pd.DataFrame) -> str:
         cells = [str(r["organ"]), f"`{r['mesh']}`", f"{int(r['model_nodes']):,}", size]
         cells += [_num(r.get(f"{n}_ratio")) for n in names]
         cells += [_num(r.get(f"{n}_vs_full")) for n in names]
+        cells += [_num(r.get("cover95"), "{:.2f}"), _num(r.get("tre_mm"), "{:.3g}")]
         cells += [f"{r['rate_hz']:.3g}", f"{r['shape_error_mm']:.3g}",
                   _num(r.get("reduction_residual"), "{:.2g}"),
                   _num(r.get("reduction_error_estimate"), "{:.2g}")]  # fmt: skip
@@ -240,9 +254,18 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
 
 def main() -> None:
-    args = _cli.parser(__doc__, "results/reduced").parse_args()
-    table = compute(args.quick, args.out)
-    errors = reduction_errors(args.quick)
+    p = _cli.parser(__doc__, "results/reduced")
+    p.add_argument("--organs", type=lambda v: tuple(v.split(",")),
+                   help=f"default {','.join(ORGANS)}")  # fmt: skip
+    p.add_argument("--truth", help=f"the fine (truth) mesh, default {TRUTH}")
+    p.add_argument("--reduced", type=lambda v: tuple(v.split(",")),
+                   help=f"reduced models, default {','.join(REDUCED)}")  # fmt: skip
+    p.add_argument("--seeds", type=int, help=f"default {SEEDS}")
+    args = p.parse_args()
+    given = {"organs": args.organs, "truth": args.truth, "reduced": args.reduced,
+             "seeds": args.seeds}  # fmt: skip
+    table = compute(args.quick, args.out, **given)
+    errors = reduction_errors(args.quick, **given)
     args.out.mkdir(parents=True, exist_ok=True)
     table.to_csv(args.out / "reduced_models.csv", index=False)
     errors.to_csv(args.out / "reduction_errors.csv", index=False)
