@@ -62,7 +62,8 @@ NOISE = 1e-4
 TARGETS = {"liver": 60.0, "liver-2000": 30.0, "kidney": 20.0, "liver-p4": 20.0,
            "liver-springs": 30.0, "liver-rom-4000": 100.0,
            "liver-rom-16000": 100.0, "kidney-rom-4000": 60.0,
-           "kidney-rom-16000": 60.0}  # fmt: skip
+           "kidney-rom-16000": 60.0, "liver-p4-rom-4000": 40.0,
+           "liver-springs-rom-1000": 30.0}  # fmt: skip
 SPRINGS = Path(__file__).resolve().parent.parent / "examples/liver/springs.toml"
 REDUCED = (
     ("liver-rom-4000", "liver", "grasp-lift", "rom:4000:40"),
@@ -73,8 +74,12 @@ REDUCED = (
 """Reduced models: label, body, manipulation, mesh spec."""
 
 
-def liver_slabs(folder: Path, p: int) -> Path:
-    """The shipped liver with ``p`` slabs along x as parameter regions."""
+def liver_slabs(folder: Path, p: int, paths: int = 1) -> Path:
+    """The shipped liver with ``p`` slabs along x as parameter regions.
+
+    ``paths``: its design's moduli per load (the slabs' ratios, for a
+    reduced model of it).
+    """
     src = body_path("liver")
     text = src.read_text().replace('"meshes/', f'"{src.parent}/meshes/')
     x = np.linspace(-0.1, 0.1, p + 1)
@@ -83,7 +88,9 @@ def liver_slabs(folder: Path, p: int) -> Path:
         f"{{ box = {{ lower = [{a}, -1.0, -1.0], upper = [{b}, 1.0, 1.0] }} }}"
         for a, b in itertools.pairwise(x)
     )
-    path = folder / f"liver-p{p}.toml"
+    if paths > 1:
+        text = text.replace("\n[design]\n", f"\n[design]\npaths = {paths}\n", 1)
+    path = folder / f"liver-p{p}-{paths}.toml"
     path.write_text(f"{text}\n[parameters]\nregions = [{boxes}]\n")
     return path
 
@@ -230,8 +237,12 @@ def main() -> None:
                 min(args.repeat, 2) if small else args.repeat,
             )
         reduced = [("liver-rom-1000", "liver", "grasp-lift", "rom:1000:20")]
+        full = [*REDUCED,
+                ("liver-p4-rom-4000", liver_slabs(Path(tmp), 4, paths=2),
+                 "grasp-lift", "rom:4000:40"),
+                ("liver-springs-rom-1000", SPRINGS, "grasp-lift", "rom:1000:50")]
         for label, body, manipulation, mesh in [] if args.no_reduced else (
-            reduced if small else REDUCED
+            reduced if small else full
         ):  # fmt: skip
             if args.only and label not in args.only:
                 continue
