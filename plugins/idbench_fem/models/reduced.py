@@ -53,6 +53,7 @@ from idbench import ConfigError, Cost, ModelFailure, ModelSpec
 from idbench_fem.bodies.catalog import get_mesh, mesh_file
 from idbench_fem.bodies.description import Body
 from idbench_fem.fem.hyper import HyperReduced
+from idbench_fem.fem.newton import checked_theta
 from idbench_fem.models.reduction import (
     PREFIX,
     Reduction,
@@ -364,16 +365,7 @@ class ReducedModel:
     # -- internals -------------------------------------------------------------
 
     def _theta(self, theta: FloatArray, k: int | None) -> FloatArray:
-        th = np.asarray(theta, dtype=np.float64).reshape(-1)
-        if th.shape != (self.parameters.p,):
-            raise ValueError(
-                f"theta has shape {th.shape}, expected ({self.parameters.p},)"
-            )
-        if not np.all(np.isfinite(th)) or np.any(th <= 0):
-            raise ModelFailure(
-                f"parameters {th.tolist()} are not positive and finite", step=k
-            )
-        return th
+        return checked_theta(theta, self.parameters.p, k)
 
     def _held_inverse(self, th: FloatArray, k: int) -> FloatArray:
         """K-hat^-1 (r, r) of the held tangents at ``th`` (computed once per theta)."""
