@@ -87,6 +87,27 @@ def checked_theta(theta: FloatArray, p: int, k: int | None) -> FloatArray:
     return th
 
 
+def checked_state(
+    state: FloatArray, k: int, substeps: int, n_steps: int, n_state: int
+) -> FloatArray:
+    """A step's start ``state`` as a new float array, the step's arguments checked.
+
+    Raises
+    ------
+    ValueError
+        For a load step k outside 1..n_steps, ``substeps`` below 1, or a
+        state of a shape other than (n_state,).
+    """
+    if not 1 <= k <= n_steps:
+        raise ValueError(f"load step k = {k}: must be in 1..{n_steps}")
+    if substeps < 1:
+        raise ValueError(f"substeps = {substeps}: must be >= 1")
+    u = np.array(state, dtype=np.float64)
+    if u.shape != (n_state,):
+        raise ValueError(f"state has shape {u.shape}, expected ({n_state},)")
+    return u
+
+
 def freeze(obj: Any, keep: tuple[str, ...] = ()) -> None:
     """Make the arrays ``obj`` holds directly read-only (but those in ``keep``).
 
