@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from support.bodies import write_beam_body
+from support.bodies import FIELD_MARKERS, write_beam_body
 from support.toymodels import LinearFieldToy, LinearToy
 
 from idbench import FieldPrior, Observation, Prior, Skipped
@@ -94,9 +94,7 @@ def test_randomized_eigensolver_finds_the_leading_eigenpairs():
 @pytest.fixture(scope="module")
 def beam(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("beam")
-    path, _ = write_beam_body(tmp, spec="12x3x3", markers=[
-        [0.2, 0.0, 0.03], [0.2, 0.03, 0.03], [0.1, 0.0, 0.03], [0.1, 0.03, 0.03],
-        [0.05, 0.0, 0.03], [0.15, 0.03, 0.03]])  # fmt: skip
+    path, _ = write_beam_body(tmp, spec="12x3x3", markers=FIELD_MARKERS)
     body = load_body(path)
     mesh = read_mesh(body.mesh.truth)
     settings = SolidSettings(field_cells=8, field_length=0.08)

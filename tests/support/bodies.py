@@ -47,6 +47,11 @@ grid = [6, 3, 3]
     return body, beam
 
 
+FIELD_MARKERS = [[0.2, 0.0, 0.03], [0.2, 0.03, 0.03], [0.1, 0.0, 0.03],
+                 [0.1, 0.03, 0.03], [0.05, 0.0, 0.03], [0.15, 0.03, 0.03]]  # fmt: skip
+"""Six markers on the top of the 12x3x3 beam, along it: a field's tests."""
+
+
 PULLED_BOX = """
 [mesh]
 truth = "box.vtu"
