@@ -40,6 +40,7 @@ import pandas as pd
 from idbench import Registry, Scenario, build_registry
 from idbench.plan.config import CompareConfig
 from idbench.run.compare import compare
+from idbench_fem.models.beam_scenarios import BEND_TRACTION, DESIGN_TRACTIONS
 
 # Parameters (full size)
 MESHES = ("14x3x3", "20x4x4")  # 240, 525 nodes
@@ -98,49 +99,24 @@ QUICK: dict[str, Any] = {
     "LIVER_CALIBRATION": {"quantile": 0.25, "scaled_steps": 12},  # quadratic
 }
 
-BEND_TRACTION = 8.9  # Pa, as the registered bending and mixed paths
-STRETCH_TRACTION = 250.0  # Pa, as stretch-x
-
-# The beam's calibration design (mode "not used"): 14 end tractions (Pa),
-# none of them a path of SCENARIOS, whose cone holds every one of them (each
-# path's traction is a combination of them with coefficients >= 0). Six
-# along +x, -y and -z, each tilted by 0.2 of the bending traction towards the
-# other two axes, one way (cal-x, cal-y, cal-z) and the other (cal-x2, cal-y2,
-# cal-z2). The x components of the bending ones stay at +-0.5 Pa: an end
-# compression beyond a few Pa buckles the beam at the prior's low E. Eight
-# combine a moderate axial pull with bending, at the bending traction 15 and
-# 75 deg from +x towards -y (cal-xy15, cal-xy75), tilted by 0.2 of it
-# towards +z and (suffix b) -z, and likewise towards -z (cal-xz15, cal-xz75),
-# tilted towards +y and -y: the beam's response to a pull with bending is not
-# the sum of its responses to the two (tension stiffens it in bending), and
-# the mixed paths (a small pull with bending, in the x-y plane) lie in the
-# cone of the four x-y ones alone.
-_T = 0.2 * BEND_TRACTION
-
-
-def _pull_bend(angle_deg: float, bend_axis: int, tilt: float) -> tuple[float, ...]:
-    """A traction ``angle_deg`` from +x towards -(y, z)[bend_axis], tilted."""
-    a = math.radians(angle_deg)
-    t = [BEND_TRACTION * math.cos(a), tilt, tilt]
-    t[1 + bend_axis] = -BEND_TRACTION * math.sin(a)
-    return tuple(t)
-
-
+# The beam's calibration design (mode "not used"): the 14 end tractions (Pa)
+# of the FE plugin's design (idbench_fem.models.beam_scenarios.DESIGN_TRACTIONS),
+# named cal-* here, none of them a path of SCENARIOS, whose cone holds every
+# one of them (each path's traction is a combination of them with
+# coefficients >= 0). Six along +x, -y and -z, each tilted by 0.2 of the
+# bending traction towards the other two axes, one way (cal-x, cal-y, cal-z)
+# and the other (cal-x2, cal-y2, cal-z2). The x components of the bending
+# ones stay at +-0.5 Pa: an end compression beyond a few Pa buckles the beam
+# at the prior's low E. Eight combine a moderate axial pull with bending, at
+# the bending traction 15 and 75 deg from +x towards -y (cal-xy15, cal-xy75),
+# tilted by 0.2 of it towards +z and (suffix b) -z, and likewise towards -z
+# (cal-xz15, cal-xz75), tilted towards +y and -y: the beam's response to a
+# pull with bending is not the sum of its responses to the two (tension
+# stiffens it in bending), and the mixed paths (a small pull with bending, in
+# the x-y plane) lie in the cone of the four x-y ones alone.
 DESIGN: dict[str, tuple[float, ...]] = {
-    "cal-x": (STRETCH_TRACTION, _T, _T),
-    "cal-y": (-0.5, -BEND_TRACTION, _T),
-    "cal-z": (-0.5, _T, -BEND_TRACTION),
-    "cal-x2": (STRETCH_TRACTION, -_T, -_T),
-    "cal-y2": (0.5, -BEND_TRACTION, -_T),
-    "cal-z2": (0.5, -_T, -BEND_TRACTION),
-    "cal-xy15": _pull_bend(15.0, 0, _T),
-    "cal-xy75": _pull_bend(75.0, 0, -_T),
-    "cal-xz15": _pull_bend(15.0, 1, _T),
-    "cal-xz75": _pull_bend(75.0, 1, -_T),
-    "cal-xy15b": _pull_bend(15.0, 0, -_T),
-    "cal-xy75b": _pull_bend(75.0, 0, _T),
-    "cal-xz15b": _pull_bend(15.0, 1, -_T),
-    "cal-xz75b": _pull_bend(75.0, 1, _T),
+    "cal-" + name.removeprefix("design-"): traction
+    for name, traction in DESIGN_TRACTIONS.items()
 }
 
 

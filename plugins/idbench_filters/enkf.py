@@ -44,7 +44,14 @@ class Enkf(EnsembleFilter):
         A = X - X.mean(axis=0)
         Y = HX - HX.mean(axis=0)
         C = Y.T @ Y + (n_members - 1) * noise_matrix(r, m)
+        innov = self._perturbed_innovations(HX, y, r)
+        return X + (innov @ np.linalg.solve(C, Y.T)) @ A
+
+    def _perturbed_innovations(
+        self, HX: FloatArray, y: FloatArray, r: float
+    ) -> FloatArray:
+        """The innovations y + d_i - h_i (N, m), d_i ~ N(0, R) drawn and centred."""
+        n_members, m = HX.shape
         d = self._rng.standard_normal((n_members, m)) * np.sqrt(r)
         d -= d.mean(axis=0)
-        innov = y[None, :] + d - HX  # (N, m)
-        return X + (innov @ np.linalg.solve(C, Y.T)) @ A
+        return y[None, :] + d - HX

@@ -139,6 +139,22 @@ class _Localized:
             return np.full((m, 1), np.nan)
         return np.asarray(points(k), dtype=float)
 
+    def __post_init__(self) -> None:
+        super().__post_init__()  # type: ignore[misc]
+        self._check_localization()
+
+    def begin(self, model: ForwardModel, prior: Prior) -> None:
+        """The plain filter's start, and the cells to localize."""
+        super().begin(model, prior)  # type: ignore[misc]
+        self._begin_localized(model, prior)
+
+    def assimilate(self, k: int, observation: Observation | None) -> Analysis:
+        """The plain filter's step, with the tapers of step k's observation points."""
+        if observation is not None:
+            m = np.size(observation.values)
+            self._step_points = self._points(k, m, self.model)  # type: ignore[attr-defined]
+        return super().assimilate(k, observation)  # type: ignore[misc, no-any-return]
+
 
 @dataclass
 class LocalizedEnkf(_Localized, Enkf):
@@ -157,22 +173,6 @@ class LocalizedEnkf(_Localized, Enkf):
 
     by_default: ClassVar[bool] = False  # for fields: name it
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self._check_localization()
-
-    def begin(self, model: ForwardModel, prior: Prior) -> None:
-        """The EnKF's start, and the cells to localize."""
-        super().begin(model, prior)
-        self._begin_localized(model, prior)
-
-    def assimilate(self, k: int, observation: Observation | None) -> Analysis:
-        """The EnKF's step, with the tapers of step k's observation points."""
-        if observation is not None:
-            m = np.size(observation.values)
-            self._step_points = self._points(k, m, self.model)
-        return super().assimilate(k, observation)
-
     def analysis(
         self, X: FloatArray, HX: FloatArray, y: FloatArray, r: float
     ) -> FloatArray:
@@ -186,9 +186,7 @@ class LocalizedEnkf(_Localized, Enkf):
             rho[self._nu :] = taper(self._cells, points, self.localization)
         C = _taper_yy(points, self.localization) * (Y.T @ Y)
         C += (n_members - 1) * noise_matrix(r, m)
-        d = self._rng.standard_normal((n_members, m)) * np.sqrt(r)
-        d -= d.mean(axis=0)
-        innov = y[None, :] + d - HX  # (N, m)
+        innov = self._perturbed_innovations(HX, y, r)
         return X + innov @ np.linalg.solve(C, (rho * (A.T @ Y)).T)
 
 
@@ -207,22 +205,6 @@ class LocalizedEtkf(_Localized, Etkf):
     """
 
     by_default: ClassVar[bool] = False  # for fields: name it
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self._check_localization()
-
-    def begin(self, model: ForwardModel, prior: Prior) -> None:
-        """The ETKF's start, and the cells to localize."""
-        super().begin(model, prior)
-        self._begin_localized(model, prior)
-
-    def assimilate(self, k: int, observation: Observation | None) -> Analysis:
-        """The ETKF's step, with the tapers of step k's observation points."""
-        if observation is not None:
-            m = np.size(observation.values)
-            self._step_points = self._points(k, m, self.model)
-        return super().assimilate(k, observation)
 
     def analysis(
         self, X: FloatArray, HX: FloatArray, y: FloatArray, r: float

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import pluggy
 import pytest
+from support.helpers import run_fresh_python
 
 import idbench
 from idbench.registry import hookspecs
@@ -370,10 +371,7 @@ def test_import_idbench_loads_no_plugin() -> None:
         "bad = [m for m in plugins if m in sys.modules]\n"
         "assert not bad, bad\n"
     )
-    proc = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60
-    )
-    assert proc.returncode == 0, proc.stderr
+    run_fresh_python(code, timeout=60)
 
 
 # --- a real third-party distribution -----------------------------------------

@@ -3,16 +3,15 @@
 from __future__ import annotations
 
 import dataclasses
-import shutil
 import tomllib
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 import pytest
 from support.helpers import registry_with
+from support.recordings import edited_copy
 
 import idbench
 from idbench.cli.commands import main
@@ -145,19 +144,6 @@ def test_heldout_points_mm_is_the_mean_distance_to_the_surface():
     assert np.isnan(heldout_points_mm(object(), np.zeros(1), pts))
 
 
-def edited(src: Path, dst: Path, arrays: Any = None, toml: Any = None) -> Path:
-    shutil.copytree(src, dst)
-    if arrays is not None:
-        with np.load(dst / recording.ARRAYS) as npz:
-            data = {k: np.array(npz[k]) for k in npz.files}
-        arrays(data)
-        np.savez(dst / recording.ARRAYS, **data)
-    if toml is not None:
-        path = dst / recording.MANIFEST
-        path.write_text(toml(path.read_text()))
-    return dst
-
-
 def swap_times(d: dict[str, np.ndarray]) -> None:
     d["time"][[1, 2]] = d["time"][[2, 1]]
 
@@ -227,7 +213,7 @@ BAD = [
 def test_a_bad_recording_is_one_line(
     recordings, tmp_path, capsys, which, arrays, toml, words
 ):
-    bad = edited(recordings / which, tmp_path / "bad", arrays, toml)
+    bad = edited_copy(recordings / which, tmp_path / "bad", arrays, toml)
     argv = ["compare", "--data", str(bad), "--meshes", MESH, "--estimators", "rls",
             "--seeds", "1", "--out", str(tmp_path / "out")]  # fmt: skip
     assert main(argv) != 0
@@ -242,7 +228,7 @@ def test_a_missing_frame_is_named(recordings, tmp_path):
         for k in [k for k in d if k.startswith("frame.00003/")]:
             del d[k]
 
-    bad = edited(recordings / "markers", tmp_path / "bad", drop)
+    bad = edited_copy(recordings / "markers", tmp_path / "bad", drop)
     with pytest.raises(recording.RecordingError, match="frame 3 has no data"):
         recording.read(bad)
 
@@ -299,7 +285,7 @@ ALL = ("batch-ls", "enkf", "etkf", "lms", "rls", "ro-ukf", "ukf")
 
 def test_occluded_markers_are_assimilated_visible_only(recordings, tmp_path):
     """NaN markers round-trip through compare --data: finite, and they count."""
-    occluded = edited(recordings / "markers", tmp_path / "occluded", occlude)
+    occluded = edited_copy(recordings / "markers", tmp_path / "occluded", occlude)
     frames = recording.read(occluded).frames
     assert np.isnan(frames[2].data["markers"]).all()
     runs = {}
@@ -345,7 +331,7 @@ class PriorOnlyPlugin:
 
 
 def test_an_estimator_off_filter_is_refused_occluded_markers(recordings, tmp_path):
-    occluded = edited(recordings / "markers", tmp_path / "occluded", occlude)
+    occluded = edited_copy(recordings / "markers", tmp_path / "occluded", occlude)
     registry = registry_with({"prior-only": PriorOnlyPlugin()})
     config = CompareConfig(meshes=(MESH,), estimators=("prior-only",), seeds=1,
                            obs_every=(1,), data=str(occluded))  # fmt: skip

@@ -9,7 +9,6 @@ resumed folder; names that could not be read back.
 
 from __future__ import annotations
 
-import shutil
 import tracemalloc
 import zipfile
 from pathlib import Path
@@ -19,6 +18,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from support.recordings import arrays_of, edited_copy
 
 from idbench.cli.commands import main
 from idbench.observe.kinds import Frame
@@ -38,23 +38,6 @@ def rec(tmp_path_factory) -> Path:
                 "--record", str(root / "markers")]  # fmt: skip
         assert main(argv) == 0
     return root / "markers"
-
-
-def arrays_of(path: Path) -> dict[str, np.ndarray]:
-    with np.load(path / recording.ARRAYS) as npz:
-        return {k: np.array(npz[k]) for k in npz.files}
-
-
-def copy(src: Path, dst: Path, edit: Any = None, toml: Any = None) -> Path:
-    shutil.copytree(src, dst)
-    if edit is not None:
-        data = arrays_of(dst)
-        edit(data)
-        np.savez(dst / recording.ARRAYS, **data)
-    if toml is not None:
-        path = dst / recording.MANIFEST
-        path.write_text(toml(path.read_text()))
-    return dst
 
 
 def refused(rec: Path, tmp_path: Path, capsys, *extra: str) -> str:
@@ -102,7 +85,7 @@ ARRAYS = [
 
 @pytest.mark.parametrize(("edit", "words"), ARRAYS)
 def test_bad_arrays_are_one_line(rec, tmp_path, capsys, edit, words) -> None:
-    bad = copy(rec, tmp_path / "bad", edit)
+    bad = edited_copy(rec, tmp_path / "bad", edit)
     assert words in refused(bad, tmp_path, capsys)
 
 
@@ -120,12 +103,12 @@ MANIFESTS = [
 
 @pytest.mark.parametrize(("toml", "words"), MANIFESTS)
 def test_bad_manifests_are_one_line(rec, tmp_path, capsys, toml, words) -> None:
-    bad = copy(rec, tmp_path / "bad", toml=toml)
+    bad = edited_copy(rec, tmp_path / "bad", toml=toml)
     assert words in refused(bad, tmp_path, capsys)
 
 
 def test_an_object_array_is_refused_without_unpickling(rec, tmp_path, capsys):
-    bad = copy(rec, tmp_path / "bad")
+    bad = edited_copy(rec, tmp_path / "bad")
     data = arrays_of(bad)
     data["frame.00001/markers"] = np.array([{"a": 1}, None], dtype=object)
     np.savez(bad / recording.ARRAYS, **data)  # pickles the object array
@@ -133,10 +116,10 @@ def test_an_object_array_is_refused_without_unpickling(rec, tmp_path, capsys):
 
 
 def test_a_file_that_is_no_zip_and_a_truncated_zip(rec, tmp_path, capsys):
-    bad = copy(rec, tmp_path / "nozip")
+    bad = edited_copy(rec, tmp_path / "nozip")
     (bad / recording.ARRAYS).write_bytes(b"\x93NUMPY not a zip at all")
     assert "is not a zip archive of .npy arrays" in refused(bad, tmp_path, capsys)
-    cut = copy(rec, tmp_path / "cut")
+    cut = edited_copy(rec, tmp_path / "cut")
     raw = (cut / recording.ARRAYS).read_bytes()
     (cut / recording.ARRAYS).write_bytes(raw[: len(raw) // 2])
     err = refused(cut, tmp_path / "2", capsys)
@@ -144,7 +127,7 @@ def test_a_file_that_is_no_zip_and_a_truncated_zip(rec, tmp_path, capsys):
 
 
 def test_a_decompression_bomb_is_refused_before_it_is_read(rec, tmp_path, capsys):
-    bad = copy(rec, tmp_path / "bomb")
+    bad = edited_copy(rec, tmp_path / "bomb")
     data = arrays_of(bad)
     with zipfile.ZipFile(bad / recording.ARRAYS, "w", zipfile.ZIP_DEFLATED) as zf:
         for name, value in data.items():
@@ -186,7 +169,7 @@ def test_the_same_values_again_are_accepted(rec, tmp_path) -> None:
 
 
 def test_a_resume_after_the_recording_changed_is_refused(rec, tmp_path, capsys):
-    mine = copy(rec, tmp_path / "mine")
+    mine = edited_copy(rec, tmp_path / "mine")
     argv = ["compare", "--data", str(mine), "--meshes", MESH, "--estimators", "rls",
             "--seeds", "1", "--out", str(tmp_path / "out")]  # fmt: skip
     assert main(argv) == 0

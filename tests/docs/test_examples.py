@@ -58,13 +58,19 @@ def _strip_comment(line: str) -> str:
     return line
 
 
-def shell_script(block: Block) -> str:
-    """The block's shell lines, continuations joined, ``append`` applied."""
+def replaced(block: Block) -> str:
+    """The block's code with its ``replace`` directives applied."""
     code = block.code
     for rule in block.get("replace"):
         old, _, new = rule.partition(" => ")
         assert old in code, f"{block.where}: replace {old!r}: not in the block"
         code = code.replace(old, new)
+    return code
+
+
+def shell_script(block: Block) -> str:
+    """The block's shell lines, continuations joined, ``append`` applied."""
+    code = replaced(block)
     appends = []
     for rule in block.get("append"):
         prefix, _, options = rule.partition(" => ")
@@ -85,11 +91,7 @@ def shell_script(block: Block) -> str:
 
 def python_script(block: Block) -> str:
     """The block with its ``replace``, ``prelude`` and ``then`` directives."""
-    code = block.code
-    for rule in block.get("replace"):
-        old, _, new = rule.partition(" => ")
-        assert old in code, f"{block.where}: replace {old!r}: not in the block"
-        code = code.replace(old, new)
+    code = replaced(block)
     return "\n".join([*block.get("prelude"), code, *block.get("then")]) + "\n"
 
 

@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from support.bodies import write_beam_body
-from support.helpers import write_box_mesh
+from support.bodies import write_beam_body, write_pulled_box
 
 from idbench.core.observation_model import Frame
 from idbench.observe.cloud import Cloud
@@ -156,35 +155,16 @@ def test_cloud_distances_linearize_to_their_finite_differences(beam):
 
 
 def test_grasp_force_linearizes_to_its_finite_differences(tmp_path):
-    write_box_mesh(tmp_path / "box.vtu", 9, 0.1, 0.02)
-    text = f"""
-[mesh]
-truth = "box.vtu"
-[material]
-law = "neo-hookean"
-E = 5000.0
-nu = 0.4
-[fixed]
-box = {{ lower = [-0.001, -1.0, -1.0], upper = [0.001, 1.0, 1.0] }}
-[[manipulation]]
-name = "pull"
-kind = "grasp"
-point = [0.1, 0.01, 0.01]
-radius = 0.015
-displacement = [0.0, 0.0, -0.004]
+    path = write_pulled_box(tmp_path, f"""
 [[manipulation]]
 name = "push"
 kind = "grasp"
 point = [0.1, 0.01, 0.01]
 radius = 0.015
 force = [0.0, 0.0, -0.05]
-[markers]
-points = [[0.05, 0.0, 0.02]]
-[shape_error]
-grid = [6, 2, 2]
 {INCLUSION.format(cells=4).replace("0.1, 0.015, 0.015", "0.05, 0.01, 0.01")}
-"""
-    (tmp_path / "box.toml").write_text(text)
+""")
+    text = path.read_text()
     body = parse_body(__import__("tomllib").loads(text), str(tmp_path / "box.toml"),
                       tmp_path)  # fmt: skip
     mesh = read_mesh(tmp_path / "box.vtu")

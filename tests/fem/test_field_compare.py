@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from support.bodies import write_beam_body
+from support.bodies import FIELD_MARKERS, write_beam_body
 
 from idbench import ConfigError
 from idbench.cli.commands import main
@@ -31,9 +31,7 @@ contrast = 3.0
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("field")
-    path, _ = write_beam_body(tmp, spec="12x3x3", markers=[
-        [0.2, 0.0, 0.03], [0.2, 0.03, 0.03], [0.1, 0.0, 0.03], [0.1, 0.03, 0.03],
-        [0.05, 0.0, 0.03], [0.15, 0.03, 0.03]])  # fmt: skip
+    path, _ = write_beam_body(tmp, spec="12x3x3", markers=FIELD_MARKERS)
     write_beam_body(tmp, spec="6x2x2")  # the model's mesh file, beside it
     path.write_text(path.read_text() + FIELD)
     config = CompareConfig(

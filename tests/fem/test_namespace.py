@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import ast
-import subprocess
-import sys
 from pathlib import Path
 
+from support.helpers import run_fresh_python
 from support.namespace import private_reaches
 
 import idbench_fem
@@ -26,10 +25,7 @@ def test_the_public_names_are_imported_with_the_package():
         "assert not missing, missing\n"
         "assert 'idbench_fem.models.solid' in sys.modules\n"
     )
-    proc = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120
-    )
-    assert proc.returncode == 0, proc.stderr
+    run_fresh_python(code, timeout=120)
 
 
 def test_no_plugin_module_has_a_module_getattr():

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from support.bodies import write_beam_body
+from support.bodies import FIELD_MARKERS, write_beam_body
 from support.toymodels import LinearFieldToy, LinearToy
 
 from idbench import FieldPrior, Observation, Prior, Skipped
@@ -94,9 +94,7 @@ def test_randomized_eigensolver_finds_the_leading_eigenpairs():
 @pytest.fixture(scope="module")
 def beam(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("beam")
-    path, _ = write_beam_body(tmp, spec="12x3x3", markers=[
-        [0.2, 0.0, 0.03], [0.2, 0.03, 0.03], [0.1, 0.0, 0.03], [0.1, 0.03, 0.03],
-        [0.05, 0.0, 0.03], [0.15, 0.03, 0.03]])  # fmt: skip
+    path, _ = write_beam_body(tmp, spec="12x3x3", markers=FIELD_MARKERS)
     body = load_body(path)
     mesh = read_mesh(body.mesh.truth)
     settings = SolidSettings(field_cells=8, field_length=0.08)
@@ -136,28 +134,9 @@ def test_adjoint_gradient_equals_finite_differences_with_markers(beam):
 
 
 def test_adjoint_gradient_through_a_cloud_and_the_tool_force(tmp_path):
-    from support.helpers import write_box_mesh
+    from support.bodies import write_pulled_box
 
-    write_box_mesh(tmp_path / "box.vtu", 9, 0.1, 0.02)
-    (tmp_path / "box.toml").write_text("""
-[mesh]
-truth = "box.vtu"
-[material]
-law = "neo-hookean"
-E = 5000.0
-nu = 0.4
-[fixed]
-box = { lower = [-0.001, -1.0, -1.0], upper = [0.001, 1.0, 1.0] }
-[[manipulation]]
-name = "pull"
-kind = "grasp"
-point = [0.1, 0.01, 0.01]
-radius = 0.015
-displacement = [0.0, 0.0, -0.004]
-[markers]
-points = [[0.05, 0.0, 0.02]]
-[shape_error]
-grid = [6, 2, 2]
+    write_pulled_box(tmp_path, """
 [field]
 cells = 4
 length = 0.04

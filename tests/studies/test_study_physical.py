@@ -6,6 +6,7 @@ import numpy as np
 import scipy.optimize
 
 from idbench import build_registry
+from idbench_fem.models.beam_scenarios import STRETCH_TRACTION
 
 
 def test_the_corrected_filter_covers_e_true_where_the_uncorrected_cannot(
@@ -54,7 +55,7 @@ def test_the_beam_design_spans_the_mixed_paths_with_pulls_in_bending(study):
     bend = module.BEND_TRACTION
     pulls_in_bending = [
         d for d in design.values()
-        if 0.1 * bend < d[0] < 0.1 * module.STRETCH_TRACTION
+        if 0.1 * bend < d[0] < 0.1 * STRETCH_TRACTION
         and np.hypot(d[1], d[2]) > 0.1 * bend
     ]  # fmt: skip
     assert pulls_in_bending, "no design traction combines a pull with bending"

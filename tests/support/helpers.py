@@ -3,6 +3,8 @@ registry with test plugins."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -83,6 +85,14 @@ def linear_posteriors(
         P = np.linalg.inv(info)
         out.append((P @ rhs, P))
     return out
+
+
+def run_fresh_python(code: str, timeout: float) -> None:
+    """Run ``code`` in a new interpreter; assert it exits 0 (else its stderr)."""
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout
+    )
+    assert proc.returncode == 0, proc.stderr
 
 
 def write_box_mesh(path, n_x: int, length: float, width: float, n_yz: int = 3) -> None:

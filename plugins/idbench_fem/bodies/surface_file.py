@@ -284,22 +284,19 @@ def surface_problems(surface: Surface) -> list[str]:
     x, tri = surface.points, surface.triangles
     out = []
     edges, counts = edge_use(tri)
-    open_edges = edges[counts == 1]
-    if len(open_edges):
-        a, b = x[open_edges[0]]
-        out.append(
-            f"{where} is open: {len(open_edges)} edge(s) belong to one triangle "
-            f"only, e.g. from {_at(a)} to {_at(b)}; close its holes (a surface "
-            "must enclose the body)"
-        )
-    many = edges[counts > 2]
-    if len(many):
-        a, b = x[many[0]]
-        out.append(
-            f"{where} is not manifold: {len(many)} edge(s) are shared by more than "
-            f"two triangles, e.g. from {_at(a)} to {_at(b)}; split the touching "
-            "pieces or export one closed body"
-        )
+    for bad, what, fix in (
+        (edges[counts == 1], "is open: {n} edge(s) belong to one triangle only",
+         "close its holes (a surface must enclose the body)"),
+        (edges[counts > 2],
+         "is not manifold: {n} edge(s) are shared by more than two triangles",
+         "split the touching pieces or export one closed body"),
+    ):  # fmt: skip
+        if len(bad):
+            a, b = x[bad[0]]
+            out.append(
+                f"{where} {what.format(n=len(bad))}, e.g. from {_at(a)} to "
+                f"{_at(b)}; {fix}"
+            )
     pairs, at = crossings(x, tri)
     if len(pairs):
         i, j = pairs[0]

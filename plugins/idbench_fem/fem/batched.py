@@ -80,7 +80,7 @@ from __future__ import annotations
 import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -90,9 +90,6 @@ from idbench_fem.fem.pairs import PendingPairs, collect, helper_solve
 from idbench_fem.fem.path_steps import PathSteps
 from idbench_fem.fem.predictions import BETA, BETA_ONE, FAR, POLYNOMIAL_ABOVE
 from idbench_fem.fem.step_workers import Helper
-
-if TYPE_CHECKING:
-    from idbench_fem.fem.svk_assembly import Kinematics
 
 FloatArray = NDArray[np.float64]
 
@@ -254,8 +251,8 @@ class BatchedSteps(PathSteps):
             kin = asm.kinematics(start, moduli[a]) if kin is None else kin
             if np.all(kin.det > 0):
                 res = asm.forces(kin) - f_ext
-                u_a, theta_f = self._solve_pair(
-                    th[a], moduli[a], f_ext, start, kin, res, tol, k,
+                u_a, theta_f = self._pair_chords(len(th[a]))(
+                    self, th[a], moduli[a], f_ext, start, kin, res, tol, k,
                     prev.theta_f, weights,
                 )  # fmt: skip
         if u_a is None:
@@ -362,28 +359,22 @@ class BatchedSteps(PathSteps):
                 res0 = asm.forces(kin0) - f_ext
                 if not ok or np.linalg.norm(res0) < np.linalg.norm(res):
                     u, kin, res = rows.starts[j], kin0, res0
-            out[j], theta_f = self._solve_pair(
-                theta, modulus, f_ext, u, kin, res, tol, k, theta_f, weights
+            out[j], theta_f = self._pair_chords(len(theta))(
+                self, theta, modulus, f_ext, u, kin, res, tol, k, theta_f, weights
             )
         return out, theta_f
 
-    def _solve_pair(
-        self,
-        theta: FloatArray,
-        modulus: FloatArray,
-        f_ext: FloatArray,
-        u: FloatArray,
-        kin: Kinematics | None,
-        res: FloatArray,
-        tol: float,
-        k: int,
-        theta_f: FloatArray | None,
-        weights: FloatArray,
-    ) -> tuple[FloatArray, FloatArray | None]:
-        """Converge one pair of :meth:`step_many` (accelerated chords or plain ones)."""
-        accelerate = accelerates(self, len(theta))
-        solve = chords.accelerated_chords if accelerate else chords.modified_newton
-        return solve(self, theta, modulus, f_ext, u, kin, res, tol, k, theta_f, weights)
+    def _pair_chords(
+        self, p: int
+    ) -> Callable[..., tuple[FloatArray, FloatArray | None]]:
+        """What converges a pair of p parameters in :meth:`step_many`.
+
+        :func:`~idbench_fem.fem.chords.accelerated_chords` where
+        :func:`accelerates` says so, else the plain chords of
+        :func:`~idbench_fem.fem.chords.modified_newton`.
+        """
+        accelerate = accelerates(self, p)
+        return chords.accelerated_chords if accelerate else chords.modified_newton
 
     def _step_helpers(self) -> list[Helper]:
         """The live helper processes (``processes - 1``, started on first use).

@@ -68,6 +68,47 @@ ASSEMBLY_BUFFERS = ("_block_work", "_blocks", "_u_full")
 """The assemblers' work arrays, written by every assembly (not frozen)."""
 
 
+def checked_theta(theta: FloatArray, p: int, k: int | None) -> FloatArray:
+    """Theta as a flat (p,) array, checked.
+
+    Raises
+    ------
+    ValueError
+        For a shape other than (p,).
+    ModelFailure
+        At step k, for a parameter that is not positive and finite.
+    """
+    th = np.asarray(theta, dtype=np.float64).reshape(-1)
+    if th.shape != (p,):
+        raise ValueError(f"theta has shape {th.shape}, expected ({p},)")
+    if not np.all(np.isfinite(th)) or np.any(th <= 0):
+        raise ModelFailure(
+            f"parameters {th.tolist()} are not positive and finite", step=k
+        )
+    return th
+
+
+def checked_state(
+    state: FloatArray, k: int, substeps: int, n_steps: int, n_state: int
+) -> FloatArray:
+    """A step's start ``state`` as a new float array, the step's arguments checked.
+
+    Raises
+    ------
+    ValueError
+        For a load step k outside 1..n_steps, ``substeps`` below 1, or a
+        state of a shape other than (n_state,).
+    """
+    if not 1 <= k <= n_steps:
+        raise ValueError(f"load step k = {k}: must be in 1..{n_steps}")
+    if substeps < 1:
+        raise ValueError(f"substeps = {substeps}: must be >= 1")
+    u = np.array(state, dtype=np.float64)
+    if u.shape != (n_state,):
+        raise ValueError(f"state has shape {u.shape}, expected ({n_state},)")
+    return u
+
+
 def freeze(obj: Any, keep: tuple[str, ...] = ()) -> None:
     """Make the arrays ``obj`` holds directly read-only (but those in ``keep``).
 
@@ -227,21 +268,8 @@ class NewtonSolve:
         return np.asarray(du)
 
     def _theta(self, theta: FloatArray, k: int | None) -> FloatArray:
-        """Theta as a flat (p,) array, checked.
-
-        ValueError for a wrong shape, ModelFailure (at step k) for a parameter
-        that is not positive and finite.
-        """
-        th = np.asarray(theta, dtype=np.float64).reshape(-1)
-        if th.shape != (self.parameters.p,):
-            raise ValueError(
-                f"theta has shape {th.shape}, expected ({self.parameters.p},)"
-            )
-        if not np.all(np.isfinite(th)) or np.any(th <= 0):
-            raise ModelFailure(
-                f"parameters {th.tolist()} are not positive and finite", step=k
-            )
-        return th
+        """Theta as a flat (p,) array, checked (:func:`checked_theta`)."""
+        return checked_theta(theta, self.parameters.p, k)
 
     def factor(self, kin: Any, modulus: FloatArray, k: int) -> None:
         """Factor the tangent at ``kin``; a failure is a ModelFailure at step k."""

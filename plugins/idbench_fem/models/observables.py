@@ -1,5 +1,10 @@
 """What the FE models show an observation model: their surface and reaction force.
 
+:class:`LinearReadouts` gives the solid model and its reductions the
+readouts that are linear in the state: ``observe`` (the markers), ``grid``
+(the shape-error points) and ``targets``, from the matrices ``_obs``,
+``_grid`` and ``_targets`` of the model's state.
+
 :class:`Observables` is a mixin of the FE models (the beam and the solid)
 giving them the optional members of idbench's observation models:
 ``surface(state)`` (:class:`idbench.SurfaceModel`, for ``cloud``) and
@@ -41,6 +46,26 @@ def boundary_triangles(points: FloatArray, tets: IntArray) -> IntArray:
     inward = np.einsum("ij,ij->i", normal, points[opp] - p0) > 0
     tri[inward] = tri[inward][:, [0, 2, 1]]
     return np.ascontiguousarray(tri, dtype=np.int64)
+
+
+class LinearReadouts:
+    """Mixin: the markers, shape-error points and targets, linear in the state."""
+
+    _obs: Any
+    _grid: Any
+    _targets: Any
+
+    def observe(self, state: FloatArray) -> FloatArray:
+        """Marker displacements, shape (3M,), ``[p0x, p0y, p0z, p1x, ...]``."""
+        return np.asarray(self._obs @ state)
+
+    def grid(self, state: FloatArray) -> FloatArray:
+        """Displacements of the shape-error points, shape (G, 3)."""
+        return np.asarray(self._grid @ state).reshape(-1, 3)
+
+    def targets(self, state: FloatArray) -> FloatArray:
+        """Displacements (T, 3) of the body's ``[targets]`` (T = 0 without)."""
+        return np.asarray(self._targets @ state).reshape(-1, 3)
 
 
 class Observables:

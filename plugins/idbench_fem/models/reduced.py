@@ -53,6 +53,8 @@ from idbench import ConfigError, Cost, ModelFailure, ModelSpec
 from idbench_fem.bodies.catalog import get_mesh, mesh_file
 from idbench_fem.bodies.description import Body
 from idbench_fem.fem.hyper import HyperReduced
+from idbench_fem.fem.newton import checked_state, checked_theta
+from idbench_fem.models.observables import LinearReadouts
 from idbench_fem.models.reduction import (
     PREFIX,
     Reduction,
@@ -101,7 +103,7 @@ displacement) exceeds this."""
 BACKTRACKS = 8
 
 
-class ReducedModel:
+class ReducedModel(LinearReadouts):
     """A reduced model of ``fine``'s mesh (see the module).
 
     Parameters
@@ -141,9 +143,10 @@ class ReducedModel:
         self._V = V
         self._f_end = V.T @ fine.external_force(fine.n_steps)
         self._f_end_norm = float(np.linalg.norm(fine.external_force(fine.n_steps)))
-        self._H = np.column_stack([fine.observe(v) for v in V.T])
-        self._G = np.column_stack([np.ravel(fine.grid(v)) for v in V.T])
-        self._T = np.column_stack([np.ravel(fine.targets(v)) for v in V.T])
+        # the readouts of the reduced state q: the fine model's of V q
+        self._obs = np.column_stack([fine.observe(v) for v in V.T])
+        self._grid = np.column_stack([np.ravel(fine.grid(v)) for v in V.T])
+        self._targets = np.column_stack([np.ravel(fine.targets(v)) for v in V.T])
         _, tets = fine.mesh()
         sample = reduction.elements
         self._hyper = HyperReduced(
@@ -168,7 +171,8 @@ class ReducedModel:
         ("k"), their inverses by theta, and the last solve ("last": its step,
         start and end, for the next one's secant predictor)."""
         self._diagonals = self._jacobi()
-        for a in (self._V, self._f_end, self._H, self._G, self._T, self._diagonals):
+        for a in (self._V, self._f_end, self._obs, self._grid, self._targets,
+                  self._diagonals):  # fmt: skip
             a.flags.writeable = False
 
     def __copy__(self) -> ReducedModel:
@@ -203,13 +207,7 @@ class ReducedModel:
             No convergence, or an inverted sampled element in every backtrack.
         """
         th = self._theta(theta, k)
-        if not 1 <= k <= self.n_steps:
-            raise ValueError(f"load step k = {k}: must be in 1..{self.n_steps}")
-        if substeps < 1:
-            raise ValueError(f"substeps = {substeps}: must be >= 1")
-        q = np.array(state, dtype=np.float64)
-        if q.shape != (self.n_state,):
-            raise ValueError(f"state has shape {q.shape}, expected ({self.n_state},)")
+        q = checked_state(state, k, substeps, self.n_steps, self.n_state)
         self._cost[0] += 1
         start = q
         guess = None
@@ -224,25 +222,13 @@ class ReducedModel:
             self._errors[k] = self.fine_residual(th, k, q)
         return q
 
-    def observe(self, state: FloatArray) -> FloatArray:
-        """Marker displacements (3M,): H V q."""
-        return np.asarray(self._H @ state)
-
-    def grid(self, state: FloatArray) -> FloatArray:
-        """Displacements of the shape-error points (G, 3)."""
-        return np.asarray(self._G @ state).reshape(-1, 3)
-
-    def targets(self, state: FloatArray) -> FloatArray:
-        """Displacements (T, 3) of the body's ``[targets]``."""
-        return np.asarray(self._T @ state).reshape(-1, 3)
-
     def sensitivity(self, theta: FloatArray, k: int, state: FloatArray) -> FloatArray:
         """D observe / d theta (3M, p): H V dq, K-hat dq = -g-hat (a reduced solve)."""
         th = self._theta(theta, k)
         st = self._hyper.evaluate(np.asarray(state, dtype=float))
         dq = -self._solve(self._hyper.tangent(st, th), st.g, k)
         self._cost[2] += th.size
-        return np.asarray(self._H @ dq)
+        return np.asarray(self._obs @ dq)
 
     def cost(self) -> Cost:
         """Cumulative forward solves, Newton iterations and (reduced) solves."""
@@ -371,16 +357,7 @@ class ReducedModel:
     # -- internals -------------------------------------------------------------
 
     def _theta(self, theta: FloatArray, k: int | None) -> FloatArray:
-        th = np.asarray(theta, dtype=np.float64).reshape(-1)
-        if th.shape != (self.parameters.p,):
-            raise ValueError(
-                f"theta has shape {th.shape}, expected ({self.parameters.p},)"
-            )
-        if not np.all(np.isfinite(th)) or np.any(th <= 0):
-            raise ModelFailure(
-                f"parameters {th.tolist()} are not positive and finite", step=k
-            )
-        return th
+        return checked_theta(theta, self.parameters.p, k)
 
     def _held_inverse(self, th: FloatArray, k: int) -> FloatArray:
         """K-hat^-1 (r, r) of the held tangents at ``th`` (computed once per theta)."""

@@ -74,13 +74,18 @@ from idbench_fem.bodies.mesh import SolidMesh, extent
 from idbench_fem.bodies.regions import region_facets
 from idbench_fem.fem.batched import BatchedSteps
 from idbench_fem.fem.law_assembly import LawAssembler
-from idbench_fem.fem.newton import ASSEMBLY_BUFFERS, CHORD_RATIO, freeze
+from idbench_fem.fem.newton import (
+    ASSEMBLY_BUFFERS,
+    CHORD_RATIO,
+    checked_state,
+    freeze,
+)
 from idbench_fem.fem.solver import resolve_backend
 from idbench_fem.fem.svk_assembly import Assembler
 from idbench_fem.models.digests import body_digest, mesh_digest
 from idbench_fem.models.driven import DrivenGrasp
 from idbench_fem.models.field_members import FieldMembers
-from idbench_fem.models.observables import Observables
+from idbench_fem.models.observables import LinearReadouts, Observables
 from idbench_fem.models.parameterisation import parameterise
 from idbench_fem.models.points import place_points, reference_markers
 from idbench_fem.models.rest_shape import rest_mesh
@@ -102,7 +107,9 @@ ATOL = 1e-12
 MAX_ITERATIONS = 25
 
 
-class SolidModel(DrivenGrasp, Supported, Observables, FieldMembers, BatchedSteps):
+class SolidModel(
+    DrivenGrasp, Supported, LinearReadouts, Observables, FieldMembers, BatchedSteps
+):
     """A body under one manipulation, on one mesh, stepped by Newton.
 
     Parameters
@@ -268,13 +275,7 @@ class SolidModel(DrivenGrasp, Supported, Observables, FieldMembers, BatchedSteps
             backtracking cannot avoid.
         """
         modulus = self.element_moduli(theta, k)
-        if not 1 <= k <= self.n_steps:
-            raise ValueError(f"load step k = {k}: must be in 1..{self.n_steps}")
-        if substeps < 1:
-            raise ValueError(f"substeps = {substeps}: must be >= 1")
-        u = np.array(state, dtype=np.float64)
-        if u.shape != (self.n_state,):
-            raise ValueError(f"state has shape {u.shape}, expected ({self.n_state},)")
+        u = checked_state(state, k, substeps, self.n_steps, self.n_state)
         self._cost[0] += 1
         self._factored_key = None
         if self._driven is not None:
@@ -315,18 +316,6 @@ class SolidModel(DrivenGrasp, Supported, Observables, FieldMembers, BatchedSteps
         self.prescribe(k)
         out = super().step_many(thetas, k, X[:, self._asm.unknown])
         return np.asarray(self._asm.embed(out))
-
-    def observe(self, state: FloatArray) -> FloatArray:
-        """Marker displacements, shape (3M,), ``[p0x, p0y, p0z, p1x, ...]``."""
-        return np.asarray(self._obs @ state)
-
-    def grid(self, state: FloatArray) -> FloatArray:
-        """Displacements of the shape-error points, shape (G, 3)."""
-        return np.asarray(self._grid @ state).reshape(-1, 3)
-
-    def targets(self, state: FloatArray) -> FloatArray:
-        """Displacements (T, 3) of the body's ``[targets]`` (T = 0 without)."""
-        return np.asarray(self._targets @ state).reshape(-1, 3)
 
     def probes(self, state: FloatArray) -> dict[str, float]:
         """The body's probes ``NAME_x``, ``NAME_y``, ``NAME_z`` (m); else ``u_max``.
