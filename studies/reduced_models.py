@@ -224,6 +224,20 @@ def markdown(table: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
+def markdown_errors(errors: pd.DataFrame) -> str:
+    """The docs' table of each reduction on paths outside its design."""
+    head = ["organ", "reduction", "manipulation", "moduli (x true)",
+            "error / peak displacement", "peak (mm)", "error estimate"]  # fmt: skip
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for _, r in errors.iterrows():
+        cells = [str(r["organ"]), f"`{r['reduction']}`", str(r["manipulation"]),
+                 f"{r['moduli']:g}", f"{100 * r['reduction_error']:.2f}%",
+                 f"{r['peak_mm']:.3g}",
+                 _num(r.get("reduction_error_estimate"), "{:.2%}")]  # fmt: skip
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def _num(value: object, fmt: str = "{:.3f}") -> str:
     if value is None or not np.isfinite(float(value)):  # type: ignore[arg-type]
         return ""

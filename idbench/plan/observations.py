@@ -110,7 +110,8 @@ def resolve(
     ``models`` are built models of the comparison (a model mesh and the
     truth): each must have every member the observation models require, and
     pass each block's own ``check(model)`` where it has one (a camera that
-    sees the body, see :class:`~idbench.observe.cloud.Cloud`). A table named
+    sees the body, see :class:`~idbench.observe.cloud.Cloud`; not for a
+    recording, whose frames no camera renders). A table named
     after a kind may configure that kind only (not define another).
 
     Raises
@@ -145,7 +146,9 @@ def resolve(
                         f"{config.model!r} ({type(model).__name__}) has none"
                     )
         for block, leaf in kinds.leaves(obs):
-            check = observation_check_of(leaf)
+            # a recording's frames are given: no camera renders them (its pose
+            # may be in the camera's own frame)
+            check = None if config.data is not None else observation_check_of(leaf)
             for model in models:
                 try:
                     if check is not None:

@@ -315,9 +315,10 @@ def _write_report(
         *(markdown_cell(x) + "\n" for x in seeds_note(summary)),
         *_markdown_flags(runs),
     ]
-    caveats = [*flagged_lines(runs), *caveat_lines(runs, traces)]
-    if caveats:  # what a reader must know before believing the numbers
-        lines += ["## Caveats", "", *(f"- {markdown_cell(x)}" for x in caveats), ""]
+    told = caveat_lines(runs, traces, markdown=True)  # (the flags are listed above)
+    if told:  # what a reader must know before believing the numbers
+        lines += ["## Caveats", "", *(f"- {x}" for x in told), ""]
+    caveats = [*flagged_lines(runs), *caveat_lines(runs, traces)]  # the page's
     for p in paired or []:
         lines += [paired_markdown(p), ""]
     if not table.empty:

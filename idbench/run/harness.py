@@ -341,6 +341,7 @@ def _run_on(
             raise ConfigError(
                 f"estimator {spec.estimator!r}: {exc}; allowed settings: {allowed}"
             ) from None
+    lent = model  # the run's own copy: its diagnostics, whatever wraps it
     if correction_of(estimator) == "approximation-error":
         # the physical parameter: the coarse model corrected by its calibration
         model = session.corrected(spec, model)
@@ -420,10 +421,10 @@ def _run_on(
             note = (f"the correction extrapolated ({beyond} predictions beyond "
                     "the calibrated load states)")  # fmt: skip
             row["warning"] = "; ".join(w for w in (row["warning"], note) if w)
-
-    columns, note = diagnostics_of(model)  # a model's report on its own run
+    columns, note = diagnostics_of(lent)  # a model's report on its own run
     row.update(columns)
     row["warning"] = "; ".join(w for w in (row["warning"], note) if w)
+
 
 def _model_who(spec: RunSpec, session: Session) -> str:
     """The run's model as its faults name it: model, plugin and mesh."""

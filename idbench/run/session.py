@@ -248,19 +248,24 @@ class Session:
         ConfigError
             If its content changed since the comparison was planned.
         """
+        rec = self._planned(spec)
+        if rec.frame != "camera":
+            return rec
+        return self._to_body(spec, rec)[0]
+
+    def _planned(self, spec: RunSpec) -> recording.Recording:
+        """The run's recording as read from disk, checked against the plan's digest."""
         path, digest = spec.setup.data
         rec = recording.read(path)
         if rec.digest != digest:
             raise ConfigError(f"recording {path!r} changed since it was planned")
-        if rec.frame != "camera":
-            return rec
-        return self._to_body(spec, rec)[0]
+        return rec
 
     def registration(self, spec: RunSpec) -> Registration | None:
         """How the run's recording was moved into its model's frame (None: not)."""
         if not spec.setup.data:
             return None
-        rec = recording.read(spec.setup.data[0])
+        rec = self._planned(spec)
         return self._to_body(spec, rec)[1] if rec.frame == "camera" else None
 
     def _to_body(

@@ -141,3 +141,5 @@ def test_the_report_says_a_flagged_interval_is_not_to_be_believed(tmp_path):
         assert "disagree: on the same data" in text
         assert "traces incomplete: 1 ok run(s)" in text
         assert "ukf bend-y 6x2x2 seed 2 (2 of 4 steps)" in text
+    # the flagged runs are listed once in report.md (the summary's flags)
+    assert md.count("bend-y 6x2x2 ro-ukf (2 run(s)): inconsistent") == 1, md

@@ -25,7 +25,11 @@ covers the whole range (more would repeat it); with several, ``paths``
 points of the box (Halton, in log moduli, the soft corner first) give the
 ratios between the moduli, each moved along its ray to the soft end. The
 fine paths are cached by content like truths (``idbench.fine_path``), so a
-calibration of the same paths reuses them.
+calibration of the same paths reuses them. The identified stiffnesses of a
+body's springs (``[[support]]``) are parameters like the moduli and take
+ranges too; a known spring does not scale with theta, so with known springs
+the argument above holds only approximately (the reduction's error
+estimate measures what it costs).
 """
 
 from __future__ import annotations
