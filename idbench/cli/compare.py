@@ -63,6 +63,7 @@ def compare_config(args: argparse.Namespace, reg: Any) -> Any:
         model=model,
         shorthand_settings=options or None,
         data=str(args.data) if args.data else None,
+        registration=args.registration,
     )
 
 

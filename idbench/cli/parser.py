@@ -178,6 +178,13 @@ def build_parser(defaults: Any = None) -> argparse.ArgumentParser:
         "steps, observation model, markers and noise",
     )
     c.add_argument(
+        "--registration",
+        choices=("rigid", "with-model"),
+        help="a recording in the camera's frame: its rest cloud registered to each "
+        "mesh (rigid, the default), or that pose refined with the model, the pose "
+        "and the moduli fitted together on every frame (with-model)",
+    )
+    c.add_argument(
         "--quick",
         action="store_true",
         help="a small comparison: the model's quick truth and meshes, one seed",

@@ -126,7 +126,7 @@ def transform_error(
     return angle, float(np.linalg.norm(found.apply(points) - true, axis=1).max())
 
 
-class _Surface:
+class SurfaceIndex:
     """Closest points on a triangle surface, through a KD-tree of centroids."""
 
     def __init__(
@@ -167,12 +167,13 @@ STALL = 10
 """ICP iterations without a lower robust cost that end it."""
 
 
-def _scale(r: FloatArray, floor: float) -> float:
+def robust_scale(r: FloatArray, floor: float) -> float:
+    """The robust scale c of residuals ``r``: 3 MAD-sigmas, at least ``floor``."""
     return max(3.0 * 1.4826 * float(np.median(np.abs(r))), floor)
 
 
 def _icp(
-    surface: _Surface, p: FloatArray, R: FloatArray, t: FloatArray, floor: float,
+    surface: SurfaceIndex, p: FloatArray, R: FloatArray, t: FloatArray, floor: float,
     max_iterations: int, tolerance: float,
 ) -> tuple[FloatArray, FloatArray, int, bool]:  # fmt: skip
     """Robust point-to-plane ICP from (R, t); returns R, t, iterations, converged.
@@ -191,7 +192,7 @@ def _icp(
         q, n = surface.closest(x)
         r = np.einsum("ij,ij->i", n, x - q)
         if it <= FREEZE:
-            c = _scale(r, floor)
+            c = robust_scale(r, floor)
         w = 1.0 / (1.0 + (r / c) ** 2)
         cost = float(np.log1p((r / c) ** 2)[w > 0].sum())
         if it > FREEZE:
@@ -281,7 +282,7 @@ def register(
     p = p[np.all(np.isfinite(p), axis=1)]
     if len(p) < 6:
         raise RegistrationError(f"registration: {len(p)} finite points, need >= 6")
-    surface = _Surface(vertices, triangles, candidates)
+    surface = SurfaceIndex(vertices, triangles, candidates)
     R0 = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
     t0 = np.zeros(3) if translation is None else np.asarray(translation, dtype=float)
     tried = []
@@ -297,12 +298,12 @@ def register(
         q, n = surface.closest(x)
         r = np.einsum("ij,ij->i", n, x - q)
         scored.append((r, R, t, its, ok, i))
-    c = min(_scale(s[0], floor) for s in scored)  # one scale: comparable costs
+    c = min(robust_scale(s[0], floor) for s in scored)  # one scale: comparable costs
     costs = [float(np.log1p((s[0] / c) ** 2).sum()) for s in scored]
     r, R, t, its, ok, i = scored[int(np.argmin(costs))]
     inside = np.abs(r) <= INLIER * floor
     rms = float(np.sqrt(np.mean(r[inside] ** 2))) if inside.any() else math.inf
-    fit = Registration(R, t, rms, float(inside.mean()), _scale(r, floor), its, i,
+    fit = Registration(R, t, rms, float(inside.mean()), robust_scale(r, floor), its, i,
                        backend)  # fmt: skip
     if not ok or fit.inliers < min_inliers:
         why = "did not converge" if not ok else "fits too few points"
@@ -316,7 +317,7 @@ def register(
 
 
 def _open3d_icp(
-    surface: _Surface, p: FloatArray, R: FloatArray, t: FloatArray, floor: float,
+    surface: SurfaceIndex, p: FloatArray, R: FloatArray, t: FloatArray, floor: float,
     max_iterations: int, tolerance: float,
 ) -> tuple[FloatArray, FloatArray, int, bool]:  # fmt: skip
     """Open3D's point-to-plane ICP with a Tukey loss (the optional backend)."""
@@ -344,7 +345,7 @@ def _open3d_icp(
     return T[:3, :3].copy(), T[:3, 3].copy(), max_iterations, True
 
 
-def _open3d_target(o3d: Any, surface: _Surface) -> Any:
+def _open3d_target(o3d: Any, surface: SurfaceIndex) -> Any:
     """A dense sample of the surface with normals (cached on ``surface``)."""
     cached = surface.__dict__.get("_o3d")
     if cached is None:

@@ -142,6 +142,12 @@ def plan(config: CompareConfig, session: PlanSession) -> Plan:
     loads = [sc.name for sc in own] if own else list(reg.scenarios)
     if rec is not None:
         recording.check_body(rec, None, loads)
+    if config.registration == "with-model" and (rec is None or rec.frame != "camera"):
+        raise ConfigError(
+            "registration 'with-model' refines the pose of a recording in the "
+            "camera's frame; give one with --data (its manifest's frame = "
+            '"camera"), or leave registration out'
+        )
     _known("estimator", config.estimators, reg.estimators, reg)
     _known("scenario", config.scenarios, reg.scenarios, reg)
     _known("reference estimator", [config.reference], reg.estimators, reg)
@@ -175,7 +181,7 @@ def plan(config: CompareConfig, session: PlanSession) -> Plan:
         ),
         prior=(float(config.prior[0]), float(config.prior[1])),  # type: ignore[index]
         reference=config.reference,  # type: ignore[arg-type]
-        data=() if rec is None else (str(rec.path), rec.digest),
+        data=() if rec is None else _data(rec, config),
     )
     runs = expand(config, setup)
     nodes: dict[str, int] = {}
@@ -296,6 +302,12 @@ def configure(config: CompareConfig) -> tuple[CompareConfig, recording.Recording
         true={},
     )
     return out, rec
+
+
+def _data(rec: recording.Recording, config: CompareConfig) -> tuple[str, ...]:
+    """The setup's ``data``: the recording's folder and digest, and how it is posed."""
+    posed = (config.registration,) if config.registration == "with-model" else ()
+    return (str(rec.path), rec.digest, *posed)
 
 
 def _in_body_frame(

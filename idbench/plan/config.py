@@ -31,6 +31,9 @@ MAX_TIMEOUT = 30 * 24 * 3600.0
 MAX_NOISE = 1e100
 """The largest noise sigma accepted (its square must not overflow)."""
 
+REGISTRATIONS = ("rigid", "with-model")
+"""How a camera's recording is put in the body's frame (``registration``)."""
+
 
 @dataclass(frozen=True)
 class CompareConfig:
@@ -98,6 +101,12 @@ class CompareConfig:
         "approximation-error"`` use, e.g. ``{"mesh": "40x5x5", "scenarios":
         ["bend-y", "mixed-30"]}``; the mesh defaults to the truth mesh spec,
         the scenarios to the run's own.
+    registration
+        How a recording in the camera's frame is moved into the body's:
+        ``"rigid"`` (None, the default: its rest cloud registered to each model
+        mesh's rest surface) or ``"with-model"`` (that pose then refined with the
+        model, the pose and the moduli fitted together on every frame:
+        :mod:`idbench.calibrate.pose`).
     """
 
     estimators: tuple[str, ...] | None = None
@@ -123,8 +132,14 @@ class CompareConfig:
     observe_settings: dict[str, dict[str, Any]] = field(default_factory=dict)
     data: str | None = None
     calibration: dict[str, Any] = field(default_factory=dict)
+    registration: str | None = None
 
     def __post_init__(self) -> None:
+        if self.registration is not None and self.registration not in REGISTRATIONS:
+            raise ConfigError(
+                f"registration {self.registration!r}: allowed: "
+                f"{', '.join(REGISTRATIONS)}"
+            )
         for name in ("estimators", "meshes", "scenarios"):
             if getattr(self, name) is not None:
                 _check_names(name, getattr(self, name))
@@ -325,8 +340,9 @@ class CompareConfig:
     def to_dict(self) -> dict[str, Any]:
         """Plain, JSON-serialisable settings (for the manifest)."""
         out = dataclasses.asdict(self)
-        if out["data"] is None:  # folders written before recordings match
-            del out["data"]
+        for name in ("data", "registration"):  # folders written before match
+            if out[name] is None:
+                del out[name]
         return out
 
 

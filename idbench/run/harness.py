@@ -331,6 +331,9 @@ def _run_on(
     fit = session.registration(spec)
     if fit is not None:  # a camera's clouds, moved onto this mesh's surface
         row.update(registered.columns(fit))
+    refined = session.refinement(spec)
+    if refined is not None:  # that pose refined with the model
+        row.update(refined.columns())
 
     cls = session.registry.estimator(spec.estimator)
     with _blame(who, "its constructor"):

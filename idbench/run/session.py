@@ -18,6 +18,7 @@ from idbench.calibrate.corrected import CorrectedModel
 from idbench.calibrate.design import CalibrationSettings
 from idbench.calibrate.discrepancy import Discrepancy
 from idbench.calibrate.fit import fit_discrepancy
+from idbench.calibrate.pose import Refinement, refine
 from idbench.calibrate.prior_mean import prior_mean_offsets
 from idbench.core.interfaces import (
     ConfigError,
@@ -66,7 +67,8 @@ class Session:
         self._own: dict[Any, dict[str, Scenario]] = {}
         self._discrepancies: dict[str, Discrepancy] = {}
         self._offsets: dict[str, list[FloatArray]] = {}
-        self._registered: dict[tuple[str, str], tuple[Any, Registration]] = {}
+        self._registered: dict[tuple[str, ...], tuple[Any, Registration]] = {}
+        self._refined: dict[tuple[str, ...], Refinement] = {}
 
     def scenario(self, spec: RunSpec, name: str) -> Scenario:
         """The scenario ``name`` of ``spec``'s comparison.
@@ -255,7 +257,7 @@ class Session:
 
     def _planned(self, spec: RunSpec) -> recording.Recording:
         """The run's recording as read from disk, checked against the plan's digest."""
-        path, digest = spec.setup.data
+        path, digest = spec.setup.data[:2]
         rec = recording.read(path)
         if rec.digest != digest:
             raise ConfigError(f"recording {path!r} changed since it was planned")
@@ -272,12 +274,35 @@ class Session:
         self, spec: RunSpec, rec: recording.Recording
     ) -> tuple[recording.Recording, Registration]:
         """``rec`` registered to the rest surface of the run's model mesh (cached)."""
-        key = (rec.digest, spec.mesh)
+        key = (rec.digest, spec.mesh, *spec.setup.data[2:])
         if key not in self._registered:
             model = self.model(spec, spec.mesh)
             surface = surface_of(model, model.reset())
             self._registered[key] = registered.to_body(rec, *surface)
+            if "with-model" in spec.setup.data[2:]:
+                self._refine(spec, rec, key, model)
         return self._registered[key]
+
+    def _refine(
+        self, spec: RunSpec, rec: recording.Recording, key: tuple[str, ...],
+        model: ForwardModel,
+    ) -> None:  # fmt: skip
+        """The rigid pose of ``key`` refined with ``model`` (pose and moduli)."""
+        body, rigid = self._registered[key]
+        log.info("refining the pose of %s on mesh %s with the model",
+                 spec.setup.data[0], spec.mesh)  # fmt: skip
+        found = refine(body, rigid, model, self.prior(model, spec),
+                       registered.noise_floor(rec))  # fmt: skip
+        self._refined[key] = found
+        self._registered[key] = (registered.move(rec, found.fit), found.fit)
+
+    def refinement(self, spec: RunSpec) -> Refinement | None:
+        """How the model refined the run's rigid pose (None: it did not)."""
+        if "with-model" not in spec.setup.data[2:]:
+            return None
+        rec = self._planned(spec)
+        self._to_body(spec, rec)
+        return self._refined[(rec.digest, spec.mesh, *spec.setup.data[2:])]
 
     def observations(self, spec: RunSpec) -> list[Observation | None]:
         """The noisy, sparse observation stream of a run.

@@ -55,20 +55,30 @@ def to_body(
     """
     if rec.frame != "camera" or rec.rest is None:
         return rec, Registration(np.eye(3), np.zeros(3), 0.0, 1.0, 0.0, 0, 0)
+    floor = noise_floor(rec)
+    fit = register(rec.rest, vertices, triangles, floor=floor)
+    return move(rec, fit), fit
+
+
+def noise_floor(rec: Recording) -> float:
+    """The clouds' noise std (model units): the registration's smallest scale."""
     sigmas = [
         float(v) for f in rec.frames for n, v in f.data.items() if n.endswith("sigma")
     ]
-    floor = min(sigmas, default=rec.noise) or 1e-4
-    fit = register(rec.rest, vertices, triangles, floor=floor)
+    return min(sigmas, default=rec.noise) or 1e-4
+
+
+def move(rec: Recording, fit: Registration) -> Recording:
+    """``rec`` (in the camera's frame) moved by ``fit`` into the body's frame."""
     frames = [Frame(f.step, _moved(f.data, fit)) for f in rec.frames]
     held = {
         name: (_positions if name == "points" else _turned)(value, fit)
         for name, value in rec.held_out.items()
     }
-    moved = dataclasses.replace(
-        rec, frames=frames, held_out=held, frame="body", rest=fit.apply(rec.rest)
+    rest = None if rec.rest is None else fit.apply(rec.rest)
+    return dataclasses.replace(
+        rec, frames=frames, held_out=held, frame="body", rest=rest
     )
-    return moved, fit
 
 
 def columns(fit: Registration | None) -> dict[str, float]:

@@ -132,3 +132,79 @@ def test_camera_recordings_that_cannot_work_are_one_line(clouds, tmp_path, capsy
         assert words in err and "Traceback" not in err, (name, err)
         assert len(err.strip().splitlines()) == 1, (name, err)
         assert not (tmp_path / f"out-{name}").exists(), name  # nothing stored
+
+
+def patch_cloud(n: int = 300, seed: int = 3) -> np.ndarray:
+    """A flat patch in the middle of the beam's top face (camera frame).
+
+    Nothing in it holds the pose along the face: the rigid registration
+    leaves the in-plane shift and turn where its start was.
+    """
+    reg = idbench.build_registry()
+    model = reg.model("svk-beam")(
+        idbench.ModelSpec(TRUTH, reg.scenario("bend-y"), STEPS, 2)
+    )
+    vertices = model.surface(model.reset())[0]
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    rng = np.random.default_rng(seed)
+    x = lo[0] + (hi[0] - lo[0]) * rng.uniform(0.3, 0.7, n)
+    z = lo[2] + (hi[2] - lo[2]) * rng.uniform(0.2, 0.8, n)
+    top = np.stack([x, np.full(n, hi[1]), z], axis=1)
+    return to_camera(top + 1e-5 * rng.standard_normal((n, 3)))
+
+
+def test_the_model_refines_a_pose_the_rest_cloud_leaves_loose(clouds, tmp_path):
+    _, body, _ = clouds
+    camera = write_camera_copy(body, tmp_path / "patch", patch_cloud())
+    rows = {}
+    for mode, data in (("body", body), ("rigid", camera), ("with-model", camera)):
+        argv = ["compare", "--data", str(data), "--meshes", TRUTH, "--estimators",
+                "rls", "--seeds", "1", "--obs-every", "1", "--out", str(tmp_path / mode),
+                *(["--registration", mode] if mode != "body" else [])]  # fmt: skip
+        assert main(argv) == 0
+        rows[mode] = pd.read_parquet(tmp_path / mode / "runs.parquet").iloc[0]
+    seen, rigid, refined = rows["body"], rows["rigid"], rows["with-model"]
+    # the frames, through the model, put the pose back to a fraction of the noise
+    assert refined.registration_angle_deg == pytest.approx(ANGLE, abs=0.05)
+    assert refined.registration_shift_mm == pytest.approx(
+        1e3 * np.linalg.norm(SHIFT), abs=0.1
+    )
+    assert refined.registration_refined_deg > 5.0  # what the model moved
+    assert "registration_refined_deg" not in rigid
+    assert refined.status == "ok"
+    # the patch alone leaves the pose degrees off, and that goes into E
+    assert abs(rigid.E_final / seen.E_final - 1) > 0.2
+    assert refined.E_final == pytest.approx(seen.E_final, rel=0.05)
+
+
+def test_refine_fits_the_pose_and_the_moduli_together(clouds, tmp_path):
+    from idbench.calibrate.pose import refine
+    from idbench.observe.registration import transform_error
+    from idbench.store import registered
+
+    _, body, _ = clouds
+    rec = recording.read(write_camera_copy(body, tmp_path / "p", patch_cloud()))
+    reg = idbench.build_registry()
+    model = reg.model("svk-beam")(
+        idbench.ModelSpec(TRUTH, reg.scenario("bend-y"), STEPS, 2)
+    )
+    vertices, triangles = model.surface(model.reset())
+    moved, rigid = registered.to_body(rec, vertices, triangles)
+    prior = model.parameters.prior(2000.0, 2000.0)  # far from the true 5,000 Pa
+    found = refine(moved, rigid, model, prior, registered.noise_floor(rec))
+    angle, shift = transform_error(found.fit, R.as_matrix(), SHIFT, rec.rest)
+    assert angle < 0.05 and shift < 1e-4  # degrees, m (the clouds' noise)
+    assert found.theta[0] == pytest.approx(5000.0, rel=0.005)
+    assert found.paths >= 2 * found.iterations  # a path per modulus and step
+
+
+def test_with_model_needs_a_camera_recording(clouds, tmp_path, capsys):
+    _, body, _ = clouds
+    for data in (["--data", str(body)], []):
+        argv = ["compare", *data, "--registration", "with-model", "--estimators",
+                "rls", "--out", str(tmp_path / "out")]  # fmt: skip
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "registration 'with-model'" in err and "Traceback" not in err
+        assert len(err.strip().splitlines()) == 1
+        assert not (tmp_path / "out").exists()
