@@ -165,7 +165,8 @@ def refine(
         R, t, xi, at, r, n = R2, t2, xi + step[6:], at2, r2, n2
         lam = max(lam / 10.0, 1e-6)
         moved = np.linalg.norm(step[:3]) * fit.reach + np.linalg.norm(step[3:6])
-        if its > FREEZE and moved <= tolerance * c and np.all(np.abs(step[6:]) <= tolerance):
+        small = moved <= tolerance * c and np.all(np.abs(step[6:]) <= tolerance)
+        if its > FREEZE and small:  # the scale settled, and the fit
             break
     rest = r[: len(fit.rest)]
     return _result(rigid, R, t, fit.rest, rest, floor, log.to_theta(xi), its,

@@ -294,6 +294,9 @@ class Session:
         found = refine(body, rigid, model, self.prior(model, spec),
                        registered.noise_floor(rec))  # fmt: skip
         self._refined[key] = found
+        log.info("pose refined on mesh %s: %.3g deg, %.3g mm from the rigid one "
+                 "(%d iterations, %d paths)", spec.mesh, found.angle_deg,
+                 found.shift_mm, found.iterations, found.paths)  # fmt: skip
         self._registered[key] = (registered.move(rec, found.fit), found.fit)
 
     def refinement(self, spec: RunSpec) -> Refinement | None:
