@@ -18,14 +18,16 @@ step:
 
 a small rotation :math:`\omega` about the rest cloud's centroid and a
 translation :math:`\tau` applied to every point after the rigid
-registration, Cauchy weights at the registration's robust scale :math:`c`
-(fixed at the start), :math:`\sigma` the clouds' noise, and the run's prior
+registration, Cauchy weights at the frames' robust scale :math:`c` (as
+the registration's, re-estimated each iteration as the clouds come onto
+their surfaces), :math:`\sigma` the clouds' noise, and the run's prior
 on :math:`\xi` (the log-normal of :class:`~idbench.LogTransform`) holding
 what the frames leave open. The pose's columns are the point-to-plane
 derivatives :math:`((x_i - \bar x) \times n_i,\ n_i)`; each modulus's a
 forward difference (one path of the model per parameter and iteration).
 The filters then run on the frames moved by the refined pose: the pose is
-fitted once, before them, not tracked.
+fitted once, before them, not tracked. It is a local fit from the rigid
+pose, not a search.
 """
 
 from __future__ import annotations
