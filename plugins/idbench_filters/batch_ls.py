@@ -186,7 +186,7 @@ class BatchLs(Filter):
         span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
         x0 = np.clip(self._xi, lo + 1e-9 * span, hi - 1e-9 * span)
         jac = self._jacobian if sensitivity_of(self.model) else "2-point"
-        passes = 1 if self.correction == "none" else 2
+        passes = 2 if self.correction == "approximation-error" else 1
         try:
             for _ in range(passes):
                 if passes > 1:  # R + Sigma at the current iterate's states, kept
