@@ -32,6 +32,7 @@ pose, not a search.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -51,10 +52,13 @@ from idbench.observe.registration import (
     transform_error,
 )
 from idbench.observe.surface import surface_of
+from idbench.store import registered
 from idbench.store.recording import Recording
 from idbench.truth.simulate import simulate_path
 
-__all__ = ["COLUMNS", "Refinement", "refine"]
+__all__ = ["COLUMNS", "Refinement", "posed", "refine"]
+
+log = logging.getLogger(__name__)
 
 COLUMNS = ("registration_refined_deg", "registration_refined_mm")
 """The row's columns of a pose refined with the model (:meth:`Refinement.columns`)."""
@@ -93,6 +97,23 @@ class Refinement:
     def columns(self) -> dict[str, float]:
         """A run's row: how far the model moved the rigid pose (deg, mm)."""
         return dict(zip(COLUMNS, (self.angle_deg, self.shift_mm), strict=True))
+
+
+def posed(
+    camera: Recording, body: Recording, rigid: Registration, model: ForwardModel,
+    prior: Prior,
+) -> tuple[Recording, Refinement]:  # fmt: skip
+    """``camera`` (a recording in the camera's frame) moved by the refined pose.
+
+    ``body`` is it moved by the rigid registration ``rigid``; the refinement
+    (:func:`refine`) and its cost are logged.
+    """
+    log.info("refining the pose of %s with the model", camera.path)
+    found = refine(body, rigid, model, prior, registered.noise_floor(camera))
+    log.info("pose refined: %.3g deg, %.3g mm from the rigid one (%d iterations, "
+             "%d paths)", found.angle_deg, found.shift_mm, found.iterations,
+             found.paths)  # fmt: skip
+    return registered.move(camera, found.fit), found
 
 
 def refine(

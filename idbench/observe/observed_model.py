@@ -27,12 +27,14 @@ import numpy as np
 from idbench.core.capabilities import (
     adjoint_of,
     needs_theta_of,
+    observation_cov_of,
     observation_member,
     step_many_of,
 )
 from idbench.core.interfaces import FloatArray, ForwardModel
 from idbench.core.view import Absent, ModelView, lacks
 from idbench.observe import kinds as observe
+from idbench.observe.offsets import Offsets
 
 
 class ObservedModel(ModelView):
@@ -70,9 +72,10 @@ class ObservedModel(ModelView):
         ]
         self._c = sum(n for n, c in zip(self._sizes, self._carried, strict=True) if c)
         self._size = sum(self._sizes)
-        self.offsets: list[FloatArray] | None = None
-        """Added to step k's h(x) when set: mu_k (m,) each, a mean approximation
-        error (the prior-mean correction of a run); None: no offset."""
+        self.offsets: Offsets | None = None
+        """Added to step k's h(x) when set: an approximation error per frame
+        (a run's correction, :class:`~idbench.observe.offsets.Offsets`); a
+        linear one carries theta in the state; None: no offset."""
 
     sensitivity = Absent()
     """None: estimators that need one use finite differences."""
@@ -84,11 +87,17 @@ class ObservedModel(ModelView):
     @property
     def n_state(self) -> int:
         """State size: the model's, plus the carried values and the step."""
-        return self._n + self._c + 1
+        return self._n + self._c + self._p + 1
+
+    @property
+    def _p(self) -> int:
+        """Theta's entries carried (a linear offset's), else 0."""
+        linear = self.offsets is not None and self.offsets.linear
+        return self.parameters.p if linear else 0
 
     def reset(self) -> FloatArray:
         """The model's unloaded state, with zeros carried and step 0 appended."""
-        return np.concatenate([self.model.reset(), np.zeros(self._c + 1)])
+        return np.concatenate([self.model.reset(), np.zeros(self._c + self._p + 1)])
 
     def step(
         self, theta: FloatArray, k: int, state: FloatArray, *, substeps: int = 1
@@ -96,7 +105,8 @@ class ObservedModel(ModelView):
         """The model's step from ``state``'s u, the carried values and k appended."""
         u = np.asarray(state, dtype=float)[: self._n]
         new = np.asarray(self.model.step(theta, k, u, substeps=substeps), float)
-        return np.concatenate([new, self._carry(theta, k, new), [float(k)]])
+        return np.concatenate([new, self._carry(theta, k, new), self._theta(theta),
+                               [float(k)]])  # fmt: skip
 
     def step_many(self, thetas: FloatArray, k: int, states: FloatArray) -> FloatArray:
         """The model's ``step_many`` (or r ``step`` calls), with what ``step`` adds."""
@@ -112,7 +122,12 @@ class ObservedModel(ModelView):
             [self._carry(t, k, s) for t, s in zip(thetas, new, strict=True)]
         )
         ks = np.full((len(new), 1), float(k))
-        return np.concatenate([new, carried.reshape(len(new), -1), ks], axis=1)
+        kept = np.stack([self._theta(t) for t in thetas]).reshape(len(new), -1)
+        return np.concatenate([new, carried.reshape(len(new), -1), kept, ks], axis=1)
+
+    def _theta(self, theta: FloatArray) -> FloatArray:
+        """Theta as the state carries it (for a linear offset), else nothing."""
+        return np.asarray(theta, dtype=float)[: self._p]
 
     def observe(self, state: FloatArray) -> FloatArray:
         """h(x): the prediction of step k's frame for ``state`` = [u, carried, k]."""
@@ -136,7 +151,10 @@ class ObservedModel(ModelView):
                     np.asarray(block.predict(self.model, frame, nan, k, u), float)
                 )
         h = np.concatenate(out) if out else np.zeros(0)
-        return h if self.offsets is None else h + self.offsets[k - 1]
+        if self.offsets is None:
+            return h
+        at = self._n + self._c
+        return h + self.offsets.at(k, state[at : at + self._p] if self._p else None)
 
     def _parts(self, frame: Any) -> list[Any]:
         """The frame of each block."""
@@ -182,7 +200,10 @@ class ObservedModel(ModelView):
             a, b = linearize(self.model, frame, th, k, u)
             hu.append(sp.csr_matrix(a))
             ht.append(np.asarray(b, dtype=float).reshape(a.shape[0], th.size))
-        return sp.vstack(hu).tocsr(), np.vstack(ht)
+        h_theta = np.vstack(ht)
+        if self.offsets is not None:  # a linear offset's own slope
+            h_theta = h_theta + self.offsets.jacobian(k, th)
+        return sp.vstack(hu).tocsr(), h_theta
 
     def observation_points(self, k: int) -> FloatArray:
         """(m, d): where each value of step k is (the blocks' ``positions``).
@@ -220,6 +241,25 @@ class ObservedModel(ModelView):
             return adjoint.equilibrium_vjp(theta, k, np.asarray(state)[:n], w)
 
         return vjp
+
+    @property
+    def observation_cov(self) -> Any:
+        """Sigma_k (m, m) of a state's frame (the offsets'; else the model's own)."""
+        covs = None if self.offsets is None else self.offsets.covs
+        if covs is None:
+            own = observation_cov_of(self.model)
+            if own is None:
+                raise lacks(self, "observation_cov")
+            return own
+
+        def cov(state: FloatArray) -> FloatArray:
+            """Step k's Sigma_k, k the state's last entry (zeros at rest)."""
+            k = round(float(np.asarray(state)[-1]))
+            if not 1 <= k <= len(covs):
+                return np.zeros((self._size, self._size))
+            return covs[k - 1]
+
+        return cov
 
     def _adjoint(self, name: str) -> Any:
         found = adjoint_of(self.model)

@@ -489,21 +489,15 @@ def _check_calibration(config: CompareConfig, reg: Registry) -> None:
 def _check_corrected(runs: list[RunSpec], config: CompareConfig) -> None:
     """Refuse a correction the runs cannot use.
 
-    The approximation-error correction (:mod:`idbench.calibrate.discrepancy`) is
-    calibrated on the markers and the shape grid: an observation model other than plain
-    markers would see the uncorrected model (or a marker-sized covariance), and
-    a recording has no truth mesh to take the calibration mesh from.
+    A recording has no truth mesh to take the calibration mesh from. (The
+    approximation-error correction of markers is calibrated offline,
+    :mod:`idbench.calibrate.discrepancy`; of any other observation model on
+    each run's frames, :func:`idbench.calibrate.prior_mean.linear_offsets`.)
     """
     for spec in runs:
         correction = dict(spec.settings).get("correction", "none")
         if correction == "none":
             continue
-        if spec.observed_otherwise() and correction == "approximation-error":
-            raise ConfigError(
-                f"estimator {spec.estimator!r}: correction = "
-                f"{dict(spec.settings)['correction']!r} needs observe = 'markers', "
-                f"got {spec.observe!r}; the calibration covers markers only"
-            )
         if config.data is not None and not config.calibration.get("mesh"):
             raise ConfigError(
                 f"estimator {spec.estimator!r}: a correction on a recording needs "

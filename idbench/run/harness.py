@@ -345,7 +345,9 @@ def _run_on(
                 f"estimator {spec.estimator!r}: {exc}; allowed settings: {allowed}"
             ) from None
     lent = model  # the run's own copy: its diagnostics, whatever wraps it
-    if correction_of(estimator) == "approximation-error":
+    if correction_of(estimator) == "approximation-error" and not (
+        spec.observed_otherwise()  # then corrected on its frames (see below)
+    ):
         # the physical parameter: the coarse model corrected by its calibration
         model = session.corrected(spec, model)
         metrics_model = session.corrected(spec, metrics_model)
@@ -377,6 +379,10 @@ def _run_on(
             seen = session.estimator_model(spec, cast(ForwardModel, checked))
             if correction_of(estimator) == "prior-mean":  # + mu_k, a fine mesh's
                 seen = session.mean_corrected(spec, seen)
+            elif correction_of(estimator) == "approximation-error" and (
+                spec.observed_otherwise()
+            ):  # + mu_k + G_k (ln theta - xi_0), and Sigma_k, on its frames
+                seen = session.mean_corrected(spec, seen, linear=True)
             estimator.start(seen, session.prior(master, spec))  # h(x) of its obs.
         if checked.fault is not None:  # even if the estimator caught it
             raise checked.fault

@@ -18,8 +18,8 @@ from idbench.calibrate.corrected import CorrectedModel
 from idbench.calibrate.design import CalibrationSettings
 from idbench.calibrate.discrepancy import Discrepancy
 from idbench.calibrate.fit import fit_discrepancy
-from idbench.calibrate.pose import Refinement, refine
-from idbench.calibrate.prior_mean import prior_mean_offsets
+from idbench.calibrate.pose import Refinement, posed
+from idbench.calibrate.prior_mean import linear_offsets, prior_mean_offsets
 from idbench.core.interfaces import (
     ConfigError,
     FloatArray,
@@ -35,8 +35,10 @@ from idbench.core.settings import (
     proposed_scenarios,
 )
 from idbench.estimate.posterior import Posterior, PosteriorSettings, reference_posterior
+from idbench.estimate.transforms import LogTransform
 from idbench.observe import kinds
 from idbench.observe.observed_model import ObservedModel
+from idbench.observe.offsets import Offsets
 from idbench.observe.registration import Registration
 from idbench.observe.surface import surface_of
 from idbench.plan.runspec import RunSpec
@@ -66,7 +68,7 @@ class Session:
         self._frames: dict[str, list[kinds.Frame]] = {}
         self._own: dict[Any, dict[str, Scenario]] = {}
         self._discrepancies: dict[str, Discrepancy] = {}
-        self._offsets: dict[str, list[FloatArray]] = {}
+        self._offsets: dict[str, Offsets] = {}
         self._registered: dict[tuple[str, ...], tuple[Any, Registration]] = {}
         self._refined: dict[tuple[str, ...], Refinement] = {}
 
@@ -193,8 +195,7 @@ class Session:
         The covariance is weighted by the run's number of observed steps (see
         :mod:`idbench.calibrate.discrepancy`).
         """
-        n_obs = sum(spec.sparsity.observed(k) for k in range(1, spec.setup.steps + 1))
-        return CorrectedModel(model, self.discrepancy(spec), n_obs)
+        return CorrectedModel(model, self.discrepancy(spec), _observed_steps(spec))
 
     def theta_true(self, spec: RunSpec) -> FloatArray:
         """True parameters (p,), in the model's order."""
@@ -279,25 +280,11 @@ class Session:
             model = self.model(spec, spec.mesh)
             surface = surface_of(model, model.reset())
             self._registered[key] = registered.to_body(rec, *surface)
-            if "with-model" in spec.setup.data[2:]:
-                self._refine(spec, rec, key, model)
+            if "with-model" in spec.setup.data[2:]:  # refined with the model
+                prior = self.prior(model, spec)
+                moved, found = posed(rec, *self._registered[key], model, prior)
+                self._registered[key], self._refined[key] = (moved, found.fit), found
         return self._registered[key]
-
-    def _refine(
-        self, spec: RunSpec, rec: recording.Recording, key: tuple[str, ...],
-        model: ForwardModel,
-    ) -> None:  # fmt: skip
-        """The rigid pose of ``key`` refined with ``model`` (pose and moduli)."""
-        body, rigid = self._registered[key]
-        log.info("refining the pose of %s on mesh %s with the model",
-                 spec.setup.data[0], spec.mesh)  # fmt: skip
-        found = refine(body, rigid, model, self.prior(model, spec),
-                       registered.noise_floor(rec))  # fmt: skip
-        self._refined[key] = found
-        log.info("pose refined on mesh %s: %.3g deg, %.3g mm from the rigid one "
-                 "(%d iterations, %d paths)", spec.mesh, found.angle_deg,
-                 found.shift_mm, found.iterations, found.paths)  # fmt: skip
-        self._registered[key] = (registered.move(rec, found.fit), found.fit)
 
     def refinement(self, spec: RunSpec) -> Refinement | None:
         """How the model refined the run's rigid pose (None: it did not)."""
@@ -426,18 +413,24 @@ class Session:
         )
         return typing.cast(ForwardModel, wrapped)
 
-    def mean_corrected(self, spec: RunSpec, seen: ForwardModel) -> ForwardModel:
-        """The run's estimator model with the prior-mean approximation error added.
+    def mean_corrected(
+        self, spec: RunSpec, seen: ForwardModel, linear: bool = False
+    ) -> ForwardModel:
+        """The run's estimator model with the approximation error of its frames.
 
         ``correction = "prior-mean"`` (:mod:`idbench.calibrate.prior_mean`):
         step k's h(x) plus mu_k, the calibration mesh's prediction minus the
-        run's mesh's at the prior mean (one path on each, kept per data, mesh
-        and prior).
+        run's mesh's at the prior mean (a path on each, kept per data, mesh
+        and prior); ``linear`` (the approximation-error correction off the
+        markers): as a line in ln theta with a covariance, weighted by the
+        observed steps (:func:`~idbench.calibrate.prior_mean.linear_offsets`).
         """
         if spec.calibration is None:
             raise ConfigError(f"run {spec.run_id} has no calibration settings")
         fine_mesh = str(dict(spec.calibration)["mesh"])
-        key = stable_hash([spec.reference_key(), fine_mesh, list(spec.setup.prior)])
+        key = stable_hash(
+            [spec.reference_key(), fine_mesh, list(spec.setup.prior), linear]
+        )
         wrapped = seen if isinstance(seen, ObservedModel) else ObservedModel(
             seen, self.observation_model(spec), self.frames(spec)
         )  # plain markers: their h is the model's observe
@@ -445,11 +438,19 @@ class Session:
             coarse = self.model(spec, spec.mesh, role="calibration")
             fine = self.model(spec, fine_mesh, role="calibration")
             observe, frames = self.observation_model(spec), self.frames(spec)
-            theta0 = np.asarray(self.prior(coarse, spec).mean, dtype=float)
-            self._offsets[key] = prior_mean_offsets(
-                ObservedModel(fine, observe, frames),
-                ObservedModel(coarse, observe, frames), theta0,
-            )  # fmt: skip
+            pair = (ObservedModel(fine, observe, frames),
+                    ObservedModel(coarse, observe, frames))  # fmt: skip
+            prior = self.prior(coarse, spec)
+            theta0 = np.asarray(prior.mean, dtype=float)
+            if linear:
+                cov = LogTransform().prior(theta0, np.asarray(prior.std, float))[1]
+                found = linear_offsets(*pair, theta0, np.sqrt(np.diag(cov)))
+                n_obs = _observed_steps(spec)
+                self._offsets[key] = dataclasses.replace(
+                    found, covs=[n_obs * c for c in found.covs or []]
+                )
+            else:
+                self._offsets[key] = Offsets(prior_mean_offsets(*pair, theta0))
         wrapped.offsets = self._offsets[key]
         return typing.cast(ForwardModel, wrapped)
 
@@ -591,3 +592,8 @@ def _noise(std: Any) -> Any:
     """A noise std as an Observation holds it: a float, or an array per value."""
     arr = np.asarray(std, dtype=float)
     return float(arr) if arr.ndim == 0 else arr
+
+
+def _observed_steps(spec: RunSpec) -> int:
+    """The run's observed steps (a correction's covariance is weighted by them)."""
+    return sum(spec.sparsity.observed(k) for k in range(1, spec.setup.steps + 1))
