@@ -41,7 +41,13 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from idbench.core.interfaces import FloatArray, ForwardModel, Prior
+from idbench.core.interfaces import (
+    FloatArray,
+    ForwardModel,
+    ModelError,
+    ModelFailure,
+    Prior,
+)
 from idbench.estimate.transforms import LogTransform
 from idbench.observe.registration import (
     FREEZE,
@@ -149,8 +155,8 @@ def refine(
     on_path
         Called with the number of paths solved so far (for progress).
     """
-    log = LogTransform()
-    mu, cov = log.prior(np.asarray(prior.mean, float), np.asarray(prior.std, float))
+    ln = LogTransform()
+    mu, cov = ln.prior(np.asarray(prior.mean, float), np.asarray(prior.std, float))
     s_xi = np.sqrt(np.diag(cov))
     fit = _Problem(rec, model, on_path)
     R, t, xi = np.eye(3), np.zeros(3), mu.copy()
@@ -177,9 +183,13 @@ def refine(
         while True:
             step = np.asarray(np.linalg.solve(H + lam * np.diag(np.diag(H)), -g), float)
             R2, t2 = _turned(R, t, step[:3], step[3:6], fit.centre)
-            at2 = fit.surfaces(xi + step[6:])
-            r2, n2 = fit.residuals(R2, t2, at2)
-            then = cost(r2, xi + step[6:])
+            try:
+                at2 = fit.surfaces(xi + step[6:])
+            except (ModelError, ModelFailure):  # moduli the model cannot take
+                then = math.inf
+            else:
+                r2, n2 = fit.residuals(R2, t2, at2)
+                then = cost(r2, xi + step[6:])
             if then <= now or lam > 1e6:
                 break
             lam *= 10.0
@@ -192,7 +202,7 @@ def refine(
         if its > FREEZE and small:  # the scale settled, and the fit
             break
     rest = r[: len(fit.rest)]
-    return _result(rigid, R, t, fit.rest, rest, floor, log.to_theta(xi), its,
+    return _result(rigid, R, t, fit.rest, rest, floor, ln.to_theta(xi), its,
                    fit.paths)  # fmt: skip
 
 
