@@ -159,7 +159,8 @@ def test_the_model_refines_a_pose_the_rest_cloud_leaves_loose(clouds, tmp_path):
     rows = {}
     for mode, data in (("body", body), ("rigid", camera), ("with-model", camera)):
         argv = ["compare", "--data", str(data), "--meshes", TRUTH, "--estimators",
-                "rls", "--seeds", "1", "--obs-every", "1", "--out", str(tmp_path / mode),
+                "rls", "--seeds", "1", "--obs-every", "1",
+                "--out", str(tmp_path / mode),
                 *(["--registration", mode] if mode != "body" else [])]  # fmt: skip
         assert main(argv) == 0
         rows[mode] = pd.read_parquet(tmp_path / mode / "runs.parquet").iloc[0]

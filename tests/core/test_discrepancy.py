@@ -218,7 +218,7 @@ def test_a_fine_path_that_fails_at_high_load_keeps_the_states_it_reached(caplog)
 
 
 def test_a_correction_with_another_observation_model_is_planned(tmp_path, capsys):
-    """A cloud's correction is taken on each run's frames (tests/core/test_offsets.py)."""
+    """A cloud's correction is taken on each run's frames (see test_offsets.py)."""
     from idbench.cli.commands import main
 
     toml = tmp_path / "c.toml"
