@@ -12,7 +12,9 @@ displacement control), their prediction computed when the step is solved
 answers with the prediction of step k's frame (a cloud's points differ from
 frame to frame): the carried values, and the other blocks' predictions for
 ``u``. The appended entries are carried by the filters like any state entry
-and overwritten at every step. It has no ``sensitivity``: estimators that
+and overwritten at every step; with a linear approximation error
+(:attr:`ObservedModel.offsets`) theta itself is carried too, before k. It
+has no ``sensitivity``: estimators that
 need one use finite differences (each an extra forward solve, counted).
 :func:`model_state` recovers ``u`` (the harness does, for the shape error).
 """
@@ -130,7 +132,7 @@ class ObservedModel(ModelView):
         return np.asarray(theta, dtype=float)[: self._p]
 
     def observe(self, state: FloatArray) -> FloatArray:
-        """h(x): the prediction of step k's frame for ``state`` = [u, carried, k]."""
+        """h(x): step k's frame predicted for ``state`` = [u, carried, (theta), k]."""
         state = np.asarray(state, dtype=float)
         k = round(float(state[-1]))
         if not 1 <= k <= len(self.frames):  # the unloaded state: only its size
