@@ -290,9 +290,10 @@ class Session:
         """How the model refined the run's rigid pose (None: it did not)."""
         if "with-model" not in spec.setup.data[2:]:
             return None
-        rec = self._planned(spec)
-        self._to_body(spec, rec)
-        return self._refined[(rec.digest, spec.mesh, *spec.setup.data[2:])]
+        key = (spec.setup.data[1], spec.mesh, *spec.setup.data[2:])
+        if key not in self._refined:  # the recording read once, as planned
+            self._to_body(spec, self._planned(spec))
+        return self._refined[key]
 
     def observations(self, spec: RunSpec) -> list[Observation | None]:
         """The noisy, sparse observation stream of a run.
